@@ -1,0 +1,212 @@
+"""carfeel's command line: parse, call one function, print. Bad input exits with code 2."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from carfeel import __version__
+from carfeel.errors import CarfeelError, InputError
+
+DESCRIPTION = """\
+carfeel: the feel of a car's primary controls from physics.
+
+Simulate a manual gearshift engagement (synchronization, tooth engagement, end stop), plot it as
+in the PERCRO 2005 paper, and write the samples as CSV. Start with `carfeel demo`.
+"""
+
+EPILOG = """\
+examples:
+  carfeel demo                                   simulate, plot and write into ./carfeel-demo
+  carfeel simulate shift --out shift.csv --plot shift.png
+  carfeel simulate shift --seed 7 --pull-out --out shift.csv
+  carfeel presets                                list the shipped presets
+"""
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not value > 0.0 or value != value or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
+    return value
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {text!r}")
+    return value
+
+
+def _seed(text: str) -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="carfeel",
+        description=DESCRIPTION,
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--version", action="version", version=f"carfeel {__version__}")
+    commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+
+    demo = commands.add_parser(
+        "demo",
+        help="simulate a gear engagement, write its CSV and plot into a folder",
+        description="Simulate a neutral-to-first engagement with the default preset and write "
+        "its CSV, metadata and PNG plot into a folder (created if missing).",
+    )
+    demo.add_argument(
+        "--out-dir",
+        default="carfeel-demo",
+        metavar="DIR",
+        help="folder for the files (default: ./carfeel-demo)",
+    )
+
+    simulate = commands.add_parser(
+        "simulate",
+        help="run a model offline in simulated time",
+        description="Run a model offline in simulated time and write its samples as CSV.",
+    )
+    models = simulate.add_subparsers(dest="model", metavar="MODEL", required=True)
+    shift = models.add_parser(
+        "shift",
+        help="one gear engagement, neutral to first, pushed by the paper's driver (eq. 10)",
+        description="Simulate one gear engagement along the slot: the driver of eq. (10) pushes "
+        "the knob from neutral through synchronization, tooth engagement and the end stop into "
+        "gear, and (with --pull-out) back to neutral. CSV columns: time_s, position_m, "
+        "velocity_m_s, force_N (the driver's force at the knob), reaction_N, stage, "
+        "driver_phase.",
+        epilog="The plot shows force and position vs time and force vs position (as the paper's "
+        "Fig. 5, 6, 9 and 11), with the stages coloured.",
+    )
+    shift.add_argument(
+        "--preset",
+        default="paper-first-gear",
+        metavar="NAME|PATH",
+        help="shipped preset name or TOML file (default: paper-first-gear; see `carfeel presets`)",
+    )
+    shift.add_argument(
+        "--seed", type=_seed, default=0, help="seed of the tooth-position draw (default: 0)"
+    )
+    shift.add_argument(
+        "--duration",
+        type=_positive_float,
+        default=None,
+        metavar="S",
+        help="simulated time, s (default: 1.2, or 2.0 with --pull-out)",
+    )
+    shift.add_argument(
+        "--dt",
+        type=_positive_float,
+        default=1e-3,
+        metavar="S",
+        help="output sample period, s (default: 0.001, i.e. 1 kHz)",
+    )
+    shift.add_argument(
+        "--substeps",
+        type=_positive_int,
+        default=1,
+        metavar="N",
+        help="model steps per output sample (default: 1)",
+    )
+    shift.add_argument(
+        "--pull-out",
+        action="store_true",
+        help="after settling in gear, pull the lever back to neutral",
+    )
+    shift.add_argument("--out", required=True, metavar="FILE.csv", help="CSV file to write")
+    shift.add_argument("--plot", metavar="FILE.png", help="also write a PNG plot")
+
+    presets = commands.add_parser(
+        "presets",
+        help="list the shipped presets",
+        description="List the presets that ship with carfeel, by kind.",
+    )
+    presets.add_argument("--json", action="store_true", help="print one JSON object")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        if args.command == "demo":
+            return _demo(args)
+        if args.command == "simulate":
+            return _simulate_shift(args)
+        return _presets(args)
+    except CarfeelError as exc:
+        print(f"carfeel: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("carfeel: interrupted", file=sys.stderr)
+        return 130
+
+
+def _simulate_shift(args: argparse.Namespace) -> int:
+    from carfeel.runs import ShiftRun, run_shift
+
+    out = Path(args.out)
+    _check_writable(out, ".csv")
+    if args.plot:
+        _check_writable(Path(args.plot), ".png")
+    config = ShiftRun(
+        preset=args.preset,
+        seed=args.seed,
+        duration_s=args.duration,
+        dt_s=args.dt,
+        substeps=args.substeps,
+        pull_out=args.pull_out,
+    )
+    summary = run_shift(config, out, Path(args.plot) if args.plot else None)
+    print(summary.text())
+    return 0
+
+
+def _demo(args: argparse.Namespace) -> int:
+    from carfeel.runs import demo
+
+    folder = Path(args.out_dir)
+    for line in demo(folder):
+        print(line)
+    return 0
+
+
+def _presets(args: argparse.Namespace) -> int:
+    from carfeel.io.presets import PRESET_KINDS, available
+
+    listing = {kind: available(kind) for kind in PRESET_KINDS}
+    if args.json:
+        print(json.dumps(listing))
+    else:
+        for kind, names in listing.items():
+            print(f"{kind}: {', '.join(names)}")
+    return 0
+
+
+def _check_writable(path: Path, suffix: str) -> None:
+    if path.suffix.lower() != suffix:
+        raise InputError(f"{path}: expected a {suffix} file name")
+    if not path.parent.is_dir():
+        raise InputError(f"cannot write {path}: folder {path.parent} does not exist")
+    if path.is_dir():
+        raise InputError(f"cannot write {path}: it is a folder")
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""Boundaries with the outside world: presets, files, plots."""

@@ -1,0 +1,127 @@
+"""Plots for reports. Results do not plot themselves; matplotlib is imported only here.
+
+`plot_shift` draws what the paper shows for one engagement: force and position against time
+(Fig. 5 and 9) and force against position (Fig. 6 and 11), with the stages marked.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from carfeel.errors import InputError
+from carfeel.simulation.result import Result
+
+# One colour per stage, the same in every plot.
+STAGE_COLOURS = {
+    "neutral": "#9e9e9e",
+    "synchronization": "#d62728",
+    "gate_open": "#bcbd22",
+    "engagement": "#ff7f0e",
+    "free_travel": "#17becf",
+    "stop": "#9467bd",
+    "in_gear": "#2ca02c",
+    "returning": "#8c564b",
+}
+
+
+def _pyplot() -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def stage_spans(stages: np.ndarray) -> list[tuple[str, int, int]]:
+    """Runs of equal stage as (name, first index, last index + 1)."""
+    spans: list[tuple[str, int, int]] = []
+    start = 0
+    for i in range(1, len(stages) + 1):
+        if i == len(stages) or stages[i] != stages[start]:
+            spans.append((str(stages[start]), start, i))
+            start = i
+    return spans
+
+
+def plot_shift(result: Result, path: str | Path, title: str = "Gear engagement") -> Path:
+    """Write a PNG of one (or more) engagements: force and position vs time, force vs position."""
+    plt = _pyplot()
+    t = result.time_s
+    x_mm = result["position_m"] * 1e3
+    force = result["force_N"]
+    stages = result["stage"]
+    spans = stage_spans(stages)
+
+    fig = plt.figure(figsize=(13, 7.5), layout="constrained")
+    grid = fig.add_gridspec(2, 2, width_ratios=[1.35, 1])
+    ax_f = fig.add_subplot(grid[0, 0])
+    ax_x = fig.add_subplot(grid[1, 0], sharex=ax_f)
+    ax_fx = fig.add_subplot(grid[:, 1])
+
+    for name, i0, i1 in spans:
+        colour = STAGE_COLOURS.get(name, "#cccccc")
+        t0 = t[i0] - (t[1] - t[0] if len(t) > 1 else 0.0)
+        for ax in (ax_f, ax_x):
+            ax.axvspan(t0, t[i1 - 1], color=colour, alpha=0.13, lw=0)
+    ax_f.plot(t, force, color="k", lw=1.2)
+    ax_f.set_ylabel("force at the knob [N]")
+    ax_f.grid(alpha=0.3)
+    ax_f.set_title(f"{title}: force and position vs time (cf. paper Fig. 5, 9)")
+    ax_x.plot(t, x_mm, color="#1f77b4", lw=1.4)
+    ax_x.set_ylabel("knob position [mm]")
+    ax_x.set_xlabel("time [s]")
+    ax_x.grid(alpha=0.3)
+
+    _mark_peaks(ax_f, t, force, stages)
+
+    for name, i0, i1 in spans:
+        j0 = max(i0 - 1, 0)  # join each run to the one before so the loop has no gaps
+        ax_fx.plot(x_mm[j0:i1], force[j0:i1], color=STAGE_COLOURS.get(name, "#888888"), lw=1.6)
+    ax_fx.set_xlabel("knob position [mm]")
+    ax_fx.set_ylabel("force at the knob [N]")
+    ax_fx.set_title("force vs position (cf. paper Fig. 6, 11)")
+    ax_fx.grid(alpha=0.3)
+
+    seen = [name for name in STAGE_COLOURS if name in set(stages.tolist())]
+    handles = [
+        plt.Line2D([], [], color=STAGE_COLOURS[n], lw=6, alpha=0.6, label=n.replace("_", " "))
+        for n in seen
+    ]
+    fig.legend(handles=handles, loc="outside lower center", ncols=len(handles), frameon=False)
+    return _save(fig, plt, path)
+
+
+def _mark_peaks(ax: Any, t: np.ndarray, force: np.ndarray, stages: np.ndarray) -> None:
+    labels = {
+        "synchronization": "synchronization",
+        "engagement": "engagement peak",
+        "stop": "stop impact",
+    }
+    for name, label in labels.items():
+        mask = stages == name
+        if not mask.any():
+            continue
+        i = int(np.flatnonzero(mask)[np.argmax(force[mask])])
+        ax.annotate(
+            f"{label}\n{force[i]:.1f} N",
+            xy=(t[i], force[i]),
+            xytext=(8, -26 if name == "synchronization" else 6),
+            textcoords="offset points",
+            fontsize=8,
+            color=STAGE_COLOURS[name],
+        )
+        ax.plot(t[i], force[i], "o", ms=4, color=STAGE_COLOURS[name])
+
+
+def _save(fig: Any, plt: Any, path: str | Path) -> Path:
+    target = Path(path)
+    if not target.parent.is_dir():
+        plt.close(fig)
+        raise InputError(f"cannot write {target}: folder {target.parent} does not exist")
+    fig.savefig(target, dpi=110)
+    plt.close(fig)
+    return target

@@ -1,0 +1,1 @@
+"""Driver models: pure steps that produce the force a hand applies to a control."""

@@ -1,0 +1,1 @@
+"""Gearshift models: one gear engagement along x (1 DOF)."""

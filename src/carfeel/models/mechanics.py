@@ -1,0 +1,85 @@
+"""A 1-DOF mass-spring-damper with stick-slip (Karnopp) friction, integrated implicitly.
+
+Equation (8) of the paper, for one stage of a lever::
+
+    F = m*a + c*v + k*(x - x0) + F_fr
+
+The step is implicit (backward) Euler in the spring and damper, so it is unconditionally stable and,
+with no applied force, never gains energy (proof in `stick_slip_step`). Friction is resolved inside
+the same implicit step: the friction force that would bring the lever to rest within the step is
+computed first, and if it lies within the bound the lever sticks with velocity exactly 0.0 and its
+position unchanged to the last bit. The bound is the static friction while the lever is (nearly) at
+rest, the sliding friction otherwise. So sticking and breakaway happen at the exact force levels,
+whatever the step size.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True, slots=True)
+class StageMechanics:
+    """Mechanical parameters of a lever during one stage (the paper's m, k, c, Fst, Fsl).
+
+    The rest position x0 belongs to the stage's geometry and is passed separately.
+    """
+
+    mass_kg: float
+    stiffness_N_m: float
+    damping_N_s_m: float
+    static_friction_N: float
+    sliding_friction_N: float
+
+
+def stick_slip_step(
+    position_m: float,
+    velocity_m_s: float,
+    force_N: float,
+    mech: StageMechanics,
+    rest_position_m: float,
+    static_friction_N: float,
+    sliding_friction_N: float,
+    stick_velocity_m_s: float,
+    dt_s: float,
+) -> tuple[float, float, float]:
+    """Advance the lever by one step of `dt_s`; return (position_m, velocity_m_s, friction_N).
+
+    The friction bounds are passed apart from `mech` because a stage may change them per event
+    (the tooth force of an engagement); most callers pass the two frictions of `mech`.
+
+    Signs: positions, velocities and forces are positive in the same direction; `force_N` is the
+    applied (driver) force; the returned friction opposes the motion (or the would-be motion when
+    stuck) and is what the lever's mounting carries.
+
+    Energy: with impedance Z = m/h + c + h*k the implicit update is
+    Z*v1 = m*v0/h + F - k*(x0-r) - Ff.
+    Multiplying by v1 gives E1 - E0 = h*F*v1 - m/2*(v1-v0)^2 - k/2*(x1-x0)^2 - h*c*v1^2 - h*Ff*v1,
+    and Ff*v1 >= 0 by construction, so with F = 0 the energy E = m*v^2/2 + k*(x-r)^2/2 never grows.
+    """
+    h = dt_s
+    m_h = mech.mass_kg / h
+    impedance = m_h + mech.damping_N_s_m + h * mech.stiffness_N_m
+    # Velocity at the end of the step if there were no friction.
+    free_velocity = (
+        m_h * velocity_m_s + force_N - mech.stiffness_N_m * (position_m - rest_position_m)
+    ) / impedance
+    # Friction that would bring the lever exactly to rest within this step.
+    stopping_friction = impedance * free_velocity
+    if -stick_velocity_m_s < velocity_m_s < stick_velocity_m_s:
+        bound = static_friction_N
+    else:
+        bound = sliding_friction_N
+    if -bound <= stopping_friction <= bound:
+        return position_m, 0.0, stopping_friction
+    friction = bound if stopping_friction > 0.0 else -bound
+    velocity = free_velocity - friction / impedance
+    return position_m + h * velocity, velocity, friction
+
+
+def stage_energy_J(
+    position_m: float, velocity_m_s: float, mech: StageMechanics, rest_position_m: float
+) -> float:
+    """Kinetic plus spring energy of the lever in one stage, J."""
+    stretch = position_m - rest_position_m
+    return 0.5 * mech.mass_kg * velocity_m_s**2 + 0.5 * mech.stiffness_N_m * stretch**2

@@ -1,0 +1,1 @@
+"""Presets that ship with carfeel, one folder per kind of model."""

@@ -1,0 +1,138 @@
+"""Result: time and named signals in SI units; written to and read from CSV.
+
+Results do not plot themselves: `carfeel.io.plots` does.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+import tempfile
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+
+from carfeel.errors import InputError
+
+
+@dataclass(frozen=True)
+class Result:
+    """Samples of a run: `time_s` and one array per signal, all the same length.
+
+    Numeric signals are float arrays; categorical ones (a stage, a gear) are arrays of str.
+    """
+
+    time_s: npt.NDArray[np.float64]
+    signals: Mapping[str, np.ndarray]
+    metadata: Mapping[str, str] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        n = len(self.time_s)
+        for name, values in self.signals.items():
+            if len(values) != n:
+                raise ValueError(f"signal {name!r} has {len(values)} samples, time has {n}")
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        if name == "time_s":
+            return self.time_s
+        try:
+            return self.signals[name]
+        except KeyError:
+            known = ", ".join(["time_s", *self.signals])
+            raise KeyError(f"no signal {name!r}; the result has: {known}") from None
+
+    def __len__(self) -> int:
+        return len(self.time_s)
+
+    @property
+    def names(self) -> list[str]:
+        """Column names, time first."""
+        return ["time_s", *self.signals]
+
+    @classmethod
+    def from_rows(
+        cls,
+        time_s: Sequence[float],
+        names: Sequence[str],
+        rows: Sequence[Sequence[object]],
+        metadata: Mapping[str, str] | None = None,
+    ) -> Result:
+        """Build a Result from per-sample rows of values in the order of `names`."""
+        columns = list(zip(*rows, strict=True)) if rows else [() for _ in names]
+        signals: dict[str, np.ndarray] = {}
+        for name, column in zip(names, columns, strict=True):
+            if column and isinstance(column[0], str):
+                signals[name] = np.array(column, dtype=str)
+            else:
+                signals[name] = np.array(column, dtype=float)
+        return cls(np.asarray(time_s, dtype=float), signals, dict(metadata or {}))
+
+    def to_csv(self, path: str | os.PathLike[str]) -> Path:
+        """Write all samples as CSV (header row of names, then one row per sample).
+
+        The file is written beside its target and then renamed over it, so a reader never sees
+        a half-written file and an existing file survives a failed write.
+        """
+        target = Path(path)
+        directory = target.parent if str(target.parent) else Path(".")
+        if not directory.is_dir():
+            raise InputError(f"cannot write {target}: folder {directory} does not exist")
+        columns = [self.time_s, *self.signals.values()]
+        fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{target.name}.", suffix=".tmp")
+        try:
+            with os.fdopen(fd, "w", newline="") as handle:
+                writer = csv.writer(handle)
+                writer.writerow(self.names)
+                formatted = [_format_column(c) for c in columns]
+                writer.writerows(zip(*formatted, strict=True))
+            os.replace(tmp, target)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+        return target
+
+    @classmethod
+    def from_csv(cls, path: str | os.PathLike[str]) -> Result:
+        """Read a CSV written by `to_csv` (or any CSV with a `time_s` column)."""
+        source = Path(path)
+        try:
+            with source.open(newline="") as handle:
+                rows = list(csv.reader(handle))
+        except FileNotFoundError:
+            raise InputError(f"{source}: no such file") from None
+        except UnicodeDecodeError:
+            raise InputError(f"{source}: not a text CSV file") from None
+        if not rows:
+            raise InputError(f"{source}: empty file, expected a header row with time_s")
+        header, body = rows[0], rows[1:]
+        if "time_s" not in header:
+            raise InputError(f"{source}: no time_s column (columns: {', '.join(header)})")
+        for line_no, row in enumerate(body, start=2):
+            if len(row) != len(header):
+                raise InputError(
+                    f"{source}, line {line_no}: {len(row)} fields, the header has {len(header)}"
+                )
+        signals: dict[str, np.ndarray] = {}
+        for index, name in enumerate(header):
+            column = [row[index] for row in body]
+            signals[name] = _parse_column(column)
+        time = signals.pop("time_s")
+        if time.dtype.kind != "f":
+            raise InputError(f"{source}: time_s must be numbers, in seconds")
+        return cls(time, signals)
+
+
+def _format_column(values: np.ndarray) -> list[str]:
+    if values.dtype.kind in "fi":
+        return [format(float(v), ".10g") for v in values]
+    return [str(v) for v in values]
+
+
+def _parse_column(column: list[str]) -> np.ndarray:
+    try:
+        return np.array([float(v) for v in column], dtype=float)
+    except ValueError:
+        return np.array(column, dtype=str)

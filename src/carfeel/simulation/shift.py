@@ -1,0 +1,80 @@
+"""The driver and the lever of one engagement, closed in a loop, and its simulation."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+from carfeel.models.drivers import shift as driver
+from carfeel.models.gearshift import engagement
+from carfeel.simulation.result import Result
+from carfeel.simulation.runner import run
+
+
+@dataclass(frozen=True, slots=True)
+class ShiftParams:
+    gearbox: engagement.EngagementParams
+    driver: driver.ShiftDriverParams
+
+
+class ShiftState(NamedTuple):
+    driver: driver.DriverState
+    lever: engagement.EngagementState
+
+
+class ShiftOutputs(NamedTuple):
+    position_m: float
+    velocity_m_s: float
+    force_N: float
+    reaction_N: float
+    stage: str
+    driver_phase: str
+
+
+def initial_state(seed: int = 0) -> ShiftState:
+    return ShiftState(driver.initial_state(), engagement.initial_state(seed))
+
+
+def step(
+    state: ShiftState, inputs: None, params: ShiftParams, dt_s: float
+) -> tuple[ShiftState, ShiftOutputs]:
+    """One step of the loop: the driver feels the knob's last motion, then the lever moves.
+
+    The driver sees the lever one step late (a causal loop without an algebraic loop); its own
+    force lag is far slower than a step, so the delay does not matter.
+    """
+    lever = state.lever
+    driver_state, driver_out = driver.step(
+        state.driver,
+        driver.DriverInputs(lever.position_m, lever.velocity_m_s),
+        params.driver,
+        dt_s,
+    )
+    lever, out = engagement.step(
+        lever, engagement.EngagementInputs(driver_out.force_N), params.gearbox, dt_s
+    )
+    return ShiftState(driver_state, lever), ShiftOutputs(
+        out.position_m, out.velocity_m_s, out.force_N, out.reaction_N, out.stage, driver_out.phase
+    )
+
+
+def simulate_shift(
+    params: ShiftParams,
+    *,
+    seed: int = 0,
+    duration_s: float = 1.2,
+    dt_s: float = 1e-3,
+    substeps: int = 1,
+    metadata: dict[str, str] | None = None,
+) -> Result:
+    """Simulate a push from neutral into the gear (and back, if the driver pulls out)."""
+    result, _ = run(
+        step,
+        initial_state(seed),
+        params,
+        duration_s=duration_s,
+        dt_s=dt_s,
+        substeps=substeps,
+        metadata={"seed": str(seed), **(metadata or {})},
+    )
+    return result
