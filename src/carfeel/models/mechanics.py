@@ -60,20 +60,18 @@ def stick_slip_step(
     h = dt_s
     m_h = mech.mass_kg / h
     impedance = m_h + mech.damping_N_s_m + h * mech.stiffness_N_m
-    # Velocity at the end of the step if there were no friction.
-    free_velocity = (
-        m_h * velocity_m_s + force_N - mech.stiffness_N_m * (position_m - rest_position_m)
-    ) / impedance
-    # Friction that would bring the lever exactly to rest within this step.
-    stopping_friction = impedance * free_velocity
+    # The friction that would bring the lever exactly to rest within this step; without
+    # friction the step would end at velocity drive / impedance.
+    drive = m_h * velocity_m_s + force_N - mech.stiffness_N_m * (position_m - rest_position_m)
     if -stick_velocity_m_s < velocity_m_s < stick_velocity_m_s:
-        bound = static_friction_N
+        bound = static_friction_N  # at rest: stick unless the static friction is exceeded
     else:
-        bound = sliding_friction_N
-    if -bound <= stopping_friction <= bound:
-        return position_m, 0.0, stopping_friction
-    friction = bound if stopping_friction > 0.0 else -bound
-    velocity = free_velocity - friction / impedance
+        bound = sliding_friction_N  # moving: stop only if the sliding friction can stop it
+    if -bound <= drive <= bound:
+        return position_m, 0.0, drive
+    # Sliding, or breaking away: from the first moving step on, the sliding friction acts.
+    friction = sliding_friction_N if drive > 0.0 else -sliding_friction_N
+    velocity = (drive - friction) / impedance
     return position_m + h * velocity, velocity, friction
 
 

@@ -259,13 +259,15 @@ def _mass_kg(params: EngagementParams, stage: Stage) -> float:
 
 
 def _hand_over(velocity_m_s: float, old: Stage, new: Stage, params: EngagementParams) -> float:
-    """Velocity after a change of mass set at a stage transition.
+    return hand_over_velocity(velocity_m_s, _mass_kg(params, old), _mass_kg(params, new))
+
+
+def hand_over_velocity(velocity_m_s: float, old_mass_kg: float, new_mass_kg: float) -> float:
+    """Velocity after the moving mass changes at a stage transition, m/s.
 
     Momentum is kept when the mass grows (a plastic pick-up), velocity when it shrinks, so the
     kinetic energy never grows at a transition.
     """
-    old_mass = _mass_kg(params, old)
-    new_mass = _mass_kg(params, new)
-    if new_mass > old_mass:
-        return velocity_m_s * (old_mass / new_mass)
+    if new_mass_kg > old_mass_kg:
+        return velocity_m_s * (old_mass_kg / new_mass_kg)
     return velocity_m_s
