@@ -72,6 +72,7 @@ def test_demo_writes_into_the_folder_it_names(tmp_path, capsys):
 )
 def test_bad_input_exits_2_with_a_message(tmp_path, capsys, args, message):
     args = [a.replace("{t}", str(tmp_path)) for a in args]
+    code: object
     try:
         code = main(args)
     except SystemExit as exc:  # argparse's own errors exit from inside main

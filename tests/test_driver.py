@@ -5,9 +5,9 @@ from __future__ import annotations
 import dataclasses
 
 import pytest
-from tests.conftest import default_params
 
 from carfeel.models.drivers import shift as driver
+from tests.conftest import default_params
 
 
 def hold_still(params, steps=2000, dt=1e-3, x=0.0):
@@ -35,6 +35,7 @@ def test_eq_10_target_is_linear_in_velocity():
         for _ in range(3000):
             state, out = driver.step(state, driver.DriverInputs(x, v), params, 1e-3)
             x += v * 1e-3
+        assert out is not None
         assert out.force_N == pytest.approx(params.push_force_N * (1 - fraction), abs=0.05)
 
 
