@@ -14,12 +14,12 @@ from typing import Any
 
 import numpy as np
 import pytest
-from tests.conftest import default_params
 
 from carfeel.models.drivers import shift as driver
 from carfeel.models.gearshift import engagement
 from carfeel.simulation import shift
 from carfeel.simulation.runner import run
+from tests.conftest import default_params
 
 
 @dataclass(frozen=True)

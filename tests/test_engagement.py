@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from tests.conftest import default_params, shift_run
 
 from carfeel.models.gearshift import engagement
 from carfeel.models.gearshift.engagement import EngagementInputs, Stage
 from carfeel.models.mechanics import stage_energy_J
 from carfeel.simulation.features import shift_features
 from carfeel.simulation.runner import run
+from tests.conftest import default_params, shift_run
 
 PUSH_ORDER = (
     "neutral",
