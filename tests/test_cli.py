@@ -66,11 +66,25 @@ def test_demo_writes_into_the_folder_it_names(tmp_path, capsys):
             "longer than --duration",
         ),
         (["simulate", "shift", "--seed", "x", "--out", "{t}/x.csv"], "whole number"),
+        (
+            ["simulate", "shift", "--dt", "0.025", "--out", "{t}/x.csv"],
+            "use --substeps 13 or a shorter --dt",
+        ),
+        (
+            ["simulate", "shift", "--dt", "1e-320", "--duration", "1e-320", "--out", "{t}/x.csv"],
+            "below 1e-06 s",
+        ),
+        (["simulate", "shift", "--out", "{t}/taken.csv"], "taken.json: it is a folder"),
+        (["simulate", "shift", "--out", "{t}/a_folder.csv"], "it is a folder"),
+        (["demo", "--out-dir", "{t}/file.txt/sub"], "Not a directory"),
         (["simulate", "shift"], "--out"),
         (["simulate", "steer"], "invalid choice"),
     ],
 )
 def test_bad_input_exits_2_with_a_message(tmp_path, capsys, args, message):
+    (tmp_path / "taken.json").mkdir()
+    (tmp_path / "a_folder.csv").mkdir()
+    (tmp_path / "file.txt").write_text("not a folder")
     args = [a.replace("{t}", str(tmp_path)) for a in args]
     code: object
     try:

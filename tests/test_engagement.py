@@ -9,10 +9,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from carfeel.analysis.shift_features import shift_features
 from carfeel.models.gearshift import engagement
 from carfeel.models.gearshift.engagement import EngagementInputs, Stage
 from carfeel.models.mechanics import stage_energy_J
-from carfeel.simulation.features import shift_features
 from carfeel.simulation.runner import run
 from tests.conftest import default_params, shift_run
 
@@ -72,8 +72,8 @@ def test_engagement_peak_is_below_the_synchronization_peak_and_random_across_see
     peaks = [features(seed).engagement_peak_N for seed in range(8)]
     sync = features(0).synchronization_peak_N
     assert all(p < sync for p in peaks)
-    # The design guideline of about 1/3 of the synchronization force, with 10 % margin.
-    assert max(peaks) <= sync / 3 * 1.1
+    # The synchronizer design guideline: at most 1/3 of the synchronization force.
+    assert max(peaks) <= sync / 3
     # Different teeth positions give clearly different peaks: spread of several newtons.
     assert max(peaks) - min(peaks) > 5.0
     assert len({round(p, 6) for p in peaks}) == len(peaks)
@@ -128,8 +128,7 @@ def test_force_reversal_during_synchronization_never_reaches_engagement():
 
 def test_force_reversal_on_the_teeth_goes_to_free_motion_not_into_gear():
     g = default_params().gearbox
-    # Push until the lever is in the teeth (stuck on them: 14-24 N of static friction) with a
-    # force below the tooth friction, then pull.
+    # Push with 60 N until the lever enters the teeth, then pull with 40 N at once.
     phases = {"push": True}
 
     def inputs(t):
@@ -161,16 +160,11 @@ def test_one_ms_steps_and_tenth_ms_substeps_agree(params):
     assert np.max(np.abs(diff)) < 1.5e-3
     assert np.sqrt(np.mean(diff**2)) < 0.3e-3
     assert abs(diff[-1]) < 0.05e-3
-    assert fc_sync_position(coarse) == fc_sync_position(fine)
     assert fc.synchronization_hold_s == pytest.approx(ff.synchronization_hold_s, abs=1e-3)
     # Peaks are sampled 10x more finely and the hand/lever impact resolves better: within 10 %.
     assert fc.engagement_peak_N == pytest.approx(ff.engagement_peak_N, rel=0.1)
     assert fc.stop_peak_N == pytest.approx(ff.stop_peak_N, rel=0.1)
     assert fc.stop_overshoot_m == pytest.approx(ff.stop_overshoot_m, abs=0.1e-3)
-
-
-def fc_sync_position(result):
-    return float(result["position_m"][result["stage"] == "synchronization"][0])
 
 
 def _same_stages(a, b):
@@ -196,22 +190,73 @@ def test_no_nan_anywhere_in_a_shift_with_pull_out():
     assert "returning" in set(result["stage"].tolist())
 
 
-@settings(max_examples=60, deadline=None)
+S = Stage
+# Every transition the stage machine may make in one step. Two-hop entries are the cases where a
+# force guard fires before the motion and a position guard after it, within the same step.
+ALLOWED = {
+    (S.NEUTRAL, S.SYNCHRONIZATION),
+    (S.SYNCHRONIZATION, S.GATE_OPEN),
+    (S.SYNCHRONIZATION, S.ENGAGEMENT),  # gate opens, and the same step reaches the teeth
+    (S.SYNCHRONIZATION, S.RETURNING),
+    (S.SYNCHRONIZATION, S.NEUTRAL),  # reversal, and the same step backs off the ring
+    (S.GATE_OPEN, S.ENGAGEMENT),
+    (S.GATE_OPEN, S.RETURNING),
+    (S.ENGAGEMENT, S.FREE_TRAVEL),
+    (S.ENGAGEMENT, S.RETURNING),
+    (S.FREE_TRAVEL, S.STOP),
+    (S.FREE_TRAVEL, S.RETURNING),
+    (S.STOP, S.IN_GEAR),
+    (S.STOP, S.RETURNING),
+    (S.IN_GEAR, S.RETURNING),
+    (S.RETURNING, S.NEUTRAL),
+    (S.RETURNING, S.SYNCHRONIZATION),
+    (S.RETURNING, S.FREE_TRAVEL),
+}
+
+
+@settings(max_examples=80, deadline=None)
 @given(
     seed=st.integers(0, 2**63),
     forces=st.lists(st.floats(-200.0, 200.0), min_size=1, max_size=40),
     hold_steps=st.integers(1, 80),
     dt=st.sampled_from([1e-3, 5e-4, 1e-4]),
 )
-def test_any_force_history_keeps_the_state_finite_and_inside_the_slot(seed, forces, hold_steps, dt):
+def test_any_force_history_follows_the_stage_graph(seed, forces, hold_steps, dt):
+    """Under any force history: finite, only allowed transitions, and never into mesh unsynced.
+
+    The sleeve reaches the teeth only through an opened synchro gate, and re-enters free travel
+    from `returning` only if it was still in mesh (past the teeth) when pushed again.
+    """
     g = default_params().gearbox
     state = engagement.initial_state(seed)
     for force in forces:
         for _ in range(hold_steps):
-            state, out = engagement.step(state, EngagementInputs(force), g, dt)
+            new, out = engagement.step(state, EngagementInputs(force), g, dt)
             assert math.isfinite(out.position_m) and math.isfinite(out.velocity_m_s)
             assert math.isfinite(out.reaction_N)
-    assert isinstance(state.stage, Stage)
+            if new.stage is not state.stage:
+                assert (state.stage, new.stage) in ALLOWED, (state.stage, new.stage)
+                if (state.stage, new.stage) == (S.RETURNING, S.FREE_TRAVEL):
+                    assert state.position_m > g.teeth_end_position_m
+            if new.stage is S.SYNCHRONIZATION:
+                assert (new.velocity_m_s == 0.0 and new.position_m == state.position_m) or (
+                    state.stage is S.NEUTRAL and new.position_m == g.synchronization_position_m
+                )
+            state = new
+
+
+def stage_region(stage: Stage, g) -> tuple[float, float]:
+    """Positions (m) where a stage is active, for starting the energy test inside it."""
+    return {
+        S.NEUTRAL: (-0.01, g.synchronization_position_m - 1e-4),
+        S.GATE_OPEN: (g.synchronization_position_m, g.teeth_position_m - 1e-4),
+        S.ENGAGEMENT: (g.teeth_position_m, g.teeth_end_position_m - 1e-4),
+        S.FREE_TRAVEL: (g.teeth_end_position_m, g.in_gear_position_m - 1e-4),
+        # Beyond the settle distance, or the stop hands over to in_gear at once.
+        S.STOP: (g.in_gear_position_m + g.settle_distance_m, g.in_gear_position_m + 0.005),
+        S.IN_GEAR: (g.in_gear_position_m - g.detent_release_m + 1e-4, g.in_gear_position_m + 0.003),
+        S.RETURNING: (g.synchronization_position_m + 1e-4, g.in_gear_position_m),
+    }[stage]
 
 
 FREE_STAGES = [s for s in Stage if s is not Stage.SYNCHRONIZATION]
@@ -219,11 +264,15 @@ FREE_STAGES = [s for s in Stage if s is not Stage.SYNCHRONIZATION]
 
 @pytest.mark.parametrize("stage", FREE_STAGES, ids=lambda s: s.value)
 @settings(max_examples=40, deadline=None)
-@given(x_mm=st.floats(-5.0, 45.0), v=st.floats(-1.0, 1.0))
-def test_passive_stage_never_gains_energy_without_driver_force(stage, x_mm, v):
+@given(where=st.floats(0.0, 1.0), v=st.floats(-0.5, 0.5))
+def test_passive_stage_never_gains_energy_without_driver_force(stage, where, v):
     """With no driver force, the energy of the active stage never grows while it is active."""
     g = default_params().gearbox
-    state = engagement.EngagementState(stage, x_mm * 1e-3, v, 0.0, 0.0, 7.0, 1)
+    low, high = stage_region(stage, g)
+    low, high = low + 1e-3, high - 1e-3  # 1 mm inside: one 1 ms step moves at most 0.5 mm
+    x = low + where * (high - low)
+    state = engagement.EngagementState(stage, x, v, 0.0, 0.0, 7.0, 1)
+    steps_inside = 0
     mech, rest = engagement.mechanics(g, stage)
     energy = stage_energy_J(state.position_m, state.velocity_m_s, mech, rest)
     for _ in range(300):
@@ -233,6 +282,31 @@ def test_passive_stage_never_gains_energy_without_driver_force(stage, x_mm, v):
         new_energy = stage_energy_J(new.position_m, new.velocity_m_s, mech, rest)
         assert new_energy <= energy * (1 + 1e-12) + 1e-15
         energy, state = new_energy, new
+        steps_inside += 1
+    assert steps_inside >= 1  # the example exercised the stage, not only its exit
+
+
+@given(
+    stages=st.sampled_from(sorted(ALLOWED, key=lambda pair: (pair[0].value, pair[1].value))),
+    x=st.floats(-0.01, 0.05),
+    v=st.floats(-2.0, 2.0),
+)
+def test_a_transition_never_adds_energy_when_the_lever_can_pay_for_it(stages, x, v):
+    """Kinetic energy pays for any spring energy the new stage holds at the switch."""
+    old, new = stages
+    g = default_params().gearbox
+    m_old, spring_old = engagement._mass_and_spring(g, old, x)
+    m_new, spring_new = engagement._mass_and_spring(g, new, x)
+    v_new = engagement._hand_over(v, x, old, new, g)
+    before = 0.5 * m_old * v * v + spring_old
+    after = 0.5 * m_new * v_new * v_new + spring_new
+    if 0.5 * m_new * engagement.hand_over_velocity(v, m_old, m_new) ** 2 >= (
+        spring_new - spring_old
+    ):
+        assert after <= before * (1 + 1e-12) + 1e-12
+    else:  # it cannot pay: it stops there, the shortfall bounded by the new spring's energy
+        assert v_new == 0.0
+        assert after - before <= spring_new
 
 
 @given(

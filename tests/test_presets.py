@@ -9,11 +9,12 @@ import pytest
 
 from carfeel.errors import PresetError
 from carfeel.io import presets
+from carfeel.simulation.shift import ShiftParams
 
 DEFAULT = resources.files("carfeel.presets").joinpath("shift", "paper-first-gear.toml").read_text()
 
 
-def load_text(text: str) -> presets.ShiftPreset:
+def load_text(text: str) -> presets.Preset[ShiftParams]:
     return presets.shift_from_toml("test.toml", text)
 
 
@@ -36,7 +37,7 @@ def test_every_shipped_preset_loads():
         names = presets.available(kind)
         assert names
         for name in names:
-            assert presets.load_shift(name).name == name
+            assert presets.load(kind, name).name == name
 
 
 def test_negative_mass_names_parameter_value_unit_and_range():
@@ -76,6 +77,12 @@ def test_wrong_type_and_non_finite_values_are_rejected():
     assert "expected true or false" in error_for(edit("pull_out", "pull_out = 1", "driver"))
     assert "out of range" in error_for(edit("hold_s", "hold_s = nan", "driver"))
     assert "out of range" in error_for(edit("hold_s", "hold_s = inf", "driver"))
+    assert "out of range" in error_for(edit("hold_s", "hold_s = 1" + "0" * 400, "driver"))
+
+
+def test_a_settle_distance_the_stop_friction_can_defeat_is_rejected():
+    message = error_for(edit("settle_distance_m", "settle_distance_m = 1e-5", "gearbox"))
+    assert "gearbox.settle_distance_m = 1e-05 m must exceed" in message
 
 
 def test_all_problems_are_reported_together():

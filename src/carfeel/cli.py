@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -153,6 +154,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except CarfeelError as exc:
         print(f"carfeel: error: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:  # the file system said no: name the file and the reason
+        where = exc.filename if exc.filename is not None else "a file"
+        print(f"carfeel: error: cannot use {where}: {exc.strerror or exc}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print("carfeel: interrupted", file=sys.stderr)
         return 130
@@ -202,10 +207,15 @@ def _presets(args: argparse.Namespace) -> int:
 def _check_writable(path: Path, suffix: str) -> None:
     if path.suffix.lower() != suffix:
         raise InputError(f"{path}: expected a {suffix} file name")
-    if not path.parent.is_dir():
-        raise InputError(f"cannot write {path}: folder {path.parent} does not exist")
-    if path.is_dir():
-        raise InputError(f"cannot write {path}: it is a folder")
+    folder = path.parent
+    if not folder.is_dir():
+        raise InputError(f"cannot write {path}: folder {folder} does not exist")
+    if not os.access(folder, os.W_OK):
+        raise InputError(f"cannot write {path}: folder {folder} is not writable")
+    targets = [path, path.with_suffix(".json")] if suffix == ".csv" else [path]
+    for target in targets:
+        if target.is_dir():
+            raise InputError(f"cannot write {target}: it is a folder")
 
 
 if __name__ == "__main__":  # pragma: no cover

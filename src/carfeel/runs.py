@@ -8,16 +8,53 @@ from collections.abc import Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+import numpy as np
+
 from carfeel import __version__
-from carfeel.errors import InputError
-from carfeel.io.presets import load_shift
-from carfeel.simulation.features import ShiftFeatures, shift_features
+from carfeel.analysis.shift_features import ShiftFeatures, shift_features
+from carfeel.analysis.steering_feel import SteeringFeel, steering_feel
+from carfeel.errors import CarfeelError, InputError
+from carfeel.io.presets import load_shift, load_steering
+from carfeel.simulation import manoeuvres
 from carfeel.simulation.result import Result
-from carfeel.simulation.shift import simulate_shift
+from carfeel.simulation.shift import MAX_STEP_S, simulate_shift
+from carfeel.simulation.steering import simulate_steering
 
 DEFAULT_SHIFT_DURATION_S = 1.2
 DEFAULT_SHIFT_PULL_OUT_DURATION_S = 2.0
 MAX_SAMPLES = 50_000_000  # a bound on memory: 50 M samples of 7 signals is several GB
+MIN_DT_S = 1e-6
+
+
+def check_steps(duration_s: float, dt_s: float, substeps: int, max_step_s: float) -> None:
+    """Reject step settings the models cannot honour, with what to do instead."""
+    if dt_s < MIN_DT_S:
+        raise InputError(f"--dt {dt_s:g} s is below {MIN_DT_S:g} s; the models need no finer step")
+    if dt_s > duration_s:
+        raise InputError(f"--dt {dt_s:g} s is longer than --duration {duration_s:g} s")
+    if dt_s / substeps > max_step_s * (1 + 1e-9):
+        needed = math.ceil(dt_s / max_step_s - 1e-9)
+        raise InputError(
+            f"model step --dt / --substeps = {dt_s / substeps:g} s is longer than "
+            f"{max_step_s:g} s, where this model stops being accurate; use --substeps {needed} "
+            "or a shorter --dt"
+        )
+    samples = duration_s / dt_s * substeps
+    if samples > MAX_SAMPLES:
+        raise InputError(
+            f"{samples:.3g} model steps asked for (duration / dt * substeps); at most "
+            f"{MAX_SAMPLES:.0e}: shorten --duration or lengthen --dt"
+        )
+
+
+def check_finite(result: Result, what: str) -> None:
+    for name in result.names:
+        values = result[name]
+        if values.dtype.kind == "f" and not np.all(np.isfinite(values)):
+            raise CarfeelError(
+                f"the {what} simulation produced non-finite {name}; this is a bug or a preset at "
+                "the edge of its ranges: please report it with the preset and options used"
+            )
 
 
 @dataclass(frozen=True, slots=True)
@@ -43,19 +80,27 @@ class ShiftSummary:
 
     def text(self) -> str:
         f = self.features
-        mm = 1e3
+
+        def at(value: float, unit: str, scale: float = 1.0, digits: int = 1) -> str:
+            return "not reached" if math.isnan(value) else f"{value * scale:.{digits}f} {unit}"
+
         lines = [
             f"preset {self.preset}, seed {self.seed}: stages {' > '.join(f.stages)}",
-            f"  synchronization  {f.synchronization_force_N:6.1f} N held "
-            f"{f.synchronization_hold_s * 1e3:5.0f} ms at "
-            f"{f.synchronization_position_m * mm:.1f} mm",
-            f"  engagement peak  {f.engagement_peak_N:6.1f} N at "
-            f"{f.engagement_position_m * mm:.1f} mm",
-            f"  stop peak        {f.stop_peak_N:6.1f} N, "
-            f"overshoot {f.stop_overshoot_m * mm:.2f} mm",
-            f"  final            {f.final_stage} at {f.final_position_m * mm:.2f} mm",
+            f"  synchronization  {at(f.synchronization_force_N, 'N')} held "
+            f"{f.synchronization_hold_s * 1e3:.0f} ms at "
+            f"{at(f.synchronization_position_m, 'mm', 1e3)}",
+            f"  engagement peak  {at(f.engagement_peak_N, 'N')} at "
+            f"{at(f.engagement_position_m, 'mm', 1e3)}",
+            f"  stop peak        {at(f.stop_peak_N, 'N')}, overshoot "
+            f"{at(f.stop_overshoot_m, 'mm', 1e3, 2)}",
+            f"  final            {f.final_stage} at {f.final_position_m * 1e3:.2f} mm",
             f"wrote {self.csv}" + (f" and {self.plot}" if self.plot else ""),
         ]
+        if f.final_stage not in ("in_gear", "neutral"):
+            lines.insert(
+                -1,
+                f"  note: the run ended in {f.final_stage}; a longer --duration may let it settle",
+            )
         return "\n".join(lines)
 
 
@@ -67,14 +112,7 @@ def run_shift(config: ShiftRun, csv_path: Path, plot_path: Path | None = None) -
         duration = (
             DEFAULT_SHIFT_PULL_OUT_DURATION_S if config.pull_out else DEFAULT_SHIFT_DURATION_S
         )
-    if config.dt_s > duration:
-        raise InputError(f"--dt {config.dt_s:g} s is longer than --duration {duration:g} s")
-    samples = duration / config.dt_s * config.substeps
-    if samples > MAX_SAMPLES:
-        raise InputError(
-            f"{samples:.3g} model steps asked for (duration / dt * substeps); at most "
-            f"{MAX_SAMPLES:.0e}: shorten --duration or lengthen --dt"
-        )
+    check_steps(duration, config.dt_s, config.substeps, MAX_STEP_S)
     params = preset.params
     if config.pull_out != params.driver.pull_out:
         params = replace(params, driver=replace(params.driver, pull_out=config.pull_out))
@@ -97,6 +135,7 @@ def run_shift(config: ShiftRun, csv_path: Path, plot_path: Path | None = None) -
         substeps=config.substeps,
         metadata=metadata,
     )
+    check_finite(result, "shift")
     features = shift_features(result, params.gearbox.in_gear_position_m)
     result.to_csv(csv_path)
     write_metadata(result, csv_path)
@@ -113,6 +152,161 @@ def write_metadata(result: Result, csv_path: Path) -> Path:
     clean = {k: v for k, v in result.metadata.items()}
     target.write_text(json.dumps(clean, indent=2) + "\n", encoding="utf-8")
     return target
+
+
+@dataclass(frozen=True, slots=True)
+class SteeringRun:
+    """A `carfeel simulate steering` run."""
+
+    manoeuvre: str
+    speed_kmh: float | None = None
+    preset: str = "b-segment"
+    dt_s: float = 1e-3
+    substeps: int = 1
+
+
+REQUIRED_STEERING_COLUMNS = (
+    "time_s",
+    "speed_m_s",
+    "steering_angle_rad",
+    "lateral_accel_m_s2",
+    "torque_Nm",
+)
+
+
+@dataclass(frozen=True, slots=True)
+class SteeringSummary:
+    preset: str
+    description: str
+    feel: SteeringFeel
+    peak_torque_Nm: float
+    rms_lateral_accel_g: float
+    csv: Path
+    plot: Path | None
+
+    def text(self) -> str:
+        lines = [
+            f"preset {self.preset}: {self.description}",
+            f"  peak torque {self.peak_torque_Nm:.2f} Nm, rms(Ay) {self.rms_lateral_accel_g:.3f} g",
+            *feel_lines(self.feel),
+            f"wrote {self.csv}" + (f" and {self.plot}" if self.plot else ""),
+        ]
+        return "\n".join(lines)
+
+
+FEEL_LABELS = {
+    "torque_gradient_Nm_per_g": ("torque gradient at 0 g", "Nm/g"),
+    "torque_at_0_1g_Nm": ("torque at 0.1 g", "Nm"),
+    "deadband_g": ("torque deadband", "g"),
+    "hysteresis_Nm": ("torque hysteresis (at 0 g)", "Nm"),
+    "sensitivity_g_per_100deg": ("steering sensitivity", "g/100 deg"),
+    "understeer_gradient_deg_per_g": ("understeer gradient", "deg/g"),
+}
+
+
+def feel_lines(feel: SteeringFeel) -> list[str]:
+    lines = []
+    for key, value in feel.as_dict().items():
+        label, unit = FEEL_LABELS[key]
+        shown = "n/a" if math.isnan(value) else f"{value:.3g} {unit}"
+        lines.append(f"  {label:28s} {shown}")
+    lines.extend(f"  note: {note}" for note in feel.notes)
+    return lines
+
+
+def run_steering(
+    config: SteeringRun, csv_path: Path, plot_path: Path | None = None
+) -> SteeringSummary:
+    """Simulate one steering manoeuvre, write CSV (+ .json metadata) and optionally the plot."""
+    preset = load_steering(config.preset)
+    car = preset.params
+    manoeuvre = manoeuvres.build(config.manoeuvre, car.vehicle, config.speed_kmh)
+    metadata = {
+        "carfeel_version": __version__,
+        "model": "steering",
+        "manoeuvre": manoeuvre.name,
+        "description": manoeuvre.description,
+        "preset": preset.name,
+        "preset_source": config.preset,
+        "steering_ratio": repr(car.vehicle.steering_ratio),
+        "wheelbase_m": repr(car.vehicle.wheelbase_m),
+        "dt_s": repr(config.dt_s),
+        "substeps": str(config.substeps),
+    }
+    result = simulate_steering(
+        car, manoeuvre, dt_s=config.dt_s, substeps=config.substeps, metadata=metadata
+    )
+    feel = feel_of(result, car.vehicle.steering_ratio, car.vehicle.wheelbase_m)
+    result.to_csv(csv_path)
+    write_metadata(result, csv_path)
+    if plot_path is not None:
+        from carfeel.io.plots import plot_steering
+
+        plot_steering(result, plot_path, f"{preset.name}: {manoeuvre.description}", manoeuvre.lanes)
+    ay = result["lateral_accel_m_s2"]
+    return SteeringSummary(
+        preset.name,
+        manoeuvre.description,
+        feel,
+        float(abs(result["torque_Nm"]).max()),
+        float(math.sqrt(float((ay**2).mean())) / 9.80665),
+        csv_path,
+        plot_path,
+    )
+
+
+def feel_of(
+    result: Result, steering_ratio: float | None, wheelbase_m: float | None
+) -> SteeringFeel:
+    return steering_feel(
+        result.time_s,
+        result["speed_m_s"],
+        result["steering_angle_rad"],
+        result["lateral_accel_m_s2"],
+        result["torque_Nm"],
+        steering_ratio=steering_ratio,
+        wheelbase_m=wheelbase_m,
+    )
+
+
+def steering_metrics(csv_path: Path, preset: str | None = None) -> SteeringFeel:
+    """The feel metrics of a steering CSV (a run of carfeel's or a measured log).
+
+    The understeer gradient needs the steering ratio and wheelbase: from `preset` if given, else
+    from the run's metadata file beside the CSV, else the default car preset.
+    """
+    result = Result.from_csv(csv_path)
+    missing = [c for c in REQUIRED_STEERING_COLUMNS if c not in result.names]
+    if missing:
+        raise InputError(
+            f"{csv_path}: missing column(s) {', '.join(missing)}; a steering log needs "
+            f"{', '.join(REQUIRED_STEERING_COLUMNS)} (SI units: s, m/s, rad, m/s^2, Nm)"
+        )
+    for name in REQUIRED_STEERING_COLUMNS:
+        values = result[name]
+        if values.dtype.kind != "f":
+            raise InputError(f"{csv_path}: column {name} must hold numbers")
+        bad = ~np.isfinite(values)
+        if bad.any():
+            row = int(np.flatnonzero(bad)[0]) + 2
+            raise InputError(f"{csv_path}, line {row}: {name} is not a finite number")
+    if len(result) < 3 or np.any(np.diff(result.time_s) <= 0):
+        raise InputError(f"{csv_path}: time_s must increase from row to row (at least 3 rows)")
+    ratio, wheelbase = _car_geometry(csv_path, preset)
+    return feel_of(result, ratio, wheelbase)
+
+
+def _car_geometry(csv_path: Path, preset: str | None) -> tuple[float, float]:
+    if preset is None:
+        meta_path = csv_path.with_suffix(".json")
+        if meta_path.is_file():
+            try:
+                meta = json.loads(meta_path.read_text(encoding="utf-8"))
+                return float(meta["steering_ratio"]), float(meta["wheelbase_m"])
+            except (ValueError, KeyError, TypeError):
+                pass  # not ours, or not a steering run: fall back to the default car
+    vehicle = load_steering(preset or "b-segment").params.vehicle
+    return vehicle.steering_ratio, vehicle.wheelbase_m
 
 
 def demo(folder: Path) -> Iterator[str]:

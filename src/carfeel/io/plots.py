@@ -125,3 +125,88 @@ def _save(fig: Any, plt: Any, path: str | Path) -> Path:
     fig.savefig(target, dpi=110)
     plt.close(fig)
     return target
+
+
+TERM_COLOURS = {
+    "torque_aligning_Nm": ("#1f77b4", "aligning (tau0)"),
+    "torque_tire_spin_Nm": ("#ff7f0e", "tire spin (tau1)"),
+    "torque_friction_Nm": ("#2ca02c", "friction (tau2)"),
+    "torque_damping_Nm": ("#9467bd", "damping (tau3)"),
+}
+
+
+def plot_steering(
+    result: Result,
+    path: str | Path,
+    title: str = "Steering wheel torque",
+    lanes: tuple[Any, ...] = (),
+) -> Path:
+    """Write a PNG of a steering run, as the paper's Fig. 1-4.
+
+    Torque and its four terms against time; torque against Ay (or against the wheel angle when
+    the car stands still, Fig. 2); steering angle and Ay against time; and the car's path (with
+    the cones of ISO 3888) or the terms against Ay.
+    """
+    plt = _pyplot()
+    t = result.time_s
+    torque = result["torque_Nm"]
+    ay_g = result["lateral_accel_m_s2"] / 9.80665
+    angle_deg = np.degrees(result["steering_angle_rad"])
+    parked = bool(np.all(np.abs(result["speed_m_s"]) < 1.0))
+
+    fig, axes = plt.subplots(2, 2, figsize=(13, 8), layout="constrained")
+    ax_t, ax_loop, ax_in, ax_extra = axes[0, 0], axes[0, 1], axes[1, 0], axes[1, 1]
+    fig.suptitle(title)
+
+    ax_t.plot(t, torque, color="k", lw=1.5, label="total")
+    for name, (colour, label) in TERM_COLOURS.items():
+        ax_t.plot(t, result[name], color=colour, lw=1.0, label=label)
+    ax_t.set_xlabel("time [s]")
+    ax_t.set_ylabel("steering wheel torque [Nm]")
+    ax_t.grid(alpha=0.3)
+    ax_t.legend(fontsize=8, loc="best")
+    ax_t.set_title("torque and its terms vs time")
+
+    x_loop, x_label = (
+        (angle_deg, "steering wheel angle [deg]") if parked else (ay_g, "lateral acceleration [g]")
+    )
+    ax_loop.plot(x_loop, torque, color="k", lw=1.2)
+    ax_loop.set_xlabel(x_label)
+    ax_loop.set_ylabel("steering wheel torque [Nm]")
+    ax_loop.grid(alpha=0.3)
+    ax_loop.set_title(
+        "torque vs wheel angle (cf. paper Fig. 2)" if parked else "torque vs Ay (cf. Fig. 1, 3, 4)"
+    )
+
+    ax_in.plot(t, angle_deg, color="#d62728", lw=1.2)
+    ax_in.set_xlabel("time [s]")
+    ax_in.set_ylabel("steering wheel angle [deg]", color="#d62728")
+    ax_in.grid(alpha=0.3)
+    ax_ay = ax_in.twinx()
+    ax_ay.plot(t, ay_g, color="#1f77b4", lw=1.0)
+    ax_ay.set_ylabel("lateral acceleration [g]", color="#1f77b4")
+    ax_in.set_title("inputs: steering angle and Ay")
+
+    x_m, y_m = result["x_m"], result["y_m"]
+    if np.ptp(x_m) > 1.0 or np.ptp(y_m) > 1.0:
+        ax_extra.plot(x_m, y_m, color="k", lw=1.2, label="centre of gravity")
+        for lane in lanes:
+            for edge in (-0.5, 0.5):
+                y_edge = lane.y_centre_m + edge * lane.width_m
+                ax_extra.plot(
+                    [lane.x_start_m, lane.x_end_m], [y_edge, y_edge], "o--", color="#ff7f0e",
+                    ms=3, lw=0.8,
+                )  # fmt: skip
+        ax_extra.set_xlabel("x [m]")
+        ax_extra.set_ylabel("y [m]")
+        ax_extra.set_aspect("equal" if np.ptp(y_m) > 0.2 * np.ptp(x_m) else "auto")
+        ax_extra.set_title("path" + (" and ISO 3888-1 cones" if lanes else ""))
+    else:
+        for name, (colour, label) in TERM_COLOURS.items():
+            ax_extra.plot(x_loop, result[name], color=colour, lw=1.0, label=label)
+        ax_extra.set_xlabel(x_label)
+        ax_extra.set_ylabel("term [Nm]")
+        ax_extra.legend(fontsize=8)
+        ax_extra.set_title("terms vs " + ("wheel angle" if parked else "Ay"))
+    ax_extra.grid(alpha=0.3)
+    return _save(fig, plt, path)

@@ -13,21 +13,25 @@ import itertools
 import math
 import tomllib
 import typing
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, Generic, TypeVar
 
 from carfeel.errors import PresetError
 from carfeel.simulation.shift import ShiftParams
+from carfeel.simulation.steering import SteeringCar
 
 T = TypeVar("T")
+P = TypeVar("P")
 
 INF = math.inf
 
-# Allowed range of each parameter, by its name: (low, high, low included, high included).
+# Allowed range of each parameter, by its name, or by "table.name" where the same name needs another
+# range in another table: (low, high, low included, high included).
 RANGES: dict[str, tuple[float, float, bool, bool]] = {
+    "vehicle.mass_kg": (0.0, 1e5, False, True),
     "mass_kg": (0.0, 100.0, False, True),
     "stiffness_N_m": (0.0, 1e7, True, True),
     "damping_N_s_m": (0.0, 1e5, True, True),
@@ -55,11 +59,45 @@ RANGES: dict[str, tuple[float, float, bool, bool]] = {
     "pull_force_N": (0.0, 1e3, False, True),
     "pull_velocity_m_s": (0.0, 10.0, False, True),
     "neutral_position_m": (0.0, 0.2, True, True),
+    # steering: vehicle
+    "yaw_inertia_kg_m2": (0.0, 1e6, False, True),
+    "wheelbase_m": (0.5, 10.0, True, True),
+    "cg_to_front_axle_m": (0.0, 10.0, False, False),
+    "front_cornering_stiffness_N_rad": (0.0, 1e7, False, True),
+    "rear_cornering_stiffness_N_rad": (0.0, 1e7, False, True),
+    "steering_ratio": (1.0, 50.0, True, True),
+    "width_m": (0.5, 5.0, True, True),
+    "steering_lock_rad": (0.0, 30.0, False, True),
+    "kinematic_speed_m_s": (0.0, 10.0, False, True),
+    # steering: torque law (K1..K9)
+    "k1_Nm_s2_m": (0.0, 100.0, False, True),
+    "k2": (0.0, 100.0, True, True),
+    "k3": (0.0, 5.0, False, True),
+    "k4_1_Nm": (0.0, 1e3, False, True),
+    "k5_s_m_Nm": (0.0, 1e3, True, True),
+    "k6_rad_s": (0.0, 100.0, False, True),
+    "k7_Nm": (0.0, 100.0, True, True),
+    "k8_rad_s": (0.0, 100.0, False, True),
+    "k9_Nm_s_rad": (0.0, 100.0, True, True),
+    # steering: path driver
+    "preview_time_s": (0.0, 10.0, False, True),
+    "min_preview_m": (0.0, 100.0, False, True),
+    "lag_s": (0.0, 2.0, False, True),
+    "max_rate_rad_s": (0.0, 100.0, False, True),
 }
 
 # Unit of a parameter from the suffix of its name, longest suffix first.
 _UNITS = [
+    ("_Nm_s2_m", "Nm/(m/s^2)"),
+    ("_Nm_s_rad", "Nm*s/rad"),
+    ("_s_m_Nm", "s/(m*Nm)"),
+    ("_kg_m2", "kg*m^2"),
+    ("_N_rad", "N/rad"),
+    ("_rad_s", "rad/s"),
+    ("_1_Nm", "1/Nm"),
     ("_N_s_m", "N*s/m"),
+    ("_Nm", "Nm"),
+    ("_rad", "rad"),
     ("_N_m", "N/m"),
     ("_m_s", "m/s"),
     ("_kg", "kg"),
@@ -68,7 +106,8 @@ _UNITS = [
     ("_s", "s"),
 ]
 
-PRESET_KINDS = ("shift",)
+PRESET_KINDS = ("shift", "steering")
+DEFAULT_PRESETS = {"shift": "paper-first-gear", "steering": "b-segment"}
 
 
 def unit_of(name: str) -> str:
@@ -78,17 +117,25 @@ def unit_of(name: str) -> str:
     return ""
 
 
-def describe_range(name: str) -> str:
-    low, high, low_in, high_in = RANGES[name]
+def range_key(full: str) -> str:
+    """The RANGES key of a parameter's dotted path: "table.name" if listed, else "name"."""
+    parts = full.split(".")
+    qualified = ".".join(parts[-2:])
+    return qualified if qualified in RANGES else parts[-1]
+
+
+def describe_range(key: str) -> str:
+    low, high, low_in, high_in = RANGES[key]
+    name = key.split(".")[-1]
     unit = unit_of(name)
     return f"{low:g} {'<=' if low_in else '<'} value {'<=' if high_in else '<'} {high:g} {unit}"
 
 
 @dataclass(frozen=True, slots=True)
-class ShiftPreset:
+class Preset(Generic[P]):
     name: str
     source: str
-    params: ShiftParams
+    params: P
 
 
 def available(kind: str) -> list[str]:
@@ -142,7 +189,7 @@ def build(cls: type[T], table: Mapping[str, Any], where: str, problems: list[str
         kind = hints[name]
         full = f"{where}{name}"
         if name not in table:
-            expected = "a table" if dataclasses.is_dataclass(kind) else _expected(name, kind)
+            expected = "a table" if dataclasses.is_dataclass(kind) else _expected(full, kind)
             problems.append(f"{full}: missing; expected {expected}")
             continue
         value = table[name]
@@ -157,13 +204,16 @@ def build(cls: type[T], table: Mapping[str, Any], where: str, problems: list[str
             values[name] = value
         elif kind is float:
             if isinstance(value, bool) or not isinstance(value, int | float):
-                problems.append(f"{full} = {value!r}: expected a number, {_expected(name, kind)}")
+                problems.append(f"{full} = {value!r}: expected a number, {_expected(full, kind)}")
                 continue
-            value = float(value)
-            if not _in_range(name, value):
+            try:
+                value = float(value)
+            except OverflowError:
+                value = math.inf
+            if not _in_range(range_key(full), value):
                 problems.append(
                     f"{full} = {value:g} {unit_of(name)} is out of range: "
-                    f"allowed {describe_range(name)}"
+                    f"allowed {describe_range(range_key(full))}"
                 )
             values[name] = value
         else:  # pragma: no cover - a parameter type this loader was not taught
@@ -173,10 +223,11 @@ def build(cls: type[T], table: Mapping[str, Any], where: str, problems: list[str
     return cls(**values)
 
 
-def _expected(name: str, kind: Any) -> str:
+def _expected(full: str, kind: Any) -> str:
     if kind is bool:
         return "true or false"
-    return f"a number with {describe_range(name)}" if name in RANGES else "a number"
+    key = range_key(full)
+    return f"a number with {describe_range(key)}" if key in RANGES else "a number"
 
 
 def _in_range(name: str, value: float) -> bool:
@@ -232,6 +283,14 @@ def check_shift(params: ShiftParams) -> list[str]:
             f"gearbox.stop.stiffness_N_m = {g.stop.stiffness_N_m:g} N/m: the lever settles from "
             "the stop into the detent, which may be softer but not stiffer"
         )
+    held = g.stop.static_friction_N / g.stop.stiffness_N_m if g.stop.stiffness_N_m > 0 else 0.0
+    if g.settle_distance_m <= held:
+        problems.append(
+            f"gearbox.settle_distance_m = {g.settle_distance_m:g} m must exceed the distance the "
+            f"stop's static friction can hold the lever off x_gear ({held:.3g} m = "
+            "gearbox.stop.static_friction_N / gearbox.stop.stiffness_N_m), or the lever may "
+            "never count as settled in gear"
+        )
     room = g.in_gear_position_m - g.teeth_end_position_m
     if g.detent_release_m >= room:
         problems.append(
@@ -266,25 +325,68 @@ def check_shift(params: ShiftParams) -> list[str]:
     return problems
 
 
-def load_shift(name_or_path: str = "paper-first-gear") -> ShiftPreset:
+def check_steering(car: SteeringCar) -> list[str]:
+    """Problems a steering preset can have across parameters (each field already in range)."""
+    v = car.vehicle
+    problems = []
+    if v.cg_to_front_axle_m >= v.wheelbase_m:
+        problems.append(
+            f"vehicle.cg_to_front_axle_m = {v.cg_to_front_axle_m:g} m must be shorter than "
+            f"vehicle.wheelbase_m = {v.wheelbase_m:g} m (the centre of gravity lies between the "
+            "axles)"
+        )
+    elif v.understeer_gradient_rad_s2_m < 0.0:
+        problems.append(
+            f"the vehicle oversteers (understeer gradient {v.understeer_gradient_deg_per_g:.2f} "
+            "deg/g): a linear oversteering car is unstable above its critical speed; raise "
+            "vehicle.rear_cornering_stiffness_N_rad or move the centre of gravity forward"
+        )
+    return problems
+
+
+_KINDS: dict[str, tuple[type[Any], tuple[str, ...], Callable[[Any], list[str]]]] = {
+    "shift": (ShiftParams, ("gearbox", "driver"), check_shift),
+    "steering": (SteeringCar, ("vehicle", "torque", "driver"), check_steering),
+}
+
+
+def load_shift(name_or_path: str = "paper-first-gear") -> Preset[ShiftParams]:
     """Load and validate a shift preset by shipped name or path."""
-    label, text = resolve("shift", name_or_path)
-    return shift_from_toml(label, text)
+    preset: Preset[ShiftParams] = load("shift", name_or_path)
+    return preset
 
 
-def shift_from_toml(label: str, text: str) -> ShiftPreset:
+def load_steering(name_or_path: str = "b-segment") -> Preset[SteeringCar]:
+    """Load and validate a steering (car) preset by shipped name or path."""
+    preset: Preset[SteeringCar] = load("steering", name_or_path)
+    return preset
+
+
+def load(kind: str, name_or_path: str) -> Preset[Any]:
+    label, text = resolve(kind, name_or_path)
+    return from_toml(kind, label, text)
+
+
+def from_toml(kind: str, label: str, text: str) -> Preset[Any]:
+    """Parse and validate a preset of `kind`; every problem is reported in one PresetError."""
+    cls, tables_of_kind, check = _KINDS[kind]
     data = parse(label, text)
     problems: list[str] = []
+    allowed = ("name", "source", *tables_of_kind)
     for key in data:
-        if key not in ("name", "source", "gearbox", "driver"):
-            problems.append(f"{key}: unknown key; a shift preset has name, source, gearbox, driver")
+        if key not in allowed:
+            problems.append(f"{key}: unknown key; a {kind} preset has {', '.join(allowed)}")
     for key in ("name", "source"):
         if not isinstance(data.get(key), str) or not data[key].strip():
             problems.append(f"{key}: missing; expected a string (where the numbers come from)")
-    tables: dict[str, Any] = {k: data[k] for k in ("gearbox", "driver") if k in data}
-    params = build(ShiftParams, tables, "", problems)
+    tables: dict[str, Any] = {k: data[k] for k in tables_of_kind if k in data}
+    params = build(cls, tables, "", problems)
     if params is not None and not problems:
-        problems.extend(check_shift(params))
+        problems.extend(check(params))
     if problems or params is None:
         raise PresetError(f"preset {label} is not valid:\n  " + "\n  ".join(problems))
-    return ShiftPreset(data["name"], data["source"], params)
+    return Preset(data["name"], data["source"], params)
+
+
+def shift_from_toml(label: str, text: str) -> Preset[ShiftParams]:
+    return from_toml("shift", label, text)

@@ -6,11 +6,12 @@ Equation (8) of the paper, for one stage of a lever::
 
 The step is implicit (backward) Euler in the spring and damper, so it is unconditionally stable and,
 with no applied force, never gains energy (proof in `stick_slip_step`). Friction is resolved inside
-the same implicit step: the friction force that would bring the lever to rest within the step is
-computed first, and if it lies within the bound the lever sticks with velocity exactly 0.0 and its
-position unchanged to the last bit. The bound is the static friction while the lever is (nearly) at
-rest, the sliding friction otherwise. So sticking and breakaway happen at the exact force levels,
-whatever the step size.
+the same implicit step. Inside Karnopp's velocity band the lever counts as at rest: it sticks
+(velocity exactly 0.0, position unchanged to the last bit) while the applied force stays within the
+static friction, and breaks away with the sliding friction once it does not. Outside the band the
+friction that would bring the lever to rest within the step is computed first; if the sliding
+friction can supply it, the lever stops exactly. So sticking and breakaway happen at the exact
+force levels, whatever the step size.
 """
 
 from __future__ import annotations
@@ -55,21 +56,23 @@ def stick_slip_step(
     Energy: with impedance Z = m/h + c + h*k the implicit update is
     Z*v1 = m*v0/h + F - k*(x0-r) - Ff.
     Multiplying by v1 gives E1 - E0 = h*F*v1 - m/2*(v1-v0)^2 - k/2*(x1-x0)^2 - h*c*v1^2 - h*Ff*v1,
-    and Ff*v1 >= 0 by construction, so with F = 0 the energy E = m*v^2/2 + k*(x-r)^2/2 never grows.
+    and Ff*v1 >= 0 by construction, so with F = 0 the energy E = m*v^2/2 + k*(x-r)^2/2 never grows
+    (inside the velocity band v0 is first set to 0, which only removes energy).
     """
     h = dt_s
     m_h = mech.mass_kg / h
     impedance = m_h + mech.damping_N_s_m + h * mech.stiffness_N_m
-    # The friction that would bring the lever exactly to rest within this step; without
-    # friction the step would end at velocity drive / impedance.
-    drive = m_h * velocity_m_s + force_N - mech.stiffness_N_m * (position_m - rest_position_m)
-    if -stick_velocity_m_s < velocity_m_s < stick_velocity_m_s:
-        bound = static_friction_N  # at rest: stick unless the static friction is exceeded
-    else:
-        bound = sliding_friction_N  # moving: stop only if the sliding friction can stop it
-    if -bound <= drive <= bound:
+    applied = force_N - mech.stiffness_N_m * (position_m - rest_position_m)
+    in_band = -stick_velocity_m_s < velocity_m_s < stick_velocity_m_s
+    if in_band and -static_friction_N <= applied <= static_friction_N:
+        # Karnopp: in the velocity band the lever sticks while the applied force stays within the
+        # static friction, whatever the step size (its small momentum is dropped: dissipative).
+        return position_m, 0.0, applied
+    # Moving, or breaking away: the friction that would bring the lever exactly to rest within
+    # this step; if the sliding friction can supply it, the lever stops, else it slides.
+    drive = m_h * velocity_m_s + applied
+    if -sliding_friction_N <= drive <= sliding_friction_N:
         return position_m, 0.0, drive
-    # Sliding, or breaking away: from the first moving step on, the sliding friction acts.
     friction = sliding_friction_N if drive > 0.0 else -sliding_friction_N
     velocity = (drive - friction) / impedance
     return position_m + h * velocity, velocity, friction

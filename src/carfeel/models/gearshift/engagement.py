@@ -30,6 +30,7 @@ in gear).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from enum import Enum
 from typing import NamedTuple
@@ -169,7 +170,7 @@ def step(
         # Force reversal on the teeth (a braking hand on a lever still moving in is not one).
         stage = Stage.RETURNING
     if stage is not state.stage:
-        v = _hand_over(v, state.stage, stage, params)
+        v = _hand_over(v, x, state.stage, stage, params)
 
     mech, rest = mechanics(params, stage)
     if stage is Stage.ENGAGEMENT:
@@ -222,6 +223,9 @@ def step(
             new_stage = Stage.RETURNING
     elif stage is Stage.FREE_TRAVEL:
         if x1 >= params.in_gear_position_m:
+            # The stop's spring starts at x_gear: enter it there, so no spring energy appears
+            # from the part of the step that overshot the boundary.
+            x1 = params.in_gear_position_m
             new_stage = Stage.STOP
         elif x1 < params.teeth_end_position_m:
             new_stage = Stage.RETURNING  # pulled back into the teeth: on the way out
@@ -239,27 +243,50 @@ def step(
         if x1 <= x_sync:
             new_stage = Stage.NEUTRAL
         elif v1 > 0.0 and force > 0.0:
-            if x1 <= params.teeth_end_position_m:
-                # Pushed again before the sleeve left the synchro: synchronize anew where it is.
-                v1, new_stage, progress = 0.0, Stage.SYNCHRONIZATION, 0.0
+            # Pushed forward again. Where the step started decides, so the outcome does not
+            # depend on how far one step travels.
+            if x <= params.teeth_end_position_m:
+                # The sleeve is not in mesh: the blocker ring holds it where it is, a new
+                # synchronization.
+                x1, v1, new_stage, progress = x, 0.0, Stage.SYNCHRONIZATION, 0.0
             else:
-                new_stage = Stage.FREE_TRAVEL  # still in mesh with the teeth
+                new_stage = Stage.FREE_TRAVEL  # still in mesh with the gear's teeth
 
     if new_stage is not stage:
-        v1 = _hand_over(v1, stage, new_stage, params)
+        v1 = _hand_over(v1, x1, stage, new_stage, params)
     stage_time = state.stage_time_s + dt_s if new_stage is state.stage else 0.0
     new_state = EngagementState(new_stage, x1, v1, stage_time, progress, tooth, rng_state)
     return new_state, EngagementOutputs(x1, v1, force, friction, new_stage.value)
 
 
-def _mass_kg(params: EngagementParams, stage: Stage) -> float:
+def _mass_and_spring(params: EngagementParams, stage: Stage, x: float) -> tuple[float, float]:
+    """(mass, spring energy at x) of a stage; the blocked synchronization stage stores none."""
     if stage is Stage.SYNCHRONIZATION:
-        return params.neutral.mass_kg
-    return mechanics(params, stage)[0].mass_kg
+        return params.neutral.mass_kg, 0.0
+    mech, rest = mechanics(params, stage)
+    return mech.mass_kg, 0.5 * mech.stiffness_N_m * (x - rest) ** 2
 
 
-def _hand_over(velocity_m_s: float, old: Stage, new: Stage, params: EngagementParams) -> float:
-    return hand_over_velocity(velocity_m_s, _mass_kg(params, old), _mass_kg(params, new))
+def _hand_over(
+    velocity_m_s: float, position_m: float, old: Stage, new: Stage, params: EngagementParams
+) -> float:
+    """Velocity after a stage transition at `position_m`, such that energy does not grow.
+
+    The mass may change (see `hand_over_velocity`), and so may the spring and its rest position:
+    if the new stage's spring holds more energy here than the old one's, the lever pays for it
+    from its kinetic energy (it climbs into the detent). Only if the kinetic energy cannot pay
+    does the lever stop there, with the rest of the step in the new stage's energy: a gain of at
+    most that spring energy, at rest, which the stage then dissipates.
+    """
+    old_mass, old_spring = _mass_and_spring(params, old, position_m)
+    new_mass, new_spring = _mass_and_spring(params, new, position_m)
+    v = hand_over_velocity(velocity_m_s, old_mass, new_mass)
+    climb = new_spring - old_spring
+    if climb > 0.0:
+        kinetic = 0.5 * new_mass * v * v - climb
+        speed = math.sqrt(2.0 * kinetic / new_mass) if kinetic > 0.0 else 0.0
+        v = speed if v > 0.0 else -speed
+    return v
 
 
 def hand_over_velocity(velocity_m_s: float, old_mass_kg: float, new_mass_kg: float) -> float:

@@ -1,0 +1,1 @@
+"""Steering wheel torque (section 2 of the paper)."""

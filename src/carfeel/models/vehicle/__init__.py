@@ -1,0 +1,1 @@
+"""Vehicle models that give the lateral acceleration from speed and steering."""
