@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 from collections.abc import Sequence
@@ -11,12 +12,14 @@ from pathlib import Path
 
 from carfeel import __version__
 from carfeel.errors import CarfeelError, InputError
+from carfeel.simulation.manoeuvres import MANOEUVRES
 
 DESCRIPTION = """\
 carfeel: the feel of a car's primary controls from physics.
 
-Simulate a manual gearshift engagement (synchronization, tooth engagement, end stop), plot it as
-in the PERCRO 2005 paper, and write the samples as CSV. Start with `carfeel demo`.
+Simulate a manual gearshift engagement (synchronization, tooth engagement, end stop) and the
+steering wheel torque through the ISO manoeuvres, plot them as in the PERCRO 2005 paper, write the
+samples as CSV and compute steering feel metrics. Start with `carfeel demo`.
 """
 
 EPILOG = """\
@@ -24,6 +27,8 @@ examples:
   carfeel demo                                   simulate, plot and write into ./carfeel-demo
   carfeel simulate shift --out shift.csv --plot shift.png
   carfeel simulate shift --seed 7 --pull-out --out shift.csv
+  carfeel simulate steering --manoeuvre iso3888 --out dlc.csv --plot dlc.png
+  carfeel metrics steering dlc.csv --json        steering feel figures of a run or a log
   carfeel presets                                list the shipped presets
 """
 
@@ -133,6 +138,71 @@ def build_parser() -> argparse.ArgumentParser:
     shift.add_argument("--out", required=True, metavar="FILE.csv", help="CSV file to write")
     shift.add_argument("--plot", metavar="FILE.png", help="also write a PNG plot")
 
+    steering = models.add_parser(
+        "steering",
+        help="steering wheel torque (paper eqs. 1-7) on a car through an ISO manoeuvre",
+        description="Simulate the steering wheel torque of the paper's law (tau0 aligning, tau1 "
+        "tire spin, tau2 friction, tau3 damping) on a single-track car driven through a standard "
+        "manoeuvre. CSV columns: time_s, speed_m_s, steering_angle_rad, steering_rate_rad_s, "
+        "lateral_accel_m_s2, torque_Nm and its four terms, yaw_rate_rad_s, sideslip_rad, x_m, "
+        "y_m, yaw_rad, cross_track_m, segment. Signs: positive to the left (counter-clockwise).",
+        epilog="manoeuvres: iso4138 (steady-state circle, R 40 m, Ay in 0.5 m/s^2 steps, both "
+        "ways), iso3888 (ISO 3888-1 double lane change, 80 km/h), iso7401-step / iso7401-sine / "
+        "iso7401-sweep (lateral transient response, 60 km/h), steer-cycle (lock to lock and back "
+        "at standstill), weave (ISO 13674-1 on-centre, 0.2 Hz, 0.2 g, 100 km/h).",
+    )
+    steering.add_argument(
+        "--manoeuvre", required=True, choices=MANOEUVRES, metavar="NAME",
+        help="one of: " + ", ".join(MANOEUVRES),
+    )  # fmt: skip
+    steering.add_argument(
+        "--speed-kmh",
+        type=float,
+        default=None,
+        metavar="V",
+        help="vehicle speed, km/h (default: the manoeuvre's standard speed)",
+    )
+    steering.add_argument(
+        "--preset",
+        default="b-segment",
+        metavar="NAME|PATH",
+        help="car preset name or TOML file (default: b-segment; see `carfeel presets`)",
+    )
+    steering.add_argument(
+        "--dt", type=_positive_float, default=1e-3, metavar="S",
+        help="output sample period, s (default: 0.001)",
+    )  # fmt: skip
+    steering.add_argument(
+        "--substeps", type=_positive_int, default=1, metavar="N",
+        help="model steps per output sample (default: 1)",
+    )  # fmt: skip
+    steering.add_argument("--out", required=True, metavar="FILE.csv", help="CSV file to write")
+    steering.add_argument("--plot", metavar="FILE.png", help="also write a PNG plot")
+
+    metrics = commands.add_parser(
+        "metrics",
+        help="figures computed from a run or a measured log",
+        description="Compute figures from a CSV written by carfeel or measured on a car.",
+    )
+    metric_kinds = metrics.add_subparsers(dest="kind", metavar="KIND", required=True)
+    feel = metric_kinds.add_parser(
+        "steering",
+        help="steering feel: torque gradient, torque at 0.1 g, deadband, hysteresis, "
+        "sensitivity, understeer gradient",
+        description="Steering feel metrics (after ISO 13674-1) of a CSV with the columns "
+        "time_s, speed_m_s, steering_angle_rad, lateral_accel_m_s2, torque_Nm. A weave "
+        "(carfeel simulate steering --manoeuvre weave) gives all six.",
+    )
+    feel.add_argument("csv", metavar="FILE.csv", help="run or log to analyse")
+    feel.add_argument("--json", action="store_true", help="print one JSON object")
+    feel.add_argument(
+        "--preset",
+        default=None,
+        metavar="NAME|PATH",
+        help="car preset for the steering ratio and wheelbase (default: from the run's .json "
+        "beside the CSV, else b-segment)",
+    )
+
     presets = commands.add_parser(
         "presets",
         help="list the shipped presets",
@@ -149,7 +219,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.command == "demo":
             return _demo(args)
         if args.command == "simulate":
-            return _simulate_shift(args)
+            return _simulate_shift(args) if args.model == "shift" else _simulate_steering(args)
+        if args.command == "metrics":
+            return _metrics_steering(args)
         return _presets(args)
     except CarfeelError as exc:
         print(f"carfeel: error: {exc}", file=sys.stderr)
@@ -180,6 +252,37 @@ def _simulate_shift(args: argparse.Namespace) -> int:
     )
     summary = run_shift(config, out, Path(args.plot) if args.plot else None)
     print(summary.text())
+    return 0
+
+
+def _simulate_steering(args: argparse.Namespace) -> int:
+    from carfeel.runs import SteeringRun, run_steering
+
+    out = Path(args.out)
+    _check_writable(out, ".csv")
+    if args.plot:
+        _check_writable(Path(args.plot), ".png")
+    config = SteeringRun(
+        manoeuvre=args.manoeuvre,
+        speed_kmh=args.speed_kmh,
+        preset=args.preset,
+        dt_s=args.dt,
+        substeps=args.substeps,
+    )
+    print(run_steering(config, out, Path(args.plot) if args.plot else None).text())
+    return 0
+
+
+def _metrics_steering(args: argparse.Namespace) -> int:
+    from carfeel.runs import feel_lines, steering_metrics
+
+    feel = steering_metrics(Path(args.csv), args.preset)
+    if args.json:
+        values = {k: (None if math.isnan(v) else v) for k, v in feel.as_dict().items()}
+        print(json.dumps({**values, "notes": list(feel.notes)}))
+    else:
+        print(f"steering feel of {args.csv}:")
+        print("\n".join(feel_lines(feel)))
     return 0
 
 

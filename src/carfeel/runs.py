@@ -328,3 +328,15 @@ def demo(folder: Path) -> Iterator[str]:
         + ", ".join(f"{p:.1f}" for p in finite)
         + " N"
     )
+    yield ""
+    yield "steering wheel torque, ISO 3888-1 double lane change (paper Fig. 3):"
+    dlc = run_steering(
+        SteeringRun("iso3888"), folder / "steering-iso3888.csv", folder / "steering-iso3888.png"
+    )
+    yield dlc.text()
+    yield ""
+    yield "steering feel from an ISO 13674-1 weave:"
+    weave = run_steering(
+        SteeringRun("weave"), folder / "steering-weave.csv", folder / "steering-weave.png"
+    )
+    yield weave.text()

@@ -148,11 +148,12 @@ def plot_steering(
     the cones of ISO 3888) or the terms against Ay.
     """
     plt = _pyplot()
+    result = _split_segments(result)
     t = result.time_s
     torque = result["torque_Nm"]
     ay_g = result["lateral_accel_m_s2"] / 9.80665
     angle_deg = np.degrees(result["steering_angle_rad"])
-    parked = bool(np.all(np.abs(result["speed_m_s"]) < 1.0))
+    parked = bool(np.nanmax(np.abs(result["speed_m_s"])) < 1.0)
 
     fig, axes = plt.subplots(2, 2, figsize=(13, 8), layout="constrained")
     ax_t, ax_loop, ax_in, ax_extra = axes[0, 0], axes[0, 1], axes[1, 0], axes[1, 1]
@@ -188,7 +189,9 @@ def plot_steering(
     ax_in.set_title("inputs: steering angle and Ay")
 
     x_m, y_m = result["x_m"], result["y_m"]
-    if np.ptp(x_m) > 1.0 or np.ptp(y_m) > 1.0:
+    x_span = float(np.nanmax(x_m) - np.nanmin(x_m))
+    y_span = float(np.nanmax(y_m) - np.nanmin(y_m))
+    if x_span > 1.0 or y_span > 1.0:
         ax_extra.plot(x_m, y_m, color="k", lw=1.2, label="centre of gravity")
         for lane in lanes:
             for edge in (-0.5, 0.5):
@@ -199,7 +202,7 @@ def plot_steering(
                 )  # fmt: skip
         ax_extra.set_xlabel("x [m]")
         ax_extra.set_ylabel("y [m]")
-        ax_extra.set_aspect("equal" if np.ptp(y_m) > 0.2 * np.ptp(x_m) else "auto")
+        ax_extra.set_aspect("equal" if y_span > 0.2 * x_span else "auto")
         ax_extra.set_title("path" + (" and ISO 3888-1 cones" if lanes else ""))
     else:
         for name, (colour, label) in TERM_COLOURS.items():
@@ -210,3 +213,20 @@ def plot_steering(
         ax_extra.set_title("terms vs " + ("wheel angle" if parked else "Ay"))
     ax_extra.grid(alpha=0.3)
     return _save(fig, plt, path)
+
+
+def _split_segments(result: Result) -> Result:
+    """A copy with a NaN row between segments, so no line joins the end of one to the next."""
+    if "segment" not in result.names:
+        return result
+    labels = result["segment"]
+    cuts = [i for i in range(1, len(labels)) if labels[i] != labels[i - 1]]
+    if not cuts:
+        return result
+    signals = {
+        name: np.insert(values.astype(float), cuts, np.nan)
+        for name, values in result.signals.items()
+        if values.dtype.kind == "f"
+    }
+    time = np.insert(result.time_s, cuts, np.nan)
+    return Result(time, signals, result.metadata)

@@ -12,7 +12,8 @@ Every manoeuvre starts from straight driving unless said otherwise.
   Lateral offset of lane 3: its near (right) boundary lies 3.5 m left of lane 1's centre line, and
   lanes 1 and 5 share their right boundary: our reading of the standard's figure, the same as
   Project Chrono's ISO 3888 helper. The driver follows a smooth centre path (half-cosine
-  transitions from 3 m before a lane's exit to 3 m past the next lane's entry), from a 30 m run-up.
+  transitions from a lane's exit to 3 m past the next lane's entry; the driver's preview starts the
+  turn earlier, as a real driver does), from a 30 m run-up.
 - iso7401-step / -sine / -sweep: ISO 7401 lateral transient response, default 60 km/h (the paper's
   Fig. 4). The amplitude is the steering wheel angle that gives Ay = 4 m/s^2 in steady state. Step:
   a half-cosine ramp over 0.2 s (10-90 % in 0.12 s, within the standard's 0.15 s) after 1 s
@@ -235,11 +236,11 @@ def lane_change_lanes(width_m: float) -> tuple[Lane, ...]:
 
 def iso3888(vehicle: VehicleParams, speed: float) -> Manoeuvre:
     lanes = lane_change_lanes(vehicle.width_m)
-    run_up, run_out, margin = 30.0, 15.0, 3.0
+    run_up, run_out, settle = 30.0, 15.0, 3.0
     x = np.arange(-run_up, lanes[-1].x_end_m + run_out + 30.0, 0.1)
     y = np.full_like(x, lanes[0].y_centre_m)
     for before, after in itertools.pairwise(lanes):
-        x0, x1 = before.x_end_m - margin, after.x_start_m + margin
+        x0, x1 = before.x_end_m, after.x_start_m + settle
         inside = (x >= x0) & (x <= x1)
         blend = 0.5 * (1 - np.cos(np.pi * (x[inside] - x0) / (x1 - x0)))
         y[inside] = before.y_centre_m + (after.y_centre_m - before.y_centre_m) * blend

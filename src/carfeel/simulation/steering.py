@@ -137,6 +137,10 @@ def simulate_steering(
                 substeps=substeps, inputs=inputs,
             )  # fmt: skip
         elif segment.path is not None:
+            # Start in steady state on the path's first heading at the starting steering.
+            vehicle = single_track.steady_state(
+                segment.speed(0.0), segment.start_steering_rad, car.vehicle, x0, y0, yaw0
+            )
             following = PathFollowing(car.driver, car.vehicle, segment.path)
             state = PathState(vehicle, path_driver.initial_state(segment.start_steering_rad))
             result, _ = run(

@@ -2,7 +2,7 @@
 
 The driver aims at the point of the path one preview distance ahead (max(min_preview, V * T_p)),
 computes the curvature of the arc through it, kappa = 2*sin(alpha)/L_d (alpha: bearing of the point
-from the car's heading), and the steering wheel angle that holds that curvature in steady state,
+from the car's course, the direction its centre of gravity moves in), and the steering wheel angle that holds that curvature in steady state,
 SR * kappa * (L + K_us * V^2) (the driver knows the car's understeer). The hand follows that target
 through a first-order lag (neuromuscular, `lag_s`) and a rate limit, so the wheel angle and its rate
 are smooth, as the torque law needs them.
@@ -76,10 +76,30 @@ def nearest_index(path: Path, x: float, y: float, start: int, window: int) -> in
     return best
 
 
-def point_ahead(path: Path, index: int, distance_m: float) -> tuple[float, float]:
-    """The path point `distance_m` beyond point `index`, extending the last segment past the end."""
+def projection(path: Path, index: int, x: float, y: float) -> float:
+    """Where (x, y) projects onto the path near point `index`, in (fractional) point indices.
+
+    Continuous as the car moves, so the aimed-at point does not jump by a spacing when the
+    nearest point changes.
+    """
     xs, ys = path.x_m, path.y_m
-    target = index + distance_m / path.spacing_m
+    last = len(xs) - 1
+    i = index if index < last else last - 1
+    if i > 0:
+        # The nearest point may lie on the segment before `index`.
+        to_car = (x - xs[i]) * (xs[i + 1] - xs[i]) + (y - ys[i]) * (ys[i + 1] - ys[i])
+        if to_car < 0.0:
+            i -= 1
+    dx, dy = xs[i + 1] - xs[i], ys[i + 1] - ys[i]
+    length2 = dx * dx + dy * dy
+    t = ((x - xs[i]) * dx + (y - ys[i]) * dy) / length2 if length2 > 0.0 else 0.0
+    return i + min(1.0, max(0.0, t))
+
+
+def point_ahead(path: Path, position: float, distance_m: float) -> tuple[float, float]:
+    """The path point `distance_m` beyond `position` (in point indices), extended past the end."""
+    xs, ys = path.x_m, path.y_m
+    target = position + distance_m / path.spacing_m
     last = len(xs) - 1
     if target <= last:
         i = int(target)
@@ -103,10 +123,11 @@ def step(
     window = int(speed * dt_s / path.spacing_m) + 4
     index = nearest_index(path, car.x_m, car.y_m, state.path_index, window)
     preview = max(habits.min_preview_m, speed * habits.preview_time_s)
-    tx, ty = point_ahead(path, index, preview)
+    tx, ty = point_ahead(path, projection(path, index, car.x_m, car.y_m), preview)
     dx, dy = tx - car.x_m, ty - car.y_m
-    cos_yaw, sin_yaw = math.cos(car.yaw_rad), math.sin(car.yaw_rad)
-    lateral = -sin_yaw * dx + cos_yaw * dy  # target to the left of the car's heading
+    # The centre of gravity moves along the course (yaw + sideslip): the arc starts along it.
+    course = car.yaw_rad + car.sideslip_rad
+    lateral = -math.sin(course) * dx + math.cos(course) * dy  # target left of the course
     distance = math.hypot(dx, dy)
     curvature = 2.0 * lateral / (distance * distance) if distance > 1e-9 else 0.0
     front = curvature * (vehicle.wheelbase_m + vehicle.understeer_gradient_rad_s2_m * speed**2)

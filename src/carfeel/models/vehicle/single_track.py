@@ -127,6 +127,32 @@ def initial_state(x_m: float = 0.0, y_m: float = 0.0, yaw_rad: float = 0.0) -> V
     return VehicleState(0.0, 0.0, x_m, y_m, yaw_rad, 0.0)
 
 
+def steady_state(
+    speed_m_s: float,
+    steering_wheel_angle_rad: float,
+    params: VehicleParams,
+    x_m: float = 0.0,
+    y_m: float = 0.0,
+    course_rad: float = 0.0,
+) -> VehicleState:
+    """Steady cornering at a speed and steering angle, moving along `course_rad` at (x, y).
+
+    Ay from `steady_state_lateral_accel`, r = Ay / V, and the sideslip from the rear axle's slip
+    angle (its force m*Ay*a/L, from the moment balance): beta = b*r/V - m*Ay*a/(L*C_r). The yaw is
+    the course less the sideslip, so the car moves along `course_rad`.
+    """
+    if speed_m_s < params.kinematic_speed_m_s:
+        return VehicleState(0.0, 0.0, x_m, y_m, course_rad, 0.0)
+    ay = steady_state_lateral_accel(speed_m_s, steering_wheel_angle_rad, params)
+    r = ay / speed_m_s
+    rear_force = params.mass_kg * ay * params.cg_to_front_axle_m / params.wheelbase_m
+    beta = (
+        params.cg_to_rear_axle_m * r / speed_m_s
+        - rear_force / params.rear_cornering_stiffness_N_rad
+    )
+    return VehicleState(beta, r, x_m, y_m, course_rad - beta, ay)
+
+
 def _derivatives(
     beta: float, r: float, delta: float, v: float, p: VehicleParams
 ) -> tuple[float, float, float]:
