@@ -138,3 +138,124 @@ def test_help_is_useful(capsys):
 def test_presets_lists_the_shipped_ones(capsys):
     assert main(["presets", "--json"]) == 0
     assert "paper-first-gear" in json.loads(capsys.readouterr().out)["shift"]
+
+
+STEERING_COLUMNS = (
+    "time_s", "speed_m_s", "steering_angle_rad", "steering_rate_rad_s", "lateral_accel_m_s2",
+    "torque_Nm", "torque_aligning_Nm", "torque_tire_spin_Nm", "torque_friction_Nm",
+    "torque_damping_Nm",
+)  # fmt: skip
+
+
+def test_simulate_steering_writes_the_columns_and_the_plot(tmp_path, capsys):
+    out, plot = tmp_path / "w.csv", tmp_path / "w.png"
+    args = ["simulate", "steering", "--manoeuvre", "iso3888", "--speed-kmh", "60"]
+    assert main([*args, "--out", str(out), "--plot", str(plot)]) == 0
+    assert "ISO 3888-1 double lane change at 60 km/h" in capsys.readouterr().out
+    result = Result.from_csv(out)
+    for column in (*STEERING_COLUMNS, "x_m", "y_m", "yaw_rad"):
+        assert column in result.names
+    assert plot.read_bytes()[:4] == b"\x89PNG"
+    # The total is the sum of its terms in every row (to CSV rounding, 10 significant digits).
+    terms = sum(result[c] for c in STEERING_COLUMNS[6:])
+    assert np.allclose(result["torque_Nm"], terms, rtol=1e-8, atol=1e-9)
+
+
+def test_metrics_steering_json_has_the_six_keys(tmp_path, capsys):
+    out = tmp_path / "weave.csv"
+    assert main(["simulate", "steering", "--manoeuvre", "weave", "--out", str(out)]) == 0
+    capsys.readouterr()
+    assert main(["metrics", "steering", str(out), "--json"]) == 0
+    values = json.loads(capsys.readouterr().out)
+    keys = {
+        "torque_gradient_Nm_per_g", "torque_at_0_1g_Nm", "deadband_g", "hysteresis_Nm",
+        "sensitivity_g_per_100deg", "understeer_gradient_deg_per_g",
+    }  # fmt: skip
+    assert keys <= set(values)
+    assert all(isinstance(values[k], float) for k in keys)
+    assert 20.0 <= values["torque_gradient_Nm_per_g"] <= 30.0
+
+
+def test_metrics_of_a_measured_style_log_without_metadata(tmp_path, capsys):
+    t = np.arange(0.0, 20.0, 0.01)
+    ay = 2.0 * np.sin(2 * np.pi * 0.2 * t)
+    angle = ay / 9.8 * 0.1
+    torque = 2.3 * ay + 0.5 * np.sign(np.cos(2 * np.pi * 0.2 * t))
+    rows = ["time_s,speed_m_s,steering_angle_rad,lateral_accel_m_s2,torque_Nm"]
+    rows += [f"{a},{27.0},{b},{c},{d}" for a, b, c, d in zip(t, angle, ay, torque, strict=True)]
+    log = tmp_path / "log.csv"
+    log.write_text("\n".join(rows) + "\n")
+    assert main(["metrics", "steering", str(log)]) == 0
+    text = capsys.readouterr().out
+    assert "torque gradient at 0 g" in text and "22.6 Nm/g" in text  # 2.3 * 9.80665
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        ("time_s,speed_m_s\n0,1\n", "missing column(s) steering_angle_rad"),
+        (
+            "time_s,speed_m_s,steering_angle_rad,lateral_accel_m_s2,torque_Nm\n"
+            "0,1,0,0,0\n0.1,1,0,nan,0\n0.2,1,0,0,0\n",
+            "line 3: lateral_accel_m_s2 is not a finite",
+        ),
+        (
+            "time_s,speed_m_s,steering_angle_rad,lateral_accel_m_s2,torque_Nm\n"
+            "0,1,0,0,0\n0,1,0,0,0\n0.2,1,0,0,0\n",
+            "time_s must increase",
+        ),
+        (
+            "time_s,speed_m_s,steering_angle_rad,lateral_accel_m_s2,torque_Nm\n"
+            "0,1,0,0,x\n0.1,1,0,0,0\n0.2,1,0,0,0\n",
+            "column torque_Nm must hold numbers",
+        ),
+    ],
+)
+def test_malformed_steering_logs_exit_2(tmp_path, capsys, content, message):
+    log = tmp_path / "bad.csv"
+    log.write_text(content)
+    assert main(["metrics", "steering", str(log)]) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--manoeuvre", "iso9999"], "invalid choice"),
+        (["--manoeuvre", "weave", "--speed-kmh", "-10"], "allowed 0 <= value <= 250 km/h"),
+        (["--manoeuvre", "iso4138", "--speed-kmh", "50"], "drop --speed-kmh"),
+        (["--manoeuvre", "weave", "--preset", "nope"], "no steering preset named 'nope'"),
+    ],
+)
+def test_bad_steering_requests_exit_2(tmp_path, capsys, args, message):
+    code: object
+    try:
+        code = main(["simulate", "steering", *args, "--out", str(tmp_path / "x.csv")])
+    except SystemExit as exc:
+        code = exc.code
+    assert code == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+
+
+def test_malformed_steering_preset_exits_2(tmp_path, capsys):
+    from importlib import resources
+
+    text = resources.files("carfeel.presets").joinpath("steering", "b-segment.toml").read_text()
+    bad = tmp_path / "car.toml"
+    bad.write_text(text.replace("cg_to_front_axle_m = 0.984", "cg_to_front_axle_m = 3.0"))
+    code = main(
+        [
+            "simulate",
+            "steering",
+            "--manoeuvre",
+            "weave",
+            "--preset",
+            str(bad),
+            "--out",
+            str(tmp_path / "x.csv"),
+        ]
+    )
+    assert code == 2
+    assert "must be shorter than vehicle.wheelbase_m" in capsys.readouterr().err

@@ -15,10 +15,16 @@ from typing import Any
 import numpy as np
 import pytest
 
+from carfeel.io.presets import load_steering
 from carfeel.models.drivers import shift as driver
+from carfeel.models.drivers import steering as path_driver
+from carfeel.models.drivers.steering import PathFollowing
 from carfeel.models.gearshift import engagement
-from carfeel.simulation import shift
+from carfeel.models.vehicle import single_track
+from carfeel.models.vehicle.single_track import VehicleInputs
+from carfeel.simulation import manoeuvres, shift, steering
 from carfeel.simulation.runner import run
+from carfeel.simulation.steering import ImposedInputs
 from tests.conftest import default_params
 
 
@@ -36,6 +42,7 @@ class Contract:
 
 def contracts() -> list[Contract]:
     p = default_params()
+    car = load_steering("b-segment").params
     return [
         Contract(
             "engagement",
@@ -57,7 +64,9 @@ def contracts() -> list[Contract]:
             lambda t: driver.DriverInputs(min(t, 0.2) * 0.1, 0.1 if t < 0.2 else 0.0),
             0.6,
             "force_N",
-            0.5,  # N; the hand's fastest mode is 4 ms, well resolved by 1 ms steps
+            # N; the hand's fastest mode (muscle gain on its mass) is 2.5 ms, resolved to ~0.13 N
+            # RMS by 1 ms steps; 0.3 N leaves a factor 2 for the implicit Euler's first order.
+            0.3,
         ),
         Contract(
             "shift loop",
@@ -69,7 +78,49 @@ def contracts() -> list[Contract]:
             "position_m",
             0.3e-3,  # see test_engagement.test_one_ms_steps_and_tenth_ms_substeps
         ),
+        Contract(
+            "single-track car",
+            single_track.step,
+            car.vehicle,
+            lambda seed: single_track.initial_state(),
+            lambda t: VehicleInputs(20.0, 0.5 * math.sin(2 * t)),
+            3.0,
+            "lateral_accel_m_s2",
+            # m/s^2; trapezoidal rule, second order, 1 ms against 50 ms time constants: the RMS
+            # error is about 5e-7; 1e-5 leaves a factor 20.
+            1e-5,
+        ),
+        Contract(
+            "steering, wheel imposed",
+            steering.imposed_step,
+            car,
+            lambda seed: single_track.initial_state(),
+            lambda t: ImposedInputs(15.0, 0.8 * math.sin(3 * t), 2.4 * math.cos(3 * t)),
+            3.0,
+            "torque_Nm",
+            2e-5,  # Nm: the law is algebraic on the car's Ay: ~1.3e-6, a factor 15
+        ),
+        Contract(
+            "steering, path driver",
+            steering.path_step,
+            _path_run(car),
+            lambda seed: steering.PathState(
+                single_track.initial_state(-30.0, 0.0, 0.0), path_driver.initial_state()
+            ),
+            lambda t: 60 / 3.6,
+            6.0,
+            "y_m",
+            # m; the driver's 60 ms lag is resolved at 1 ms: ~5e-5 m of a 4.6 m lane change,
+            # 1e-3 m leaves a factor 20.
+            1e-3,
+        ),
     ]
+
+
+def _path_run(car: steering.SteeringCar) -> steering.PathRun:
+    segment = manoeuvres.build("iso3888", car.vehicle, 60.0).segments[0]
+    assert segment.path is not None
+    return steering.PathRun(car, PathFollowing(car.driver, car.vehicle, segment.path))
 
 
 CONTRACTS = contracts()

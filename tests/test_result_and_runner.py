@@ -30,7 +30,7 @@ def test_runner_samples_at_dt_and_runs_substeps():
     assert result["value"][-1] == pytest.approx(40 * 0.25e-3)
 
 
-def test_runner_passes_inputs_at_each_substep_start():
+def test_runner_passes_inputs_at_each_substep_end():
     seen = []
 
     def inputs(t: float) -> float:
@@ -38,7 +38,7 @@ def test_runner_passes_inputs_at_each_substep_start():
         return 0.0
 
     run(counter, 0, 1.0, duration_s=2e-3, dt_s=1e-3, substeps=2, inputs=inputs)
-    assert seen == pytest.approx([0.0, 0.5e-3, 1e-3, 1.5e-3])
+    assert seen == pytest.approx([0.5e-3, 1e-3, 1.5e-3, 2e-3])
 
 
 def test_runner_rejects_bad_steps():

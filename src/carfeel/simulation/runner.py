@@ -30,8 +30,9 @@ def run(
 
     Each output interval is split into `substeps` model steps of `dt_s / substeps`; the recorded
     sample is the output of the last sub-step, stamped with the time at the end of the interval.
-    `inputs(t)` gives the exogenous inputs at the start of each sub-step (None when the model
-    takes none). Returns the Result and the final state.
+    `inputs(t)` gives the exogenous inputs at the end of each sub-step (None when the model takes
+    none): the instant its output is stamped with, and the input an implicit step integrates
+    toward. Returns the Result and the final state.
     """
     if not dt_s > 0.0:
         raise ValueError(f"dt_s must be > 0 s, got {dt_s}")
@@ -47,7 +48,7 @@ def run(
     for k in range(n_samples):
         t0 = k * dt_s
         for j in range(substeps):
-            u = inputs(t0 + j * h) if inputs is not None else None
+            u = inputs(t0 + (j + 1) * h) if inputs is not None else None
             state, outputs = step(state, u, params, h)
         times.append((k + 1) * dt_s)
         rows.append(outputs)

@@ -2,8 +2,9 @@
 
 The driver aims at the point of the path one preview distance ahead (max(min_preview, V * T_p)),
 computes the curvature of the arc through it, kappa = 2*sin(alpha)/L_d (alpha: bearing of the point
-from the car's course, the direction its centre of gravity moves in), and the steering wheel angle that holds that curvature in steady state,
-SR * kappa * (L + K_us * V^2) (the driver knows the car's understeer). The hand follows that target
+from the car's course, the direction its centre of gravity moves in), and the steering wheel angle
+that holds that curvature in steady state, SR * kappa * (L + K_us * V^2) (the driver knows the
+car's understeer). The hand follows that target
 through a first-order lag (neuromuscular, `lag_s`) and a rate limit, so the wheel angle and its rate
 are smooth, as the torque law needs them.
 

@@ -9,11 +9,12 @@
 Signs: steering angle, sideslip beta, yaw rate r, yaw and Ay are positive to the left (counter-
 clockwise seen from above). Axle cornering stiffnesses C_f, C_r are per axle (both tires), N/rad.
 
-Transient model (constant speed V, linear tires):
+Transient model (speed V given each step, linear tires):
     m*V*(beta' + r) = F_f + F_r         F_f = C_f*(delta - beta - a*r/V)
     I_z*r'          = a*F_f - b*F_r     F_r = C_r*(-beta + b*r/V)
     Ay = (F_f + F_r) / m
-integrated by the trapezoidal rule (A-stable, second order, exact at steady state) over each step.
+integrated by the trapezoidal rule (A-stable, second order, exact at steady state) over each step,
+with the wheel angle averaged over the step's two ends.
 Below `kinematic_speed_m_s` the tires' slip is ill-defined and the model follows the wheels:
 beta = atan(b*tan(delta)/L), r = V*cos(beta)*tan(delta)/L (the kinematic bicycle), Ay = V*r.
 
@@ -105,6 +106,8 @@ class VehicleState(NamedTuple):
     y_m: float
     yaw_rad: float
     lateral_accel_m_s2: float
+    front_wheel_angle_rad: float
+    """At the last step: the trapezoidal rule averages it with the new one."""
 
 
 class VehicleInputs(NamedTuple):
@@ -124,7 +127,7 @@ class VehicleOutputs(NamedTuple):
 
 def initial_state(x_m: float = 0.0, y_m: float = 0.0, yaw_rad: float = 0.0) -> VehicleState:
     """Driving straight at the given pose."""
-    return VehicleState(0.0, 0.0, x_m, y_m, yaw_rad, 0.0)
+    return VehicleState(0.0, 0.0, x_m, y_m, yaw_rad, 0.0, 0.0)
 
 
 def steady_state(
@@ -141,8 +144,9 @@ def steady_state(
     angle (its force m*Ay*a/L, from the moment balance): beta = b*r/V - m*Ay*a/(L*C_r). The yaw is
     the course less the sideslip, so the car moves along `course_rad`.
     """
+    delta = steering_wheel_angle_rad / params.steering_ratio
     if speed_m_s < params.kinematic_speed_m_s:
-        return VehicleState(0.0, 0.0, x_m, y_m, course_rad, 0.0)
+        return VehicleState(0.0, 0.0, x_m, y_m, course_rad, 0.0, delta)
     ay = steady_state_lateral_accel(speed_m_s, steering_wheel_angle_rad, params)
     r = ay / speed_m_s
     rear_force = params.mass_kg * ay * params.cg_to_front_axle_m / params.wheelbase_m
@@ -150,7 +154,7 @@ def steady_state(
         params.cg_to_rear_axle_m * r / speed_m_s
         - rear_force / params.rear_cornering_stiffness_N_rad
     )
-    return VehicleState(beta, r, x_m, y_m, course_rad - beta, ay)
+    return VehicleState(beta, r, x_m, y_m, course_rad - beta, ay, delta)
 
 
 def _derivatives(
@@ -192,8 +196,9 @@ def step(
         b2 = a * cf / p.yaw_inertia_kg_m2
         h2 = 0.5 * dt_s
         beta0, r0 = state.sideslip_rad, state.yaw_rate_rad_s
-        rhs1 = beta0 + h2 * (a11 * beta0 + a12 * r0) + dt_s * b1 * delta
-        rhs2 = r0 + h2 * (a21 * beta0 + a22 * r0) + dt_s * b2 * delta
+        delta_mean = 0.5 * (state.front_wheel_angle_rad + delta)
+        rhs1 = beta0 + h2 * (a11 * beta0 + a12 * r0) + dt_s * b1 * delta_mean
+        rhs2 = r0 + h2 * (a21 * beta0 + a22 * r0) + dt_s * b2 * delta_mean
         m11, m12 = 1.0 - h2 * a11, -h2 * a12
         m21, m22 = -h2 * a21, 1.0 - h2 * a22
         det = m11 * m22 - m12 * m21
@@ -205,5 +210,5 @@ def step(
     course = 0.5 * (state.yaw_rad + yaw) + 0.5 * (state.sideslip_rad + beta)
     x = state.x_m + dt_s * v * math.cos(course)
     y = state.y_m + dt_s * v * math.sin(course)
-    new = VehicleState(beta, r, x, y, yaw, ay)
+    new = VehicleState(beta, r, x, y, yaw, ay, delta)
     return new, VehicleOutputs(ay, r, beta, x, y, yaw)
