@@ -20,8 +20,9 @@ MECH = StageMechanics(
 
 def step(x, v, force, mech=MECH, rest=0.0, dt=1e-3):
     return stick_slip_step(
-        x, v, force, mech, rest, mech.static_friction_N, mech.sliding_friction_N, 1e-3, dt
-    )
+        x, v, force, mech.mass_kg, mech.damping_N_s_m, mech.stiffness_N_m, rest,
+        mech.static_friction_N, mech.sliding_friction_N, 1e-3, dt,
+    )  # fmt: skip
 
 
 def test_sticking_in_the_velocity_band_does_not_depend_on_the_step():
@@ -97,7 +98,10 @@ def test_no_energy_is_gained_without_applied_force(mech, x, v, rest, dt):
     static = max(mech.static_friction_N, mech.sliding_friction_N)
     energy = stage_energy_J(x, v, mech, rest)
     for _ in range(200):
-        x, v, _ = stick_slip_step(x, v, 0.0, mech, rest, static, mech.sliding_friction_N, 1e-3, dt)
+        x, v, _ = stick_slip_step(
+            x, v, 0.0, mech.mass_kg, mech.damping_N_s_m, mech.stiffness_N_m, rest, static,
+            mech.sliding_friction_N, 1e-3, dt,
+        )  # fmt: skip
         new_energy = stage_energy_J(x, v, mech, rest)
         # Rounding of the float arithmetic is the only allowed gain.
         assert new_energy <= energy * (1 + 1e-12) + 1e-15

@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import math
+import re
 import tomllib
 import typing
 from collections.abc import Callable, Mapping
@@ -21,6 +22,8 @@ from typing import Any, Generic, TypeVar
 
 from carfeel.errors import PresetError
 from carfeel.simulation.shift import ShiftParams
+from carfeel.models.gearshift.hpattern import HPatternParams
+from carfeel.simulation.hpattern import HPatternSetup
 from carfeel.simulation.steering import SteeringCar
 
 T = TypeVar("T")
@@ -79,6 +82,45 @@ RANGES: dict[str, tuple[float, float, bool, bool]] = {
     "k7_Nm": (0.0, 100.0, True, True),
     "k8_rad_s": (0.0, 100.0, False, True),
     "k9_Nm_s_rad": (0.0, 100.0, True, True),
+    # hpattern: layout
+    "planes_y_m": (-0.2, 0.2, True, True),
+    "centre_plane": (0.0, 20.0, True, True),
+    "slot_width_m": (0.0, 0.05, False, True),
+    "corridor_width_m": (0.0, 0.1, False, True),
+    "reverse_lockout_N": (0.0, 500.0, True, True),
+    "plane": (0.0, 20.0, True, True),
+    "direction": (-1.0, 1.0, True, True),
+    "ratio": (-20.0, 20.0, True, True),
+    # hpattern: select axis, walls
+    "select.mass_kg": (0.0, 100.0, False, True),
+    "centring_stiffness_N_m": (0.0, 1e5, True, True),
+    "detent_stiffness_N_m": (0.0, 1e5, True, True),
+    "detent_width_m": (0.0, 0.05, False, True),
+    "slot_stiffness_N_m": (0.0, 1e6, False, True),
+    "slot_damping_N_s_m": (0.0, 1e3, True, True),
+    "lockout_stiffness_N_m": (0.0, 1e6, False, True),
+    "walls.stiffness_N_m": (0.0, 1e6, False, True),
+    "walls.damping_N_s_m": (0.0, 1e3, True, True),
+    # hpattern: synchronizer
+    "input_inertia_kg_m2": (0.0, 1.0, False, True),
+    "cone_friction": (0.0, 1.0, False, True),
+    "cone_radius_m": (0.0, 0.2, False, True),
+    "cone_half_angle_rad": (0.0, 0.8, False, True),
+    "lever_ratio": (0.0, 50.0, False, True),
+    "clutch_capacity_Nm": (0.0, 5000.0, True, True),
+    "clutch_open_above": (0.0, 1.0, False, True),
+    "drag_torque_Nm": (0.0, 100.0, True, True),
+    "speed_tolerance_rad_s": (0.0, 100.0, False, True),
+    "grind_force_N": (0.0, 1e3, True, True),
+    "grind_amplitude_N": (0.0, 100.0, True, True),
+    "dog_teeth": (1.0, 500.0, True, True),
+    "final_drive_ratio": (0.0, 20.0, False, True),
+    "wheel_radius_m": (0.1, 1.0, True, True),
+    # hpattern: driver
+    "select_force_N": (0.0, 500.0, False, True),
+    "select_stiffness_N_m": (0.0, 1e6, False, True),
+    "select_damping_N_s_m": (0.0, 1e4, True, True),
+    "select_tolerance_m": (0.0, 0.02, False, True),
     # steering: path driver
     "preview_time_s": (0.0, 10.0, False, True),
     "min_preview_m": (0.0, 100.0, False, True),
@@ -89,6 +131,8 @@ RANGES: dict[str, tuple[float, float, bool, bool]] = {
 # Unit of a parameter from the suffix of its name, longest suffix first.
 _UNITS = [
     ("_Nm_s2_m", "Nm/(m/s^2)"),
+    ("_kg_m2", "kg*m^2"),
+    ("_rad_s", "rad/s"),
     ("_Nm_s_rad", "Nm*s/rad"),
     ("_s_m_Nm", "s/(m*Nm)"),
     ("_kg_m2", "kg*m^2"),
@@ -106,8 +150,8 @@ _UNITS = [
     ("_s", "s"),
 ]
 
-PRESET_KINDS = ("shift", "steering")
-DEFAULT_PRESETS = {"shift": "paper-first-gear", "steering": "b-segment"}
+PRESET_KINDS = ("shift", "steering", "hpattern")
+DEFAULT_PRESETS = {"shift": "paper-first-gear", "steering": "b-segment", "hpattern": "5r"}
 
 
 def unit_of(name: str) -> str:
@@ -119,7 +163,7 @@ def unit_of(name: str) -> str:
 
 def range_key(full: str) -> str:
     """The RANGES key of a parameter's dotted path: "table.name" if listed, else "name"."""
-    parts = full.split(".")
+    parts = re.sub(r"\[\d+\]", "", full).split(".")
     qualified = ".".join(parts[-2:])
     return qualified if qualified in RANGES else parts[-1]
 
@@ -174,6 +218,9 @@ def parse(label: str, text: str) -> dict[str, Any]:
         raise PresetError(f"preset {label}: not valid TOML: {exc}") from None
 
 
+_MISSING = object()
+
+
 def build(cls: type[T], table: Mapping[str, Any], where: str, problems: list[str]) -> T | None:
     """Build a parameter dataclass from a TOML table, appending each problem to `problems`."""
     hints = typing.get_type_hints(cls)
@@ -189,43 +236,78 @@ def build(cls: type[T], table: Mapping[str, Any], where: str, problems: list[str
         kind = hints[name]
         full = f"{where}{name}"
         if name not in table:
-            expected = "a table" if dataclasses.is_dataclass(kind) else _expected(full, kind)
-            problems.append(f"{full}: missing; expected {expected}")
+            problems.append(f"{full}: missing; expected {_expected(full, kind)}")
             continue
-        value = table[name]
-        if dataclasses.is_dataclass(kind):
-            if not isinstance(value, dict):
-                problems.append(f"{full}: expected a table [{full}], got {value!r}")
-                continue
-            values[name] = build(kind, value, f"{full}.", problems)  # type: ignore[arg-type]
-        elif kind is bool:
-            if not isinstance(value, bool):
-                problems.append(f"{full} = {value!r}: expected true or false")
+        value = _convert(kind, table[name], full, problems)
+        if value is not _MISSING:
             values[name] = value
-        elif kind is float:
-            if isinstance(value, bool) or not isinstance(value, int | float):
-                problems.append(f"{full} = {value!r}: expected a number, {_expected(full, kind)}")
-                continue
-            try:
-                value = float(value)
-            except OverflowError:
-                value = math.inf
-            if not _in_range(range_key(full), value):
-                problems.append(
-                    f"{full} = {value:g} {unit_of(name)} is out of range: "
-                    f"allowed {describe_range(range_key(full))}"
-                )
-            values[name] = value
-        else:  # pragma: no cover - a parameter type this loader was not taught
-            raise TypeError(f"{cls.__name__}.{name}: unsupported type {kind}")
-    if len(values) < len(fields) or any(v is None for v in values.values()):
+    if len(values) < len(fields):
         return None
     return cls(**values)
 
 
+def _convert(kind: Any, value: Any, full: str, problems: list[str]) -> Any:
+    """One TOML value as the parameter type `kind`; _MISSING (and a problem) if it is not one."""
+    if dataclasses.is_dataclass(kind):
+        if not isinstance(value, dict):
+            problems.append(f"{full}: expected a table [{full}], got {value!r}")
+            return _MISSING
+        built = build(kind, value, f"{full}.", problems)  # type: ignore[arg-type]
+        return _MISSING if built is None else built
+    if typing.get_origin(kind) is tuple:
+        item = typing.get_args(kind)[0]
+        if not isinstance(value, list):
+            problems.append(f"{full} = {value!r}: expected a list, {_expected(full, kind)}")
+            return _MISSING
+        items = [_convert(item, v, f"{full}[{i}]", problems) for i, v in enumerate(value)]
+        return _MISSING if any(v is _MISSING for v in items) else tuple(items)
+    if kind is bool:
+        if not isinstance(value, bool):
+            problems.append(f"{full} = {value!r}: expected true or false")
+            return _MISSING
+        return value
+    if kind is str:
+        if not isinstance(value, str) or not value:
+            problems.append(f"{full} = {value!r}: expected a non-empty string")
+            return _MISSING
+        return value
+    if kind is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            problems.append(f"{full} = {value!r}: expected a whole number, {_expected(full, kind)}")
+            return _MISSING
+        return value if _checked(full, float(value), problems) else _MISSING
+    if kind is float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            problems.append(f"{full} = {value!r}: expected a number, {_expected(full, kind)}")
+            return _MISSING
+        try:
+            number = float(value)
+        except OverflowError:
+            number = math.inf
+        return number if _checked(full, number, problems) else _MISSING
+    raise TypeError(f"{full}: a parameter type this loader was not taught: {kind}")
+
+
+def _checked(full: str, value: float, problems: list[str]) -> bool:
+    key = range_key(full)
+    if key in RANGES and not _in_range(key, value):
+        name = key.split(".")[-1]
+        problems.append(
+            f"{full} = {value:g} {unit_of(name)} is out of range: allowed {describe_range(key)}"
+        )
+        return False
+    return True
+
+
 def _expected(full: str, kind: Any) -> str:
+    if dataclasses.is_dataclass(kind):
+        return "a table"
+    if typing.get_origin(kind) is tuple:
+        return "a list"
     if kind is bool:
         return "true or false"
+    if kind is str:
+        return "a string"
     key = range_key(full)
     return f"a number with {describe_range(key)}" if key in RANGES else "a number"
 
@@ -362,7 +444,10 @@ def load_steering(name_or_path: str = "b-segment") -> Preset[SteeringCar]:
     return preset
 
 
-def load(kind: str, name_or_path: str) -> Preset[Any]:
+def load(kind: str, name_or_path: str) -> Any:
+    """A preset of any kind by shipped name or path."""
+    if kind == "hpattern":
+        return load_hpattern(name_or_path)
     label, text = resolve(kind, name_or_path)
     return from_toml(kind, label, text)
 
@@ -390,3 +475,150 @@ def from_toml(kind: str, label: str, text: str) -> Preset[Any]:
 
 def shift_from_toml(label: str, text: str) -> Preset[ShiftParams]:
     return from_toml("shift", label, text)
+
+
+@dataclass(frozen=True, slots=True)
+class HPatternPreset:
+    """An H-pattern gearbox: its layout and select axis, and the shift preset of its slots."""
+
+    name: str
+    source: str
+    engagement: str
+    """The shift preset every slot's engagement (and the driver's hand) comes from."""
+    shift: ShiftParams
+    setup: HPatternSetup
+
+    def pattern(self, physics: bool | None = None) -> HPatternParams:
+        """The model's parameters; `physics` overrides the preset's synchronizer mode."""
+        sync = self.setup.synchronizer
+        if physics is not None and physics != sync.physics:
+            sync = dataclasses.replace(sync, physics=physics)
+        return HPatternParams(
+            self.setup.layout, self.shift.gearbox, self.setup.select, self.setup.walls, sync
+        )
+
+
+NOMINAL_RATE_HZ = 1000.0
+"""Rate at which the walls must stay passive when a device renders them (the paper's 1 kHz)."""
+
+
+def check_hpattern(setup: HPatternSetup, shift: ShiftParams) -> list[str]:
+    """Problems of an H-pattern preset across parameters (each field already in range)."""
+    layout, problems = setup.layout, []
+    planes = layout.planes_y_m
+    if not planes:
+        return ["layout.planes_y_m is empty; give the y of each plane, m"]
+    for a, b in itertools.pairwise(planes):
+        if not b > a:
+            problems.append(f"layout.planes_y_m must increase: {a:g} m then {b:g} m")
+        elif b - a <= layout.slot_width_m:
+            problems.append(
+                f"layout: planes at {a:g} m and {b:g} m are closer than the slot width "
+                f"{layout.slot_width_m:g} m: their slots overlap"
+            )
+    last = len(planes) - 1
+    if layout.centre_plane > last:
+        problems.append(
+            f"layout.centre_plane = {layout.centre_plane}: the layout has planes 0..{last}"
+        )
+    seen: dict[tuple[int, int], str] = {}
+    names: set[str] = set()
+    for gear in layout.gears:
+        if gear.name in names:
+            problems.append(f"layout.gears: gear {gear.name!r} appears twice")
+        names.add(gear.name)
+        if gear.name == "N":
+            problems.append("layout.gears: 'N' is neutral, not a gear name")
+        if gear.direction not in (-1, 1):
+            problems.append(
+                f"layout.gears: gear {gear.name} has direction = {gear.direction}; "
+                "allowed 1 (forward) or -1 (back)"
+            )
+        if gear.plane > last:
+            problems.append(
+                f"layout.gears: gear {gear.name} is on plane {gear.plane}, but the layout has "
+                f"planes 0..{last}: no such plane"
+            )
+        where = (gear.plane, gear.direction)
+        if where in seen:
+            problems.append(
+                f"layout.gears: gears {seen[where]} and {gear.name} share a slot (plane "
+                f"{gear.plane}, direction {gear.direction}): slots overlap"
+            )
+        seen[where] = gear.name
+        if gear.ratio == 0.0 or (gear.name == "R") != (gear.ratio < 0.0):
+            problems.append(
+                f"layout.gears: gear {gear.name} has ratio {gear.ratio:g}; reverse takes a "
+                "negative ratio, forward gears a positive one"
+            )
+    if not layout.gears:
+        problems.append("layout.gears is empty; give at least one [[layout.gears]]")
+    if layout.reverse_lockout_N > 0.0:
+        reverse = [g for g in layout.gears if g.name == "R"]
+        shared = reverse and any(
+            g.plane == reverse[0].plane and g.name != "R" for g in layout.gears
+        )
+        if not reverse or shared or reverse[0].plane not in (0, last):
+            problems.append(
+                f"layout.reverse_lockout_N = {layout.reverse_lockout_N:g} N needs reverse alone "
+                "on an outer plane (as 6+R with R beyond 6); set it to 0 for this layout"
+            )
+    g = shift.gearbox
+    if layout.corridor_width_m / 2 >= g.synchronization_position_m:
+        problems.append(
+            f"layout.corridor_width_m = {layout.corridor_width_m:g} m: half of it must stay "
+            f"short of the synchro ring at {g.synchronization_position_m:g} m"
+        )
+    spacing = min((b - a for a, b in itertools.pairwise(planes)), default=math.inf)
+    if setup.select.detent_width_m >= spacing / 2:
+        problems.append(
+            f"select.detent_width_m = {setup.select.detent_width_m:g} m must be under half the "
+            f"plane spacing ({spacing / 2:g} m)"
+        )
+    # Sampled-wall passivity (Colgate & Schenkel): K*T/2 + B < b, b the lever's own damping.
+    period = 1.0 / NOMINAL_RATE_HZ
+    lever_damping = min(
+        [getattr(g, s).damping_N_s_m for s in ("neutral", "gate_open", "engagement",
+                                                "free_travel", "returning")]
+        + [setup.select.damping_N_s_m]
+    )  # fmt: skip
+    for label, k, b in (
+        ("walls", setup.walls.stiffness_N_m, setup.walls.damping_N_s_m),
+        ("select.slot", setup.select.slot_stiffness_N_m, setup.select.slot_damping_N_s_m),
+    ):
+        need = k * period / 2 + b
+        if need >= lever_damping:
+            problems.append(
+                f"{label}: stiffness {k:g} N/m and damping {b:g} N*s/m need a lever damping "
+                f"above K*T/2 + B = {need:g} N*s/m at {NOMINAL_RATE_HZ:g} Hz to stay passive "
+                f"when rendered, but the lever's least damping is {lever_damping:g} N*s/m"
+            )
+    return problems
+
+
+def load_hpattern(name_or_path: str = "5r") -> HPatternPreset:
+    """Load and validate an H-pattern (layout) preset by shipped name or path."""
+    label, text = resolve("hpattern", name_or_path)
+    data = parse(label, text)
+    problems: list[str] = []
+    allowed = ("name", "source", "engagement", "layout", "select", "walls", "synchronizer",
+               "driver")  # fmt: skip
+    for key in data:
+        if key not in allowed:
+            problems.append(f"{key}: unknown key; an hpattern preset has {', '.join(allowed)}")
+    for key in ("name", "source", "engagement"):
+        if not isinstance(data.get(key), str) or not data[key].strip():
+            problems.append(f"{key}: missing; expected a string")
+    tables: dict[str, Any] = {k: data[k] for k in allowed[3:] if k in data}
+    setup = build(HPatternSetup, tables, "", problems)
+    if problems or setup is None:
+        raise PresetError(f"preset {label} is not valid:\n  " + "\n  ".join(problems))
+    reference = data["engagement"]
+    if (reference.endswith(".toml") or "/" in reference) and not Path(reference).is_absolute():
+        base = Path(label).parent if Path(label).suffix == ".toml" else Path(".")
+        reference = str(base / reference)
+    shift = load_shift(reference)
+    problems = check_hpattern(setup, shift.params)
+    if problems:
+        raise PresetError(f"preset {label} is not valid:\n  " + "\n  ".join(problems))
+    return HPatternPreset(data["name"], data["source"], data["engagement"], shift.params, setup)

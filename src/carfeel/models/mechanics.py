@@ -37,7 +37,9 @@ def stick_slip_step(
     position_m: float,
     velocity_m_s: float,
     force_N: float,
-    mech: StageMechanics,
+    mass_kg: float,
+    damping_N_s_m: float,
+    stiffness_N_m: float,
     rest_position_m: float,
     static_friction_N: float,
     sliding_friction_N: float,
@@ -46,8 +48,9 @@ def stick_slip_step(
 ) -> tuple[float, float, float]:
     """Advance the lever by one step of `dt_s`; return (position_m, velocity_m_s, friction_N).
 
-    The friction bounds are passed apart from `mech` because a stage may change them per event
-    (the tooth force of an engagement); most callers pass the two frictions of `mech`.
+    The parameters are plain floats: a caller may add springs (a wall, a coupling) to a stage's
+    own, or change a friction per event (the tooth force of an engagement). Several springs
+    k_i toward r_i act as one spring sum(k_i) toward sum(k_i*r_i)/sum(k_i), up to a constant.
 
     Signs: positions, velocities and forces are positive in the same direction; `force_N` is the
     applied (driver) force; the returned friction opposes the motion (or the would-be motion when
@@ -60,9 +63,9 @@ def stick_slip_step(
     (inside the velocity band v0 is first set to 0, which only removes energy).
     """
     h = dt_s
-    m_h = mech.mass_kg / h
-    impedance = m_h + mech.damping_N_s_m + h * mech.stiffness_N_m
-    applied = force_N - mech.stiffness_N_m * (position_m - rest_position_m)
+    m_h = mass_kg / h
+    impedance = m_h + damping_N_s_m + h * stiffness_N_m
+    applied = force_N - stiffness_N_m * (position_m - rest_position_m)
     in_band = -stick_velocity_m_s < velocity_m_s < stick_velocity_m_s
     if in_band and -static_friction_N <= applied <= static_friction_N:
         # Karnopp: in the velocity band the lever sticks while the applied force stays within the

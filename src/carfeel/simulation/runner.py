@@ -25,6 +25,7 @@ def run(
     substeps: int = 1,
     inputs: Callable[[float], Any] | None = None,
     metadata: Mapping[str, str] | None = None,
+    stop_when: Callable[[S], bool] | None = None,
 ) -> tuple[Result, S]:
     """Run `step` for `duration_s` and record one sample every `dt_s` (default 1 kHz).
 
@@ -32,7 +33,8 @@ def run(
     sample is the output of the last sub-step, stamped with the time at the end of the interval.
     `inputs(t)` gives the exogenous inputs at the end of each sub-step (None when the model takes
     none): the instant its output is stamped with, and the input an implicit step integrates
-    toward. Returns the Result and the final state.
+    toward. If `stop_when(state)` holds after a sample, the run ends there (`duration_s` is then
+    the longest it may last). Returns the Result and the final state.
     """
     if not dt_s > 0.0:
         raise ValueError(f"dt_s must be > 0 s, got {dt_s}")
@@ -52,5 +54,7 @@ def run(
             state, outputs = step(state, u, params, h)
         times.append((k + 1) * dt_s)
         rows.append(outputs)
+        if stop_when is not None and stop_when(state):
+            break
     names = list(type(outputs)._fields)
     return Result.from_rows(times, names, rows, metadata), state

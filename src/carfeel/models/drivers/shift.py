@@ -123,13 +123,34 @@ def step(
     else:  # PUSH, and RELEASE fading from it
         bias = activation * params.push_force_N
         gain = activation * params.push_force_N / params.push_velocity_m_s
+    x_h, v_h, knob_force = grip_step(
+        state.hand_position_m, state.hand_velocity_m_s, bias, gain, x, v, params, dt_s
+    )
+    new_state = DriverState(phase, phase_time, x_h, v_h, activation)
+    return new_state, DriverOutputs(knob_force, phase.value)
+
+
+def grip_step(
+    hand_position_m: float,
+    hand_velocity_m_s: float,
+    bias_N: float,
+    gain_N_s_m: float,
+    knob_position_m: float,
+    knob_velocity_m_s: float,
+    params: ShiftDriverParams,
+    dt_s: float,
+) -> tuple[float, float, float]:
+    """One implicit step of the hand on the knob: (hand position, hand velocity, knob force).
+
+    The muscle force is bias - gain * v_h (eq. 10 scaled by the activation); the hand's grip is
+    its stiffness and damping to the knob, whose motion is given.
+    """
     m_h = params.hand_mass_kg / dt_s
     k = params.hand_stiffness_N_m
     c = params.hand_damping_N_s_m
-    x_h = state.hand_position_m
-    impedance = m_h + gain + c + dt_s * k
-    v_h = (m_h * state.hand_velocity_m_s + bias - k * (x_h - x) + c * v) / impedance
-    x_h += dt_s * v_h
-    knob_force = k * (x_h - x) + c * (v_h - v)
-    new_state = DriverState(phase, phase_time, x_h, v_h, activation)
-    return new_state, DriverOutputs(knob_force, phase.value)
+    x = knob_position_m
+    v = knob_velocity_m_s
+    impedance = m_h + gain_N_s_m + c + dt_s * k
+    v_h = (m_h * hand_velocity_m_s + bias_N - k * (hand_position_m - x) + c * v) / impedance
+    x_h = hand_position_m + dt_s * v_h
+    return x_h, v_h, k * (x_h - x) + c * (v_h - v)

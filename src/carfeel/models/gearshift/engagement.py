@@ -97,6 +97,14 @@ class EngagementState(NamedTuple):
 class EngagementInputs(NamedTuple):
     driver_force_N: float
     """Force the driver applies to the knob, positive toward the gear."""
+    wall_stiffness_N_m: float = 0.0
+    """An outside spring on the lever (a gate wall of the H-pattern), 0 when there is none."""
+    wall_damping_N_s_m: float = 0.0
+    wall_position_m: float = 0.0
+    """Where the outside spring is relaxed."""
+    gate_open: bool | None = None
+    """None: the synchro gate opens after `synchronization_duration_s` of pushing (the paper).
+    True / False: an outside synchronizer model says whether the speeds are matched."""
 
 
 class EngagementOutputs(NamedTuple):
@@ -105,7 +113,8 @@ class EngagementOutputs(NamedTuple):
     force_N: float
     """Driver force on the knob, as measured at the knob in the paper's Fig. 5."""
     reaction_N: float
-    """Force the gearbox carries by friction or blocking (positive when it resists a push)."""
+    """Force of the gearbox on the knob against the driver: the driver's force less what
+    accelerates the lever (F - m*a). It is what a force-feedback device renders."""
     stage: str
 
 
@@ -152,9 +161,13 @@ def step(
             stage = Stage.RETURNING  # force reversal: free motion, never into gear
         else:
             progress = state.synchronization_progress
-            if force > 0.0:
-                progress += dt_s / params.synchronization_duration_s
-            if progress < _DONE:
+            if inputs.gate_open is None:
+                if force > 0.0:
+                    progress += dt_s / params.synchronization_duration_s
+                synchronized = progress >= _DONE
+            else:
+                synchronized = inputs.gate_open
+            if not synchronized:
                 held = EngagementState(
                     stage,
                     x,
@@ -173,31 +186,28 @@ def step(
         v = _hand_over(v, x, state.stage, stage, params)
 
     mech, rest = mechanics(params, stage)
-    if stage is Stage.ENGAGEMENT:
-        tooth = state.tooth_force_N
-        x1, v1, friction = stick_slip_step(
-            x,
-            v,
-            force,
-            mech,
-            rest,
-            mech.static_friction_N + tooth,
-            mech.sliding_friction_N + tooth,
-            params.stick_velocity_m_s,
-            dt_s,
-        )
-    else:
-        x1, v1, friction = stick_slip_step(
-            x,
-            v,
-            force,
-            mech,
-            rest,
-            mech.static_friction_N,
-            mech.sliding_friction_N,
-            params.stick_velocity_m_s,
-            dt_s,
-        )
+    stiffness = mech.stiffness_N_m
+    damping = mech.damping_N_s_m
+    k_wall = inputs.wall_stiffness_N_m
+    if k_wall > 0.0:  # the outside spring joins the stage's own, in the implicit step
+        rest = (stiffness * rest + k_wall * inputs.wall_position_m) / (stiffness + k_wall)
+        stiffness += k_wall
+        damping += inputs.wall_damping_N_s_m
+    extra = state.tooth_force_N if stage is Stage.ENGAGEMENT else 0.0
+    x1, v1, _ = stick_slip_step(
+        x,
+        v,
+        force,
+        mech.mass_kg,
+        damping,
+        stiffness,
+        rest,
+        mech.static_friction_N + extra,
+        mech.sliding_friction_N + extra,
+        params.stick_velocity_m_s,
+        dt_s,
+    )
+    reaction = force - mech.mass_kg * (v1 - v) / dt_s
 
     # Guards on position, at the end of the motion of this step.
     new_stage = stage
@@ -256,7 +266,7 @@ def step(
         v1 = _hand_over(v1, x1, stage, new_stage, params)
     stage_time = state.stage_time_s + dt_s if new_stage is state.stage else 0.0
     new_state = EngagementState(new_stage, x1, v1, stage_time, progress, tooth, rng_state)
-    return new_state, EngagementOutputs(x1, v1, force, friction, new_stage.value)
+    return new_state, EngagementOutputs(x1, v1, force, reaction, new_stage.value)
 
 
 def _mass_and_spring(params: EngagementParams, stage: Stage, x: float) -> tuple[float, float]:

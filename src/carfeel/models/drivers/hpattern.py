@@ -1,0 +1,188 @@
+"""A driver who works through a gear sequence on the H-pattern, and can make mistakes on request.
+
+For each gear of the sequence: pull the lever back into the corridor (the mirror of eq. 10), move
+it across to the gear's plane (a hand that aims at the plane: a spring-damper toward it, limited
+to `select_force_N`), push it in along the slot with the paper's law (eq. 10, through the same hand
+as `drivers.shift`), let go once in gear, wait `hold_s`, go on. "N" pulls back to neutral and
+leaves the knob on the centre plane. The clutch pedal is held at `clutch_pedal` throughout.
+
+Mistakes, for the tests and for demonstrations:
+- `early_clutch_release_shift` = k > 0: the clutch is released (pedal 0) while pushing into the
+  k-th gear of the sequence, so its synchronizer cannot finish (balk, grinding if forced);
+- `wall_push_shift` = k > 0: while selecting the k-th gear the driver already pushes toward it,
+  so the knob runs into the gate wall until it is aligned with the slot.
+
+Signs: x forward, y toward the higher planes, as in `carfeel.models.gearshift.hpattern`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import Enum
+from typing import NamedTuple
+
+from carfeel.models.drivers.shift import ShiftDriverParams, grip_step
+from carfeel.models.gearshift.hpattern import NEUTRAL_GEAR, Layout
+
+
+class Phase(Enum):
+    PULL = "pull"
+    SELECT = "select"
+    PUSH = "push"
+    RELEASE = "release"
+    DONE = "done"
+
+
+@dataclass(frozen=True, slots=True)
+class HPatternDriverParams:
+    """How this driver selects; the push and pull along x are the shift driver's (`hand`)."""
+
+    select_force_N: float
+    select_stiffness_N_m: float
+    select_damping_N_s_m: float
+    select_tolerance_m: float
+    """Close enough to the plane to push in."""
+    hold_s: float
+    """Pause in each gear (and in neutral) before the next."""
+
+
+@dataclass(frozen=True, slots=True)
+class Script:
+    """What this driver does in one run, and where the gears are."""
+
+    sequence: tuple[str, ...]
+    layout: Layout
+    hand: ShiftDriverParams
+    """Push and pull laws and the hand's impedance along x (the shift preset's driver)."""
+    habits: HPatternDriverParams
+    clutch_pedal: float = 1.0
+    early_clutch_release_shift: int = 0
+    wall_push_shift: int = 0
+
+
+class HPatternDriverState(NamedTuple):
+    index: int
+    """Position in the sequence of the gear being shifted to."""
+    phase: Phase
+    phase_time_s: float
+    hand_position_m: float
+    hand_velocity_m_s: float
+    activation: float
+
+
+class HPatternDriverInputs(NamedTuple):
+    x_m: float
+    y_m: float
+    vx_m_s: float
+    vy_m_s: float
+
+
+class HPatternDriverOutputs(NamedTuple):
+    force_x_N: float
+    force_y_N: float
+    clutch_pedal: float
+    phase: str
+    target: str
+
+
+def initial_state() -> HPatternDriverState:
+    return HPatternDriverState(0, Phase.PULL, 0.0, 0.0, 0.0, 0.0)
+
+
+def _target(script: Script, index: int) -> tuple[str, float, int]:
+    """(name, plane y, direction) of the index-th gear; neutral aims at the centre plane."""
+    layout = script.layout
+    name = script.sequence[index]
+    if name == NEUTRAL_GEAR:
+        return name, layout.planes_y_m[layout.centre_plane], 0
+    gear = layout.gear(name)
+    return name, layout.planes_y_m[gear.plane], gear.direction
+
+
+def _next_phase(
+    state: HPatternDriverState, knob: HPatternDriverInputs, script: Script
+) -> tuple[int, Phase]:
+    index, phase = state.index, state.phase
+    if phase is Phase.DONE:
+        return index, phase
+    habits, hand = script.habits, script.hand
+    name, plane_y, direction = _target(script, index)
+    corridor = 0.5 * script.layout.corridor_width_m
+    if phase is Phase.PULL and abs(knob.x_m) <= 0.5 * corridor:
+        return index, Phase.SELECT
+    if phase is Phase.SELECT:
+        near = abs(knob.y_m - plane_y) <= habits.select_tolerance_m and abs(knob.vy_m_s) < 0.05
+        if near:
+            return index, (Phase.RELEASE if direction == 0 else Phase.PUSH)
+    if phase is Phase.PUSH:
+        s, v = direction * knob.x_m, direction * knob.vx_m_s
+        if s >= hand.release_position_m and v <= 0.0:
+            return index, Phase.RELEASE
+    if phase is Phase.RELEASE and state.phase_time_s >= habits.hold_s:
+        if index + 1 >= len(script.sequence):
+            return index, Phase.DONE
+        return index + 1, Phase.PULL
+    return index, phase
+
+
+def step(
+    state: HPatternDriverState,
+    inputs: HPatternDriverInputs,
+    params: Script,
+    dt_s: float,
+) -> tuple[HPatternDriverState, HPatternDriverOutputs]:
+    """The driver's forces on the knob and the clutch pedal for one step."""
+    script = params
+    habits, hand = script.habits, script.hand
+    index, phase = _next_phase(state, inputs, script)
+    changed = phase is not state.phase or index != state.index
+    phase_time = 0.0 if changed else state.phase_time_s + dt_s
+    name, plane_y, direction = _target(script, index)
+    shift_number = index + 1
+    pedal = script.clutch_pedal
+    x, vx = inputs.x_m, inputs.vx_m_s
+
+    # Along x: the hand pulls, pushes, lets go, or is off the knob.
+    activation = 0.0 if changed and phase is not Phase.RELEASE else state.activation
+    hand_x, hand_v = state.hand_position_m, state.hand_velocity_m_s
+    if (
+        phase is Phase.PULL
+        or phase is Phase.PUSH
+        or (phase is Phase.SELECT and script.wall_push_shift == shift_number)
+    ):
+        if changed or state.phase is Phase.DONE:
+            hand_x, hand_v = x, vx  # the hand takes hold of the knob where it is
+        activation = 1.0 - (1.0 - activation) * math.exp(-dt_s / hand.activation_time_s)
+        if phase is Phase.PULL:
+            side = 1.0 if x > 0.0 else -1.0
+            bias = -side * activation * hand.pull_force_N
+            gain = activation * hand.pull_force_N / hand.pull_velocity_m_s
+        else:
+            side = float(direction) if direction != 0 else 1.0
+            bias = side * activation * hand.push_force_N
+            gain = activation * hand.push_force_N / hand.push_velocity_m_s
+        if phase is Phase.PUSH and script.early_clutch_release_shift == shift_number:
+            pedal = 0.0
+        hand_x, hand_v, force_x = grip_step(hand_x, hand_v, bias, gain, x, vx, hand, dt_s)
+    elif phase is Phase.RELEASE and direction != 0:
+        activation *= math.exp(-dt_s / hand.release_time_s)
+        side = float(direction)
+        bias = side * activation * hand.push_force_N
+        gain = activation * hand.push_force_N / hand.push_velocity_m_s
+        hand_x, hand_v, force_x = grip_step(hand_x, hand_v, bias, gain, x, vx, hand, dt_s)
+    else:
+        hand_x, hand_v, force_x, activation = x, vx, 0.0, 0.0
+
+    # Along y: aim at the target plane while selecting and pushing; hands off otherwise.
+    if phase is Phase.SELECT or phase is Phase.PUSH or phase is Phase.PULL:
+        aim = plane_y if phase is not Phase.PULL else inputs.y_m
+        force_y = habits.select_stiffness_N_m * (aim - inputs.y_m) - (
+            habits.select_damping_N_s_m * inputs.vy_m_s
+        )
+        force_y = max(-habits.select_force_N, min(habits.select_force_N, force_y))
+    else:
+        force_y = 0.0
+
+    new_state = HPatternDriverState(index, phase, phase_time, hand_x, hand_v, activation)
+    return new_state, HPatternDriverOutputs(force_x, force_y, pedal, phase.value, name)

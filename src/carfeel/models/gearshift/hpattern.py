@@ -1,0 +1,348 @@
+"""The complete H-pattern gearshift (2 DOF), after section 3.5 of the paper, and beyond it.
+
+    y (select) ->          planes at planes_y_m; x (engage) forward +, back -
+         1     3     5        a slot per gear: a channel slot_width_m wide along x
+         |     |     |
+    =====+=====+=====+=====   the neutral corridor: |x| <= corridor_width_m / 2
+         |     |     |
+         2     4     R
+
+The workspace is divided into areas (`Region`): the corridor, the mouths (the corridor where it
+meets a slot), the slots, and outside (beyond a wall). A manager identifies the area from (x, y)
+and hands it to the two axis controllers:
+- X: along the slot, s = direction * x runs the single-gear engagement model (its stages and
+  its random tooth peaks) with the direction of the side the lever is on; in the corridor its
+  neutral stage. If the lever is not aligned with a slot on that side, a gate wall at the
+  corridor's edge stops it: a gear can be entered only from the corridor.
+- Y: in the corridor, the select spring centres the knob on `centre_plane` with a detent well at
+  every plane, a preloaded lockout spring before a reverse plane (if set), and walls at the
+  corridor's ends; in a slot, the slot's impedance holds the knob on the slot's centre line.
+Walls and the slot hold are spring-dampers toward the nearest legal path, integrated implicitly
+with the lever (so they are passive at any step); their stiffness and damping also satisfy the
+sampled-wall bound K*T/2 + B < b (Colgate & Schenkel) with the lever's own damping b at the
+1 kHz rate, so a device rendering them explicitly stays passive too (checked when loading).
+
+The synchronizer model (`synchronizer.py`) says when the synchro gate may open; the engaged gear
+is an output with hysteresis (in mesh past the teeth, out of mesh back before them), with an
+event at each change.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import Enum
+from typing import NamedTuple
+
+from carfeel.models.gearshift import engagement, synchronizer
+from carfeel.models.gearshift.engagement import EngagementParams, EngagementState, Stage
+from carfeel.models.gearshift.synchronizer import SynchronizerParams, SynchronizerState
+from carfeel.models.mechanics import stick_slip_step
+
+NEUTRAL_GEAR = "N"
+IN_MESH = frozenset({Stage.FREE_TRAVEL, Stage.STOP, Stage.IN_GEAR})
+
+
+class Region(Enum):
+    CORRIDOR = "corridor"
+    MOUTH = "mouth"
+    SLOT = "slot"
+    OUTSIDE = "outside"
+
+
+@dataclass(frozen=True, slots=True)
+class GearSlot:
+    name: str
+    """"1".."6" or "R"."""
+    plane: int
+    """Index into `Layout.planes_y_m`."""
+    direction: int
+    """+1: the slot runs forward (x > 0), -1: back."""
+    ratio: float
+    """Gearbox ratio, input over output speed; negative for reverse."""
+
+
+@dataclass(frozen=True, slots=True)
+class Layout:
+    planes_y_m: tuple[float, ...]
+    centre_plane: int
+    """The plane the select spring centres the knob on (the 3-4 plane of a 5-speed)."""
+    gears: tuple[GearSlot, ...]
+    slot_width_m: float
+    corridor_width_m: float
+    reverse_lockout_N: float
+    """Extra select force to pass into a plane that holds only reverse (0: no lockout)."""
+
+    def gear_at(self, plane: int, direction: int) -> GearSlot | None:
+        for gear in self.gears:
+            if gear.plane == plane and gear.direction == direction:
+                return gear
+        return None
+
+    def gear(self, name: str) -> GearSlot:
+        for gear in self.gears:
+            if gear.name == name:
+                return gear
+        raise KeyError(name)
+
+    @property
+    def lockout_plane(self) -> int | None:
+        """The plane that only reverse occupies, behind the lockout (None without lockout)."""
+        if self.reverse_lockout_N <= 0.0:
+            return None
+        for gear in self.gears:
+            if gear.name == "R":
+                others = [g for g in self.gears if g.plane == gear.plane and g.name != "R"]
+                return None if others else gear.plane
+        return None
+
+
+@dataclass(frozen=True, slots=True)
+class SelectParams:
+    """The y (select) axis: the lever's select mechanics and its springs."""
+
+    mass_kg: float
+    damping_N_s_m: float
+    static_friction_N: float
+    sliding_friction_N: float
+    centring_stiffness_N_m: float
+    detent_stiffness_N_m: float
+    detent_width_m: float
+    """Half-width of the detent well around each plane."""
+    slot_stiffness_N_m: float
+    slot_damping_N_s_m: float
+    lockout_stiffness_N_m: float
+
+
+@dataclass(frozen=True, slots=True)
+class WallParams:
+    stiffness_N_m: float
+    damping_N_s_m: float
+
+
+@dataclass(frozen=True, slots=True)
+class HPatternParams:
+    layout: Layout
+    engagement: EngagementParams
+    select: SelectParams
+    walls: WallParams
+    synchronizer: SynchronizerParams
+
+
+class HPatternState(NamedTuple):
+    lever: EngagementState
+    """The x axis, in slot coordinates s = direction * x."""
+    direction: int
+    y_m: float
+    vy_m_s: float
+    plane: int
+    """The plane the knob is in (frozen while in a slot, the nearest one in the corridor)."""
+    sync: SynchronizerState
+    gear: str
+
+
+class HPatternInputs(NamedTuple):
+    force_x_N: float
+    force_y_N: float
+    clutch_pedal: float = 1.0
+    vehicle_speed_m_s: float = 0.0
+    engine_speed_rad_s: float = 0.0
+
+
+class HPatternOutputs(NamedTuple):
+    x_m: float
+    y_m: float
+    vx_m_s: float
+    vy_m_s: float
+    force_x_N: float
+    force_y_N: float
+    reaction_x_N: float
+    """Force of the gearbox on the knob along x (F - m*a), grinding included."""
+    reaction_y_N: float
+    region: str
+    gear: str
+    event: str
+    """"engage 3", "disengage 3" at the step where the gear output changes, else ""."""
+    stage: str
+    speed_difference_rad_s: float
+    grind_N: float
+
+
+def initial_state(
+    params: HPatternParams, seed: int = 0, input_speed_rad_s: float = 0.0
+) -> HPatternState:
+    """At rest in neutral on the centre plane."""
+    layout = params.layout
+    centre = layout.centre_plane
+    return HPatternState(
+        engagement.initial_state(seed),
+        1,
+        layout.planes_y_m[centre],
+        0.0,
+        centre,
+        synchronizer.initial_state(input_speed_rad_s),
+        NEUTRAL_GEAR,
+    )
+
+
+def nearest_plane(layout: Layout, y: float) -> int:
+    planes = layout.planes_y_m
+    best = 0
+    for i in range(1, len(planes)):
+        if abs(planes[i] - y) < abs(planes[best] - y):
+            best = i
+    return best
+
+
+def _select_springs(
+    y: float, layout: Layout, select: SelectParams, walls: WallParams
+) -> tuple[float, float, float]:
+    """(stiffness, rest, extra damping) of the springs on y in the corridor, combined."""
+    planes = layout.planes_y_m
+    centre_y = planes[layout.centre_plane]
+    k = select.centring_stiffness_N_m
+    moment = k * centre_y
+    damping = 0.0
+    nearest = nearest_plane(layout, y)
+    y_p = planes[nearest]
+    if abs(y - y_p) < select.detent_width_m:
+        k += select.detent_stiffness_N_m
+        moment += select.detent_stiffness_N_m * y_p
+    lock = layout.lockout_plane
+    if lock is not None:
+        # A preloaded spring pushes back toward the neighbouring plane from half-way on.
+        neighbour = lock - 1 if lock > 0 else lock + 1
+        start = 0.5 * (planes[lock] + planes[neighbour])
+        toward = 1.0 if planes[lock] > planes[neighbour] else -1.0
+        if (y - start) * toward > 0.0:
+            k_l = select.lockout_stiffness_N_m
+            rest = start - toward * layout.reverse_lockout_N / k_l
+            k += k_l
+            moment += k_l * rest
+    half = 0.5 * layout.slot_width_m
+    low, high = planes[0] - half, planes[-1] + half
+    if y > high or y < low:
+        k += walls.stiffness_N_m
+        moment += walls.stiffness_N_m * (high if y > high else low)
+        damping += walls.damping_N_s_m
+    return k, moment / k, damping
+
+
+def step(
+    state: HPatternState, inputs: HPatternInputs, params: HPatternParams, dt_s: float
+) -> tuple[HPatternState, HPatternOutputs]:
+    """Advance the knob by `dt_s` under the driver's forces and the car's state."""
+    layout = params.layout
+    eng = params.engagement
+    lever = state.lever
+    direction = state.direction
+    if lever.stage is Stage.NEUTRAL and lever.position_m < 0.0:
+        # Through the centre of the corridor: the lever now faces the other side's slots.
+        direction = -direction
+        lever = lever._replace(position_m=-lever.position_m, velocity_m_s=-lever.velocity_m_s)
+    s = lever.position_m
+    y = state.y_m
+    half_corridor = 0.5 * layout.corridor_width_m
+    in_corridor = s <= half_corridor
+    plane = nearest_plane(layout, y) if in_corridor else state.plane
+    slot = layout.gear_at(plane, direction)
+    aligned = slot is not None and abs(y - layout.planes_y_m[plane]) <= 0.5 * layout.slot_width_m
+
+    # Synchronizer: which gear is selected, is it in mesh, how hard is the ring pressed.
+    ratio = slot.ratio if slot is not None and (aligned or not in_corridor) else None
+    axial = direction * inputs.force_x_N if lever.stage is Stage.SYNCHRONIZATION else 0.0
+    sync_state, sync_out = synchronizer.step(
+        state.sync,
+        synchronizer.SynchronizerInputs(
+            inputs.vehicle_speed_m_s,
+            inputs.engine_speed_rad_s,
+            inputs.clutch_pedal,
+            ratio,
+            lever.stage in IN_MESH,
+            axial,
+        ),
+        params.synchronizer,
+        dt_s,
+    )
+
+    # X: the engagement along the slot, with the gate wall where no slot is open.
+    walled_x = (
+        not aligned
+        and in_corridor
+        and s > half_corridor - 1e-12
+        or (not in_corridor and slot is None)
+    )
+    walls = params.walls
+    x_inputs = engagement.EngagementInputs(
+        direction * inputs.force_x_N,
+        walls.stiffness_N_m if walled_x else 0.0,
+        walls.damping_N_s_m if walled_x else 0.0,
+        half_corridor,
+        sync_out.gate_open,
+    )
+    lever, x_out = engagement.step(lever, x_inputs, eng, dt_s)
+
+    # Y: select springs in the corridor, the slot's hold in a slot.
+    sel = params.select
+    if in_corridor:
+        k_y, rest_y, damping_y = _select_springs(y, layout, sel, walls)
+    else:
+        k_y, rest_y, damping_y = (
+            sel.slot_stiffness_N_m,
+            layout.planes_y_m[plane],
+            sel.slot_damping_N_s_m,
+        )
+    y1, vy1, _ = stick_slip_step(
+        y,
+        state.vy_m_s,
+        inputs.force_y_N,
+        sel.mass_kg,
+        sel.damping_N_s_m + damping_y,
+        k_y,
+        rest_y,
+        sel.static_friction_N,
+        sel.sliding_friction_N,
+        eng.stick_velocity_m_s,
+        dt_s,
+    )
+    reaction_y = inputs.force_y_N - sel.mass_kg * (vy1 - state.vy_m_s) / dt_s
+
+    # The engaged gear, with hysteresis: in mesh past the teeth, out of mesh back before them.
+    gear = state.gear
+    event = ""
+    s1 = lever.position_m
+    if gear == NEUTRAL_GEAR:
+        if lever.stage in IN_MESH and slot is not None:
+            gear = slot.name
+            event = f"engage {gear}"
+    elif s1 < eng.teeth_position_m or lever.stage is Stage.NEUTRAL:
+        event = f"disengage {gear}"
+        gear = NEUTRAL_GEAR
+
+    x1 = direction * s1
+    if s1 > half_corridor:
+        region = (
+            Region.SLOT if (aligned or not in_corridor) and slot is not None else Region.OUTSIDE
+        )
+    else:
+        half = 0.5 * layout.slot_width_m
+        if y1 > layout.planes_y_m[-1] + half or y1 < layout.planes_y_m[0] - half:
+            region = Region.OUTSIDE
+        else:
+            region = Region.MOUTH if aligned else Region.CORRIDOR
+    new_state = HPatternState(lever, direction, y1, vy1, plane, sync_state, gear)
+    return new_state, HPatternOutputs(
+        x1,
+        y1,
+        direction * lever.velocity_m_s,
+        vy1,
+        inputs.force_x_N,
+        inputs.force_y_N,
+        direction * x_out.reaction_N + sync_out.grind_N * direction,
+        reaction_y,
+        region.value,
+        gear,
+        event,
+        x_out.stage,
+        sync_out.speed_difference_rad_s,
+        sync_out.grind_N,
+    )

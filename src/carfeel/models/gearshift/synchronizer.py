@@ -1,0 +1,147 @@
+"""Synchronizer, clutch and gearbox input shaft: when may the synchro gate open?
+
+Two modes (`SynchronizerParams.physics`):
+- fixed (the paper's, the default): the engagement model's own timer opens the gate after its
+  synchronization duration of pushing, provided the clutch is pressed past `clutch_open_above`;
+  with the clutch less pressed the gate never opens.
+- physics: the gate opens when the cone has matched the speeds. The input shaft (clutch disc,
+  input shaft and the gears it drives, inertia J at the input shaft, speed w_in) is acted on by
+
+      J * dw_in/dt = T_clutch + T_cone / |r| - T_drag
+      T_clutch = C * clamp((p_open - pedal) / p_open, 0, 1)   toward the engine speed
+      T_cone   = mu * F_axial * R_cone / sin(alpha),  F_axial = lever_ratio * F_knob
+                                                              toward w_out * r (the target gear)
+      T_drag                                                  toward 0 (bearings, oil)
+
+  each a Coulomb torque that does not overshoot its own target within a step. The gate opens when
+  |w_in - w_out * r| < `speed_tolerance_rad_s`, w_out = V / wheel_radius * final_drive. So the
+  time is J * |dw| * |r| / T_cone: pushing harder shortens it; a downshift (larger target r, larger
+  speed step) takes longer than an upshift at the same speed; a clutch not pressed far enough
+  drags the shaft toward the engine harder than the cone can pull it: no synchronization (balk).
+
+Grinding (both modes): while the ring balks the sleeve and the driver pushes harder than
+`grind_force_N`, the sleeve's dog teeth chatter on the gear's: a vibration of amplitude
+`grind_amplitude_N` at the tooth-passing frequency n_teeth * |w_in / r - w_out| / (2 pi), felt on
+top of the balk. The ring itself still blocks: a balk is a wall, the grinding only a vibration.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import NamedTuple
+
+
+@dataclass(frozen=True, slots=True)
+class SynchronizerParams:
+    physics: bool
+    input_inertia_kg_m2: float
+    cone_friction: float
+    cone_radius_m: float
+    cone_half_angle_rad: float
+    lever_ratio: float
+    """Sleeve axial force per newton at the knob."""
+    clutch_capacity_Nm: float
+    """Torque the clutch transmits with the pedal released."""
+    clutch_open_above: float
+    """Pedal position (0 released .. 1 pressed) beyond which the clutch transmits nothing."""
+    drag_torque_Nm: float
+    speed_tolerance_rad_s: float
+    grind_force_N: float
+    grind_amplitude_N: float
+    dog_teeth: int
+    final_drive_ratio: float
+    wheel_radius_m: float
+
+
+class SynchronizerState(NamedTuple):
+    input_speed_rad_s: float
+    grind_phase_rad: float
+
+
+class SynchronizerInputs(NamedTuple):
+    vehicle_speed_m_s: float
+    engine_speed_rad_s: float
+    clutch_pedal: float
+    """0 released .. 1 pressed to the floor."""
+    ratio: float | None
+    """Ratio of the gear whose slot the lever is in (None: none selected)."""
+    locked: bool
+    """The gear is in mesh: the input shaft turns with the output through `ratio`."""
+    axial_force_N: float
+    """Knob force pressing the synchronizer ring (0 unless the ring blocks the lever)."""
+
+
+class SynchronizerOutputs(NamedTuple):
+    gate_open: bool | None
+    """For the engagement model: None (fixed mode, clutch pressed: its own timer), True or False."""
+    speed_difference_rad_s: float
+    """w_in - w_out * ratio at the input shaft (0 without a selected gear)."""
+    grind_N: float
+
+
+def initial_state(input_speed_rad_s: float = 0.0) -> SynchronizerState:
+    return SynchronizerState(input_speed_rad_s, 0.0)
+
+
+def output_speed_rad_s(vehicle_speed_m_s: float, params: SynchronizerParams) -> float:
+    """Gearbox output shaft speed for a vehicle speed, rad/s."""
+    return vehicle_speed_m_s / params.wheel_radius_m * params.final_drive_ratio
+
+
+def cone_torque_Nm(axial_force_N: float, params: SynchronizerParams) -> float:
+    """Friction torque of the cone for a knob force (positive), Nm."""
+    return (
+        params.cone_friction
+        * params.lever_ratio
+        * max(axial_force_N, 0.0)
+        * params.cone_radius_m
+        / math.sin(params.cone_half_angle_rad)
+    )
+
+
+def _toward(speed: float, target: float, change: float) -> float:
+    """Move `speed` toward `target` by at most `change` (a Coulomb torque's step)."""
+    if speed < target:
+        return min(target, speed + change)
+    return max(target, speed - change)
+
+
+def step(
+    state: SynchronizerState,
+    inputs: SynchronizerInputs,
+    params: SynchronizerParams,
+    dt_s: float,
+) -> tuple[SynchronizerState, SynchronizerOutputs]:
+    p = params
+    w_out = output_speed_rad_s(inputs.vehicle_speed_m_s, p)
+    w_in = state.input_speed_rad_s
+    ratio = inputs.ratio
+    if ratio is not None and inputs.locked:
+        w_in = w_out * ratio
+    else:
+        j = p.input_inertia_kg_m2
+        engaged = (p.clutch_open_above - inputs.clutch_pedal) / p.clutch_open_above
+        clutch = p.clutch_capacity_Nm * min(1.0, max(0.0, engaged))
+        w_in = _toward(w_in, inputs.engine_speed_rad_s, clutch * dt_s / j)
+        if ratio is not None and inputs.axial_force_N > 0.0:
+            cone = cone_torque_Nm(inputs.axial_force_N, p) / abs(ratio)
+            w_in = _toward(w_in, w_out * ratio, cone * dt_s / j)
+        w_in = _toward(w_in, 0.0, p.drag_torque_Nm * dt_s / j)
+    if ratio is None:
+        return SynchronizerState(w_in, 0.0), SynchronizerOutputs(False, 0.0, 0.0)
+    difference = w_in - w_out * ratio
+    matched = -p.speed_tolerance_rad_s < difference < p.speed_tolerance_rad_s
+    gate: bool | None
+    if p.physics:
+        gate = matched
+    else:
+        gate = None if inputs.clutch_pedal >= p.clutch_open_above else False
+    phase = state.grind_phase_rad
+    grind = 0.0
+    balked = (not matched) if p.physics else gate is False
+    if balked and inputs.axial_force_N > p.grind_force_N:
+        teeth_speed = abs(difference / ratio)
+        phase = (phase + p.dog_teeth * teeth_speed * dt_s) % (2.0 * math.pi)
+        grind = p.grind_amplitude_N * math.sin(phase)
+    return SynchronizerState(w_in, phase), SynchronizerOutputs(gate, difference, grind)
