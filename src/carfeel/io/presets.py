@@ -21,9 +21,9 @@ from pathlib import Path
 from typing import Any, Generic, TypeVar
 
 from carfeel.errors import PresetError
-from carfeel.simulation.shift import ShiftParams
 from carfeel.models.gearshift.hpattern import HPatternParams
 from carfeel.simulation.hpattern import HPatternSetup
+from carfeel.simulation.shift import ShiftParams
 from carfeel.simulation.steering import SteeringCar
 
 T = TypeVar("T")

@@ -62,7 +62,7 @@ class Script:
 
 
 class HPatternDriverState(NamedTuple):
-    index: int
+    target_index: int
     """Position in the sequence of the gear being shifted to."""
     phase: Phase
     phase_time_s: float
@@ -103,11 +103,11 @@ def _target(script: Script, index: int) -> tuple[str, float, int]:
 def _next_phase(
     state: HPatternDriverState, knob: HPatternDriverInputs, script: Script
 ) -> tuple[int, Phase]:
-    index, phase = state.index, state.phase
+    index, phase = state.target_index, state.phase
     if phase is Phase.DONE:
         return index, phase
     habits, hand = script.habits, script.hand
-    name, plane_y, direction = _target(script, index)
+    _, plane_y, direction = _target(script, index)
     corridor = 0.5 * script.layout.corridor_width_m
     if phase is Phase.PULL and abs(knob.x_m) <= 0.5 * corridor:
         return index, Phase.SELECT
@@ -136,7 +136,7 @@ def step(
     script = params
     habits, hand = script.habits, script.hand
     index, phase = _next_phase(state, inputs, script)
-    changed = phase is not state.phase or index != state.index
+    changed = phase is not state.phase or index != state.target_index
     phase_time = 0.0 if changed else state.phase_time_s + dt_s
     name, plane_y, direction = _target(script, index)
     shift_number = index + 1

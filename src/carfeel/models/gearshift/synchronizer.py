@@ -132,11 +132,9 @@ def step(
         return SynchronizerState(w_in, 0.0), SynchronizerOutputs(False, 0.0, 0.0)
     difference = w_in - w_out * ratio
     matched = -p.speed_tolerance_rad_s < difference < p.speed_tolerance_rad_s
-    gate: bool | None
-    if p.physics:
-        gate = matched
-    else:
-        gate = None if inputs.clutch_pedal >= p.clutch_open_above else False
+    # Fixed mode: the engagement's own timer runs (None) only with the clutch pressed enough.
+    clutch_open = inputs.clutch_pedal >= p.clutch_open_above
+    gate: bool | None = matched if p.physics else (None if clutch_open else False)
     phase = state.grind_phase_rad
     grind = 0.0
     balked = (not matched) if p.physics else gate is False
