@@ -202,7 +202,11 @@ def test_metrics_of_a_measured_style_log_without_metadata(tmp_path, capsys):
         (
             "time_s,speed_m_s,steering_angle_rad,lateral_accel_m_s2,torque_Nm\n"
             "0,1,0,0,0\n0,1,0,0,0\n0.2,1,0,0,0\n",
-            "time_s must increase",
+            "line 3: time_s does not increase",
+        ),
+        (
+            "time_s,time_s,speed_m_s\n0,0,1\n",
+            "column(s) time_s appear more than once",
         ),
         (
             "time_s,speed_m_s,steering_angle_rad,lateral_accel_m_s2,torque_Nm\n"
@@ -226,6 +230,11 @@ def test_malformed_steering_logs_exit_2(tmp_path, capsys, content, message):
         (["--manoeuvre", "weave", "--speed-kmh", "-10"], "allowed 0 <= value <= 250 km/h"),
         (["--manoeuvre", "iso4138", "--speed-kmh", "50"], "drop --speed-kmh"),
         (["--manoeuvre", "weave", "--preset", "nope"], "no steering preset named 'nope'"),
+        (["--manoeuvre", "weave", "--dt", "100"], "longer than --duration"),
+        (["--manoeuvre", "iso3888", "--dt", "0.2"], "use --substeps 40"),
+        (["--manoeuvre", "iso3888", "--dt", "1e-7"], "below 1e-06 s"),
+        (["--manoeuvre", "iso7401-step", "--speed-kmh", "10"], "beyond the car's lock of 540"),
+        (["--manoeuvre", "steer-cycle", "--speed-kmh", "250"], "a parking manoeuvre"),
     ],
 )
 def test_bad_steering_requests_exit_2(tmp_path, capsys, args, message):

@@ -18,7 +18,8 @@ from carfeel.io.presets import load_shift, load_steering
 from carfeel.simulation import manoeuvres
 from carfeel.simulation.result import Result
 from carfeel.simulation.shift import MAX_STEP_S, simulate_shift
-from carfeel.simulation.steering import simulate_steering
+from carfeel.simulation.steering import LINEAR_TYRE_LIMIT_G, simulate_steering
+from carfeel.simulation.steering import MAX_STEP_S as STEERING_MAX_STEP_S
 
 DEFAULT_SHIFT_DURATION_S = 1.2
 DEFAULT_SHIFT_PULL_OUT_DURATION_S = 2.0
@@ -221,6 +222,8 @@ def run_steering(
     preset = load_steering(config.preset)
     car = preset.params
     manoeuvre = manoeuvres.build(config.manoeuvre, car.vehicle, config.speed_kmh)
+    duration = sum(segment.duration_s for segment in manoeuvre.segments)
+    check_steps(duration, config.dt_s, config.substeps, STEERING_MAX_STEP_S)
     metadata = {
         "carfeel_version": __version__,
         "model": "steering",
@@ -236,6 +239,7 @@ def run_steering(
     result = simulate_steering(
         car, manoeuvre, dt_s=config.dt_s, substeps=config.substeps, metadata=metadata
     )
+    check_finite(result, "steering")
     feel = feel_of(result, car.vehicle.steering_ratio, car.vehicle.wheelbase_m)
     result.to_csv(csv_path)
     write_metadata(result, csv_path)
@@ -244,6 +248,16 @@ def run_steering(
 
         plot_steering(result, plot_path, f"{preset.name}: {manoeuvre.description}", manoeuvre.lanes)
     ay = result["lateral_accel_m_s2"]
+    peak_g = float(abs(ay).max()) / 9.80665
+    if peak_g > LINEAR_TYRE_LIMIT_G:
+        feel = replace(
+            feel,
+            notes=(
+                *feel.notes,
+                f"Ay peaks at {peak_g:.2f} g: beyond about {LINEAR_TYRE_LIMIT_G:g} g real tyres "
+                "saturate and this linear single-track model overstates the car",
+            ),
+        )
     return SteeringSummary(
         preset.name,
         manoeuvre.description,
@@ -290,23 +304,36 @@ def steering_metrics(csv_path: Path, preset: str | None = None) -> SteeringFeel:
         if bad.any():
             row = int(np.flatnonzero(bad)[0]) + 2
             raise InputError(f"{csv_path}, line {row}: {name} is not a finite number")
-    if len(result) < 3 or np.any(np.diff(result.time_s) <= 0):
-        raise InputError(f"{csv_path}: time_s must increase from row to row (at least 3 rows)")
-    ratio, wheelbase = _car_geometry(csv_path, preset)
-    return feel_of(result, ratio, wheelbase)
+    if len(result) < 3:
+        raise InputError(f"{csv_path}: {len(result)} rows; the metrics need a run of samples")
+    steps = np.diff(result.time_s)
+    if np.any(steps <= 0):
+        row = int(np.flatnonzero(steps <= 0)[0]) + 3
+        raise InputError(f"{csv_path}, line {row}: time_s does not increase from the row before")
+    ratio, wheelbase, where = _car_geometry(csv_path, preset)
+    feel = feel_of(result, ratio, wheelbase)
+    note = (
+        f"understeer gradient with steering ratio {ratio:g} and wheelbase {wheelbase:g} m {where}"
+    )
+    return replace(feel, notes=(*feel.notes, note))
 
 
-def _car_geometry(csv_path: Path, preset: str | None) -> tuple[float, float]:
+def _car_geometry(csv_path: Path, preset: str | None) -> tuple[float, float, str]:
+    """(steering ratio, wheelbase, where they came from) for a log's understeer gradient."""
     if preset is None:
         meta_path = csv_path.with_suffix(".json")
         if meta_path.is_file():
             try:
                 meta = json.loads(meta_path.read_text(encoding="utf-8"))
-                return float(meta["steering_ratio"]), float(meta["wheelbase_m"])
-            except (ValueError, KeyError, TypeError):
+                ratio, wheelbase = float(meta["steering_ratio"]), float(meta["wheelbase_m"])
+                if ratio > 0.0 and wheelbase > 0.0 and math.isfinite(ratio * wheelbase):
+                    return ratio, wheelbase, f"from {meta_path.name}"
+            except (ValueError, KeyError, TypeError, UnicodeDecodeError, OSError):
                 pass  # not ours, or not a steering run: fall back to the default car
-    vehicle = load_steering(preset or "b-segment").params.vehicle
-    return vehicle.steering_ratio, vehicle.wheelbase_m
+    name = preset or "b-segment"
+    vehicle = load_steering(name).params.vehicle
+    hint = "" if preset else " (no metadata beside the CSV; give --preset for your car)"
+    return vehicle.steering_ratio, vehicle.wheelbase_m, f"of preset {name}{hint}"
 
 
 def demo(folder: Path) -> Iterator[str]:

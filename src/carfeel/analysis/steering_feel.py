@@ -3,17 +3,22 @@
 From the samples of speed V, steering wheel angle delta_w, lateral acceleration Ay and steering
 torque T (signs: positive to the left), with Ay in g (9.80665 m/s^2):
 
-- The loop T(Ay) is split into its two branches by the sign of dAy/dt (Ay rising, Ay falling).
-  On each branch a straight line is fitted on centre, |Ay| <= 0.1 g.
+- The loop T(Ay) is split into its two branches by the sign of dAy/dt (Ay rising, Ay falling),
+  taken from Ay low-passed at 1.5 Hz without phase shift, so noise in a log does not mix them.
+  On each branch a cubic is fitted on centre, |Ay| <= 0.12 g (a line if the branch spans less
+  than 0.15 g there).
 - torque_gradient_Nm_per_g: the mean of the two branches' slopes at 0 g.
 - hysteresis_Nm ("torque at 0 g"): half the gap between the branches at Ay = 0.
 - deadband_g ("Ay at 0 torque"): half the gap between the branches at T = 0.
-- torque_at_0_1g_Nm: the torque at +0.1 g and -0.1 g (a line fitted on each branch within
-  0.08..0.12 g), averaged over both branches and both sides (sign taken out).
-- sensitivity_g_per_100deg: the slope of Ay against delta_w on centre (both branches), per 100 deg.
+- torque_at_0_1g_Nm: the branches' torque at +0.1 g and -0.1 g, averaged over both branches and
+  both sides (sign taken out), where the branch reaches beyond 0.1 g both ways.
+- sensitivity_g_per_100deg: the slope of Ay against delta_w on centre, fitted on each branch and
+  averaged, per 100 deg (one fit through both branches would be biased low by the car's lag).
 - understeer_gradient_deg_per_g: the slope K_us of delta_w/SR - L*Ay/V^2 against Ay (steady-state
-  cornering, delta = L/R + K_us*Ay), over V > 5 m/s and |Ay| <= 4 m/s^2; it needs the car's
-  steering ratio SR and wheelbase L.
+  cornering, delta = L/R + K_us*Ay), over quasi-steady samples: V > 5 m/s, |Ay| <= 4 m/s^2,
+  |dAy/dt| <= 0.5 m/s^3 and a steering rate within 0.1 rad/s (both low-passed as above), for at
+  least 0.25 s on end; it needs the car's steering ratio SR and wheelbase L. It is a steady-state
+  measure: ISO 4138 and slow weaves give it; a transient manoeuvre mostly does not.
 A metric the data cannot give (no on-centre samples, a single branch, no speed) is NaN, with a note
 saying why.
 """
@@ -30,6 +35,11 @@ from carfeel.models.vehicle.single_track import STANDARD_GRAVITY_M_S2
 
 G = STANDARD_GRAVITY_M_S2
 ON_CENTRE_G = 0.1
+FIT_G = 0.12
+BRANCH_CUTOFF_HZ = 1.5
+QUASI_STEADY_M_S3 = 0.5
+QUASI_STEADY_RAD_S = 0.1
+QUASI_STEADY_HOLD_S = 0.25
 MIN_SAMPLES = 10
 FloatArray = npt.NDArray[np.float64]
 
@@ -57,9 +67,63 @@ def _line(x: FloatArray, y: FloatArray) -> tuple[float, float]:
     return float(slope), float(intercept)
 
 
-def _branches(ay_g: FloatArray, time_s: FloatArray) -> list[npt.NDArray[np.bool_]]:
-    rate = np.gradient(ay_g, time_s)
-    return [rate > 0.0, rate < 0.0]
+def smoothed_rate(values: FloatArray, time_s: FloatArray) -> FloatArray:
+    """d(values)/dt after a zero-phase 2nd-order Butterworth low-pass at BRANCH_CUTOFF_HZ."""
+    from scipy.signal import butter, sosfiltfilt
+
+    rate_hz = 1.0 / float(np.median(np.diff(time_s)))
+    smooth = values
+    if rate_hz > 4 * BRANCH_CUTOFF_HZ and len(values) > 30:
+        sos = butter(2, BRANCH_CUTOFF_HZ, fs=rate_hz, output="sos")
+        smooth = sosfiltfilt(sos, values)
+    return np.asarray(np.gradient(smooth, time_s), dtype=float)
+
+
+@dataclass(frozen=True)
+class _Branch:
+    coefficients: npt.NDArray[np.float64]
+    """Polynomial in Ay_g, highest power first (numpy.polyval order)."""
+    reaches_0_1g: bool
+
+    def at(self, ay_g: float) -> float:
+        return float(np.polyval(self.coefficients, ay_g))
+
+    def slope_at_zero(self) -> float:
+        return float(self.coefficients[-2])
+
+    def zero_torque_g(self) -> float:
+        """Ay (g) where this branch's torque is zero, by Newton from the linear guess."""
+        derivative = np.polyder(self.coefficients)
+        slope = float(np.polyval(derivative, 0.0))
+        ay = -self.at(0.0) / slope if slope != 0.0 else math.nan
+        for _ in range(20):
+            d = float(np.polyval(derivative, ay))
+            if not math.isfinite(ay) or d == 0.0:
+                return math.nan
+            ay -= self.at(ay) / d
+        return ay
+
+
+def _fit_branch(ay_g: FloatArray, torque: FloatArray, sel: npt.NDArray[np.bool_]) -> _Branch | None:
+    window = sel & (np.abs(ay_g) <= FIT_G)
+    if window.sum() < MIN_SAMPLES or np.ptp(ay_g[window]) < 0.05:
+        return None
+    degree = 3 if np.ptp(ay_g[window]) >= 0.15 else 1
+    coefficients = np.polyfit(ay_g[window], torque[window], degree)
+    reaches = bool(ay_g[sel].max() >= ON_CENTRE_G and ay_g[sel].min() <= -ON_CENTRE_G)
+    return _Branch(coefficients, reaches)
+
+
+def _lasting(
+    flags: npt.NDArray[np.bool_], time_s: FloatArray, hold_s: float
+) -> npt.NDArray[np.bool_]:
+    """Flags kept only in runs of True that last at least `hold_s`."""
+    out = np.zeros_like(flags)
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], flags.astype(np.int8), [0]])))
+    for start, stop in zip(edges[::2], edges[1::2], strict=True):
+        if time_s[stop - 1] - time_s[start] >= hold_s:
+            out[start:stop] = True
+    return out
 
 
 def steering_feel(
@@ -77,48 +141,50 @@ def steering_feel(
     nan = math.nan
     ay_g = lateral_accel_m_s2 / G
     moving = speed_m_s > 1.0
-    centre = moving & (np.abs(ay_g) <= ON_CENTRE_G)
-
-    slopes, at_zero_ay, at_zero_torque, at_01 = [], [], [], []
-    for branch in _branches(ay_g, time_s):
-        sel = centre & branch
-        if sel.sum() < MIN_SAMPLES or np.ptp(ay_g[sel]) < 0.05:
-            continue
-        slope, intercept = _line(ay_g[sel], torque_Nm[sel])
-        slopes.append(slope)
-        at_zero_ay.append(intercept)
-        at_zero_torque.append(-intercept / slope if slope != 0.0 else nan)
-        for side in (1.0, -1.0):
-            near = moving & branch & (np.abs(ay_g - side * ON_CENTRE_G) <= 0.02)
-            if near.sum() >= MIN_SAMPLES and np.ptp(ay_g[near]) > 0.01:
-                s, c = _line(ay_g[near], torque_Nm[near])
-                at_01.append(side * (s * side * ON_CENTRE_G + c))
-    if len(slopes) == 2:
-        gradient = float(np.mean(slopes))
-        hysteresis = abs(at_zero_ay[0] - at_zero_ay[1]) / 2
-        deadband = abs(at_zero_torque[0] - at_zero_torque[1]) / 2
-    elif len(slopes) == 1:
-        gradient, hysteresis, deadband = slopes[0], nan, nan
+    ay_rate = smoothed_rate(lateral_accel_m_s2, time_s)
+    branches = [moving & (ay_rate > 0.0), moving & (ay_rate < 0.0)]
+    fits = [f for f in (_fit_branch(ay_g, torque_Nm, b) for b in branches) if f is not None]
+    if len(fits) == 2:
+        gradient = float(np.mean([f.slope_at_zero() for f in fits]))
+        hysteresis = abs(fits[0].at(0.0) - fits[1].at(0.0)) / 2
+        deadband = abs(fits[0].zero_torque_g() - fits[1].zero_torque_g()) / 2
+    elif len(fits) == 1:
+        gradient, hysteresis, deadband = fits[0].slope_at_zero(), nan, nan
         notes.append("Ay crosses the centre one way only: no hysteresis or deadband")
     else:
         gradient = hysteresis = deadband = nan
-        notes.append("too few on-centre samples (|Ay| <= 0.1 g, V > 1 m/s) for the torque gradient")
+        notes.append(
+            "too few on-centre samples (|Ay| <= 0.12 g, V > 1 m/s) for the torque gradient"
+        )
+    at_01 = [
+        side * f.at(side * ON_CENTRE_G) for f in fits if f.reaches_0_1g for side in (1.0, -1.0)
+    ]
     torque_01 = float(np.mean(at_01)) if at_01 else nan
     if not at_01:
-        notes.append("Ay does not sweep through 0.1 g: no torque at 0.1 g")
+        notes.append("Ay does not sweep through +-0.1 g on a branch: no torque at 0.1 g")
 
-    if centre.sum() >= MIN_SAMPLES and np.ptp(steering_angle_rad[centre]) > 0.0:
-        per_deg, _ = _line(np.degrees(steering_angle_rad[centre]), ay_g[centre])
-        sensitivity = per_deg * 100.0
-    else:
-        sensitivity = nan
+    gains = []
+    for branch in branches:
+        sel = branch & (np.abs(ay_g) <= ON_CENTRE_G)
+        if sel.sum() >= MIN_SAMPLES and np.ptp(steering_angle_rad[sel]) > 0.0:
+            gains.append(_line(np.degrees(steering_angle_rad[sel]), ay_g[sel])[0] * 100.0)
+    sensitivity = float(np.mean(gains)) if gains else nan
+    if not gains:
         notes.append("no on-centre steering to measure the sensitivity from")
 
     understeer = nan
     if steering_ratio is None or wheelbase_m is None:
         notes.append("understeer gradient needs the car's steering ratio and wheelbase")
     else:
-        sel = (speed_m_s > 5.0) & (np.abs(lateral_accel_m_s2) <= 4.0)
+        steering_rate = smoothed_rate(steering_angle_rad, time_s)
+        steady = (np.abs(ay_rate) <= QUASI_STEADY_M_S3) & (
+            np.abs(steering_rate) <= QUASI_STEADY_RAD_S
+        )
+        sel = (
+            (speed_m_s > 5.0)
+            & (np.abs(lateral_accel_m_s2) <= 4.0)
+            & _lasting(steady, time_s, QUASI_STEADY_HOLD_S)
+        )
         if sel.sum() >= MIN_SAMPLES and np.ptp(lateral_accel_m_s2[sel]) > 0.5:
             ay = lateral_accel_m_s2[sel]
             beyond_ackermann = (
@@ -127,7 +193,10 @@ def steering_feel(
             k_us, _ = _line(ay, beyond_ackermann)
             understeer = math.degrees(k_us) * G
         else:
-            notes.append("too little cornering (V > 5 m/s, Ay range > 0.5 m/s^2) for understeer")
+            notes.append(
+                "too little quasi-steady cornering (V > 5 m/s, |dAy/dt| <= 0.5 m/s^3, steering "
+                "rate <= 0.1 rad/s, Ay range > 0.5 m/s^2) for the understeer gradient"
+            )
     return SteeringFeel(
         gradient, torque_01, deadband, hysteresis, sensitivity, understeer, tuple(notes)
     )

@@ -34,7 +34,7 @@ INF = math.inf
 # Allowed range of each parameter, by its name, or by "table.name" where the same name needs another
 # range in another table: (low, high, low included, high included).
 RANGES: dict[str, tuple[float, float, bool, bool]] = {
-    "vehicle.mass_kg": (0.0, 1e5, False, True),
+    "vehicle.mass_kg": (50.0, 1e5, True, True),
     "mass_kg": (0.0, 100.0, False, True),
     "stiffness_N_m": (0.0, 1e7, True, True),
     "damping_N_s_m": (0.0, 1e5, True, True),
@@ -63,15 +63,15 @@ RANGES: dict[str, tuple[float, float, bool, bool]] = {
     "pull_velocity_m_s": (0.0, 10.0, False, True),
     "neutral_position_m": (0.0, 0.2, True, True),
     # steering: vehicle
-    "yaw_inertia_kg_m2": (0.0, 1e6, False, True),
+    "yaw_inertia_kg_m2": (1.0, 1e6, True, True),
     "wheelbase_m": (0.5, 10.0, True, True),
     "cg_to_front_axle_m": (0.0, 10.0, False, False),
-    "front_cornering_stiffness_N_rad": (0.0, 1e7, False, True),
-    "rear_cornering_stiffness_N_rad": (0.0, 1e7, False, True),
+    "front_cornering_stiffness_N_rad": (1e3, 1e7, True, True),
+    "rear_cornering_stiffness_N_rad": (1e3, 1e7, True, True),
     "steering_ratio": (1.0, 50.0, True, True),
     "width_m": (0.5, 5.0, True, True),
     "steering_lock_rad": (0.0, 30.0, False, True),
-    "kinematic_speed_m_s": (0.0, 10.0, False, True),
+    "kinematic_speed_m_s": (0.1, 10.0, True, True),
     # steering: torque law (K1..K9)
     "k1_Nm_s2_m": (0.0, 100.0, False, True),
     "k2": (0.0, 100.0, True, True),
@@ -124,7 +124,7 @@ RANGES: dict[str, tuple[float, float, bool, bool]] = {
     # steering: path driver
     "preview_time_s": (0.0, 10.0, False, True),
     "min_preview_m": (0.0, 100.0, False, True),
-    "lag_s": (0.0, 2.0, False, True),
+    "lag_s": (0.02, 2.0, True, True),
     "max_rate_rad_s": (0.0, 100.0, False, True),
 }
 
@@ -422,6 +422,29 @@ def check_steering(car: SteeringCar) -> list[str]:
             f"the vehicle oversteers (understeer gradient {v.understeer_gradient_deg_per_g:.2f} "
             "deg/g): a linear oversteering car is unstable above its critical speed; raise "
             "vehicle.rear_cornering_stiffness_N_rad or move the centre of gravity forward"
+        )
+    # The tyres' lag at the slowest speed the tyre model runs: the trapezoidal rule rings on
+    # modes much faster than its step, so they must stay slower than a millisecond.
+    lateral = (
+        v.mass_kg
+        * v.kinematic_speed_m_s
+        / (v.front_cornering_stiffness_N_rad + v.rear_cornering_stiffness_N_rad)
+    )
+    yaw = (
+        v.yaw_inertia_kg_m2
+        * v.kinematic_speed_m_s
+        / (
+            v.cg_to_front_axle_m**2 * v.front_cornering_stiffness_N_rad
+            + v.cg_to_rear_axle_m**2 * v.rear_cornering_stiffness_N_rad
+        )
+        if v.cg_to_front_axle_m < v.wheelbase_m
+        else 1.0
+    )
+    if min(lateral, yaw) < 1e-3:
+        problems.append(
+            f"at vehicle.kinematic_speed_m_s = {v.kinematic_speed_m_s:g} m/s the tyres' time "
+            f"constant is {min(lateral, yaw) * 1e3:.3g} ms, under the 1 ms the model steps with; "
+            "raise kinematic_speed_m_s or check the mass, inertia and cornering stiffnesses"
         )
     return problems
 

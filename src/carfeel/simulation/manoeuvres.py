@@ -57,6 +57,7 @@ DEFAULT_SPEED_KMH = {
     "weave": 100.0,
 }
 MAX_SPEED_KMH = 250.0
+STEER_CYCLE_MAX_KMH = 10.0
 PATH_SPACING_M = 0.25
 
 Steering = Callable[[float], tuple[float, float]]
@@ -99,6 +100,11 @@ def _check_speed(name: str, speed_kmh: float | None) -> float:
         return DEFAULT_SPEED_KMH[name]
     if not (math.isfinite(speed_kmh) and 0.0 <= speed_kmh <= MAX_SPEED_KMH):
         raise InputError(f"--speed-kmh {speed_kmh:g}: allowed 0 <= value <= {MAX_SPEED_KMH:g} km/h")
+    if name == "steer-cycle" and speed_kmh > STEER_CYCLE_MAX_KMH:
+        raise InputError(
+            f"--speed-kmh {speed_kmh:g}: the steer cycle goes lock to lock, a parking manoeuvre; "
+            f"allowed 0 <= value <= {STEER_CYCLE_MAX_KMH:g} km/h"
+        )
     if name != "steer-cycle" and speed_kmh < 10.0:
         raise InputError(
             f"--speed-kmh {speed_kmh:g}: {name} needs at least 10 km/h (its amplitude is set "
@@ -132,7 +138,15 @@ def _constant(value: float) -> Callable[[float], float]:
 
 
 def _amplitude(vehicle: VehicleParams, speed: float, lateral_accel: float) -> float:
-    return steady_state_steering_wheel_angle(speed, lateral_accel, vehicle)
+    """The steering wheel angle for a steady-state Ay; an error if it lies beyond the lock."""
+    angle = steady_state_steering_wheel_angle(speed, lateral_accel, vehicle)
+    if abs(angle) > vehicle.steering_lock_rad:
+        raise InputError(
+            f"at {speed * 3.6:.0f} km/h a steady-state Ay of {lateral_accel:g} m/s^2 needs "
+            f"{math.degrees(angle):.0f} deg of steering wheel angle, beyond the car's lock of "
+            f"{math.degrees(vehicle.steering_lock_rad):.0f} deg; use a higher --speed-kmh"
+        )
+    return angle
 
 
 def iso7401(name: str, vehicle: VehicleParams, speed: float) -> Manoeuvre:

@@ -108,6 +108,9 @@ class Result:
         if not rows:
             raise InputError(f"{source}: empty file, expected a header row with time_s")
         header, body = rows[0], rows[1:]
+        doubled = sorted({name for name in header if header.count(name) > 1})
+        if doubled:
+            raise InputError(f"{source}: column(s) {', '.join(doubled)} appear more than once")
         if "time_s" not in header:
             raise InputError(f"{source}: no time_s column (columns: {', '.join(header)})")
         for line_no, row in enumerate(body, start=2):

@@ -265,11 +265,8 @@ def step(
     )
 
     # X: the engagement along the slot, with the gate wall where no slot is open.
-    walled_x = (
-        (not aligned
-        and in_corridor
-        and s > half_corridor - 1e-12)
-        or (not in_corridor and slot is None)
+    walled_x = (not aligned and in_corridor and s > half_corridor - 1e-12) or (
+        not in_corridor and slot is None
     )
     walls = params.walls
     x_inputs = engagement.EngagementInputs(
