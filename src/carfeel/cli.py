@@ -17,9 +17,10 @@ from carfeel.simulation.manoeuvres import MANOEUVRES
 DESCRIPTION = """\
 carfeel: the feel of a car's primary controls from physics.
 
-Simulate a manual gearshift engagement (synchronization, tooth engagement, end stop) and the
-steering wheel torque through the ISO manoeuvres, plot them as in the PERCRO 2005 paper, write the
-samples as CSV and compute steering feel metrics. Start with `carfeel demo`.
+Simulate a manual gearshift engagement (synchronization, tooth engagement, end stop), the complete
+H-pattern gearshift and the steering wheel torque through the ISO manoeuvres, plot them as in the
+PERCRO 2005 paper, write the samples as CSV and compute steering feel metrics. Start with
+`carfeel demo`.
 """
 
 EPILOG = """\
@@ -27,6 +28,7 @@ examples:
   carfeel demo                                   simulate, plot and write into ./carfeel-demo
   carfeel simulate shift --out shift.csv --plot shift.png
   carfeel simulate shift --seed 7 --pull-out --out shift.csv
+  carfeel simulate hpattern --sequence N,1,2,3,2,N --out hp.csv --plot hp.png
   carfeel simulate steering --manoeuvre iso3888 --out dlc.csv --plot dlc.png
   carfeel metrics steering dlc.csv --json        steering feel figures of a run or a log
   carfeel presets                                list the shipped presets
@@ -138,6 +140,58 @@ def build_parser() -> argparse.ArgumentParser:
     shift.add_argument("--out", required=True, metavar="FILE.csv", help="CSV file to write")
     shift.add_argument("--plot", metavar="FILE.png", help="also write a PNG plot")
 
+    hpattern = models.add_parser(
+        "hpattern",
+        help="the complete H-pattern gearshift driven through a gear sequence",
+        description="Simulate the 2-DOF H-pattern gearshift: a driver pulls out, selects in the "
+        "neutral corridor and pushes each gear of --sequence in with the paper's law (eq. 10); "
+        "every slot runs the single-gear engagement model, walls keep the knob on the paths, "
+        "the synchronizer decides when the gate opens. CSV columns: time_s, x_m (engage, "
+        "forward +), y_m (select), vx_m_s, vy_m_s, force_x_N, force_y_N (the driver's force on "
+        "the knob), reaction_x_N, reaction_y_N (the gearbox's force on it), region, gear (N, R, "
+        "1, 2 ...), event, stage, clutch_pedal, speed_difference_rad_s, grind_N, driver_phase, "
+        "target.",
+        epilog="layouts: 5r (default), 6r, 5r-reverse-left (see `carfeel presets`), or a TOML "
+        "file. mistakes: early-clutch:K releases the clutch while pushing into the K-th gear of "
+        "the sequence; wall:K pushes toward the K-th gear before the knob is in its plane.",
+    )
+    hpattern.add_argument(
+        "--sequence", required=True, metavar="N,1,2,...",
+        help="gears to go through, comma separated, e.g. N,1,2,3,2,N or N,R,N",
+    )  # fmt: skip
+    hpattern.add_argument(
+        "--layout", default="5r", metavar="NAME|PATH",
+        help="H-pattern preset name or TOML file (default: 5r)",
+    )  # fmt: skip
+    hpattern.add_argument(
+        "--clutch", type=float, default=1.0, metavar="0..1",
+        help="clutch pedal held during the run: 1 pressed to the floor (default), 0 released",
+    )  # fmt: skip
+    hpattern.add_argument(
+        "--speed-kmh", type=float, default=30.0, metavar="V",
+        help="vehicle speed during the shifts, km/h (default: 30)",
+    )  # fmt: skip
+    hpattern.add_argument(
+        "--synchronizer", choices=("fixed", "physics"), default=None,
+        help="fixed: the paper's synchronization time; physics: cone torque against the speed "
+        "difference (default: the layout preset's)",
+    )  # fmt: skip
+    hpattern.add_argument(
+        "--mistake", action="append", default=[], metavar="KIND:K",
+        help="make a mistake on the K-th gear: early-clutch:K or wall:K (repeatable)",
+    )  # fmt: skip
+    hpattern.add_argument("--seed", type=_seed, default=0, help="tooth draw seed (default: 0)")
+    hpattern.add_argument(
+        "--dt", type=_positive_float, default=1e-3, metavar="S",
+        help="output sample period, s (default: 0.001)",
+    )  # fmt: skip
+    hpattern.add_argument(
+        "--substeps", type=_positive_int, default=1, metavar="N",
+        help="model steps per output sample (default: 1)",
+    )  # fmt: skip
+    hpattern.add_argument("--out", required=True, metavar="FILE.csv", help="CSV file to write")
+    hpattern.add_argument("--plot", metavar="FILE.png", help="also write a PNG plot")
+
     steering = models.add_parser(
         "steering",
         help="steering wheel torque (paper eqs. 1-7) on a car through an ISO manoeuvre",
@@ -219,7 +273,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.command == "demo":
             return _demo(args)
         if args.command == "simulate":
-            return _simulate_shift(args) if args.model == "shift" else _simulate_steering(args)
+            handlers = {
+                "shift": _simulate_shift,
+                "steering": _simulate_steering,
+                "hpattern": _simulate_hpattern,
+            }
+            return handlers[args.model](args)
         if args.command == "metrics":
             return _metrics_steering(args)
         return _presets(args)
@@ -270,6 +329,38 @@ def _simulate_steering(args: argparse.Namespace) -> int:
         substeps=args.substeps,
     )
     print(run_steering(config, out, Path(args.plot) if args.plot else None).text())
+    return 0
+
+
+def _simulate_hpattern(args: argparse.Namespace) -> int:
+    from carfeel.runs import HPatternRunConfig, parse_sequence, run_hpattern
+
+    out = Path(args.out)
+    _check_writable(out, ".csv")
+    if args.plot:
+        _check_writable(Path(args.plot), ".png")
+    mistakes = {"early-clutch": 0, "wall": 0}
+    for text in args.mistake:
+        kind, _, number = text.partition(":")
+        if kind not in mistakes or not number.isdigit():
+            raise InputError(
+                f"--mistake {text!r}: expected early-clutch:K or wall:K, K the position of a "
+                "gear in --sequence (1 for the first)"
+            )
+        mistakes[kind] = int(number)
+    config = HPatternRunConfig(
+        sequence=parse_sequence(args.sequence),
+        layout=args.layout,
+        clutch=args.clutch,
+        speed_kmh=args.speed_kmh,
+        seed=args.seed,
+        synchronizer=args.synchronizer,
+        early_clutch_release=mistakes["early-clutch"],
+        wall_push=mistakes["wall"],
+        dt_s=args.dt,
+        substeps=args.substeps,
+    )
+    print(run_hpattern(config, out, Path(args.plot) if args.plot else None).text())
     return 0
 
 

@@ -14,8 +14,12 @@ from carfeel import __version__
 from carfeel.analysis.shift_features import ShiftFeatures, shift_features
 from carfeel.analysis.steering_feel import SteeringFeel, steering_feel
 from carfeel.errors import CarfeelError, InputError
-from carfeel.io.presets import load_shift, load_steering
+from carfeel.io.presets import load_hpattern, load_shift, load_steering
+from carfeel.models.drivers.hpattern import Script
+from carfeel.models.gearshift.hpattern import NEUTRAL_GEAR, Layout
 from carfeel.simulation import manoeuvres
+from carfeel.simulation.hpattern import MAX_STEP_S as HPATTERN_MAX_STEP_S
+from carfeel.simulation.hpattern import HPatternRun, simulate_hpattern
 from carfeel.simulation.result import Result
 from carfeel.simulation.shift import MAX_STEP_S, simulate_shift
 from carfeel.simulation.steering import LINEAR_TYRE_LIMIT_G, simulate_steering
@@ -336,6 +340,209 @@ def _car_geometry(csv_path: Path, preset: str | None) -> tuple[float, float, str
     return vehicle.steering_ratio, vehicle.wheelbase_m, f"of preset {name}{hint}"
 
 
+@dataclass(frozen=True, slots=True)
+class HPatternRunConfig:
+    """A `carfeel simulate hpattern` run."""
+
+    sequence: tuple[str, ...]
+    layout: str = "5r"
+    clutch: float = 1.0
+    speed_kmh: float = 30.0
+    engine_rpm: float = 800.0
+    seed: int = 0
+    synchronizer: str | None = None
+    """None: the preset's mode; "fixed" (the paper's) or "physics"."""
+    early_clutch_release: int = 0
+    wall_push: int = 0
+    dt_s: float = 1e-3
+    substeps: int = 1
+    max_duration_s: float = 120.0
+
+
+@dataclass(frozen=True, slots=True)
+class Engagement:
+    """One gear going in: what a report quotes of it."""
+
+    gear: str
+    synchronization_s: float
+    plateau_N: float
+    engagement_peak_N: float
+
+
+@dataclass(frozen=True, slots=True)
+class HPatternSummary:
+    layout: str
+    mode: str
+    requested: tuple[str, ...]
+    engaged: tuple[str, ...]
+    engagements: tuple[Engagement, ...]
+    final_gear: str
+    outside_max_m: float
+    peak_grind_N: float
+    duration_s: float
+    csv: Path
+    plot: Path | None
+
+    @property
+    def followed(self) -> bool:
+        return self.engaged == tuple(g for g in self.requested if g != NEUTRAL_GEAR)
+
+    def text(self) -> str:
+        lines = [
+            f"layout {self.layout}, synchronizer {self.mode}: sequence "
+            f"{','.join(self.requested)} in {self.duration_s:.2f} s",
+            f"  gears engaged    {' '.join(self.engaged) or 'none'}; now in {self.final_gear}",
+        ]
+        for e in self.engagements:
+            lines.append(
+                f"  into {e.gear:2s}         synchronization "
+                f"{e.synchronization_s * 1e3:4.0f} ms at {e.plateau_N:5.1f} N, "
+                f"tooth peak {e.engagement_peak_N:5.1f} N"
+            )
+        lines.append(f"  off the paths    at most {self.outside_max_m * 1e3:.2f} mm (into a wall)")
+        if not self.followed:
+            lines.append(
+                "  note: the sequence was not completed (balk: clutch not pressed far enough, "
+                "or the run ended); see the stage and grind_N columns"
+            )
+        if self.peak_grind_N > 0.0:
+            lines.append(f"  grinding         up to {self.peak_grind_N:.1f} N of vibration")
+        lines.append(f"wrote {self.csv}" + (f" and {self.plot}" if self.plot else ""))
+        return "\n".join(lines)
+
+
+def parse_sequence(text: str) -> tuple[str, ...]:
+    gears = tuple(part.strip().upper() for part in text.split(","))
+    if not gears or any(not g for g in gears):
+        raise InputError(f"--sequence {text!r}: expected gear names separated by commas, N,1,2,N")
+    return gears
+
+
+def run_hpattern(
+    config: HPatternRunConfig, csv_path: Path, plot_path: Path | None = None
+) -> HPatternSummary:
+    """Drive a gear sequence through the H-pattern; write CSV (+ .json metadata) and the plot."""
+    preset = load_hpattern(config.layout)
+    layout = preset.setup.layout
+    names = [g.name for g in layout.gears]
+    unknown = [g for g in config.sequence if g != NEUTRAL_GEAR and g not in names]
+    if unknown:
+        raise InputError(
+            f"--sequence: no gear {', '.join(unknown)} in layout {preset.name}; it has "
+            f"N, {', '.join(names)}"
+        )
+    if not 0.0 <= config.clutch <= 1.0:
+        raise InputError(f"--clutch {config.clutch:g}: allowed 0 (released) .. 1 (pressed)")
+    if not 0.0 <= config.speed_kmh <= 250.0:
+        raise InputError(f"--speed-kmh {config.speed_kmh:g}: allowed 0 <= value <= 250 km/h")
+    shifts = sum(1 for g in config.sequence)
+    for option, value in (
+        ("early-clutch", config.early_clutch_release),
+        ("wall", config.wall_push),
+    ):
+        if not 0 <= value <= shifts:
+            raise InputError(
+                f"--mistake {option}:{value}: allowed 1 .. {shifts}, the position of a gear in "
+                "--sequence"
+            )
+    check_steps(config.max_duration_s, config.dt_s, config.substeps, HPATTERN_MAX_STEP_S)
+    physics = None if config.synchronizer is None else config.synchronizer == "physics"
+    pattern = preset.pattern(physics)
+    script = Script(
+        config.sequence,
+        layout,
+        preset.shift.driver,
+        preset.setup.driver,
+        config.clutch,
+        config.early_clutch_release,
+        config.wall_push,
+    )
+    run_params = HPatternRun(
+        pattern, script, config.speed_kmh / 3.6, config.engine_rpm * 2 * math.pi / 60
+    )
+    mode = "physics" if pattern.synchronizer.physics else "fixed"
+    metadata = {
+        "carfeel_version": __version__,
+        "model": "hpattern",
+        "layout": preset.name,
+        "engagement": preset.engagement,
+        "sequence": ",".join(config.sequence),
+        "synchronizer": mode,
+        "clutch": repr(config.clutch),
+        "speed_kmh": repr(config.speed_kmh),
+        "seed": str(config.seed),
+        "dt_s": repr(config.dt_s),
+        "substeps": str(config.substeps),
+    }
+    result = simulate_hpattern(
+        run_params, seed=config.seed, max_duration_s=config.max_duration_s, dt_s=config.dt_s,
+        substeps=config.substeps, metadata=metadata,
+    )  # fmt: skip
+    check_finite(result, "hpattern")
+    result.to_csv(csv_path)
+    write_metadata(result, csv_path)
+    if plot_path is not None:
+        from carfeel.io.plots import plot_hpattern
+
+        plot_hpattern(result, layout, plot_path, f"{preset.name}, synchronizer {mode}")
+    return HPatternSummary(
+        preset.name,
+        mode,
+        config.sequence,
+        tuple(e.split()[1] for e in result["event"] if e.startswith("engage")),
+        engagements_of(result),
+        str(result["gear"][-1]),
+        float(outside_distance(result, layout).max()),
+        float(abs(result["grind_N"]).max()),
+        float(result.time_s[-1]),
+        csv_path,
+        plot_path,
+    )
+
+
+def engagements_of(result: Result) -> tuple[Engagement, ...]:
+    """Each push that reached a gear: its synchronization time and plateau, its tooth peak."""
+    dt = float(result.time_s[1] - result.time_s[0])
+    stages, events, force_x = result["stage"], result["event"], result["force_x_N"]
+    engaged = [i for i, e in enumerate(events) if e.startswith("engage")]
+    out, start = [], 0
+    for i in engaged:
+        window = slice(start, i + 1)
+        sync = stages[window] == "synchronization"
+        teeth = stages[window] == "engagement"
+        force = np.abs(force_x[window])
+        out.append(
+            Engagement(
+                events[i].split()[1],
+                float(sync.sum() * dt),
+                float(np.median(force[sync])) if sync.any() else math.nan,
+                float(force[teeth].max()) if teeth.any() else math.nan,
+            )
+        )
+        start = i + 1
+    return tuple(out)
+
+
+def outside_distance(result: Result, layout: Layout) -> np.ndarray:
+    """How far each sample lies outside the legal paths (corridor and slots), m (0 inside)."""
+    x, y = result["x_m"], result["y_m"]
+    planes = np.asarray(layout.planes_y_m)
+    half_slot, half_corridor = layout.slot_width_m / 2, layout.corridor_width_m / 2
+    # Corridor: |x| <= half width, y between the outer planes' slot edges.
+    corridor = np.hypot(
+        np.maximum(np.abs(x) - half_corridor, 0.0),
+        np.maximum(np.maximum(planes[0] - half_slot - y, y - planes[-1] - half_slot), 0.0),
+    )
+    best = corridor
+    for gear in layout.gears:
+        along = gear.direction * x
+        off = np.hypot(
+            np.maximum(-along, 0.0), np.maximum(np.abs(y - planes[gear.plane]) - half_slot, 0.0)
+        )
+        best = np.minimum(best, off)
+    return np.asarray(best)
+
+
 def demo(folder: Path) -> Iterator[str]:
     """Run the demo into `folder`, yielding a line to print per step."""
     if folder.exists() and not folder.is_dir():
@@ -355,6 +562,21 @@ def demo(folder: Path) -> Iterator[str]:
         + ", ".join(f"{p:.1f}" for p in finite)
         + " N"
     )
+    yield ""
+    yield "the complete H-pattern (5+R), up and down the box at 30 km/h:"
+    pattern = run_hpattern(
+        HPatternRunConfig(parse_sequence("N,1,2,3,4,5,4,3,2,1,N"), speed_kmh=30.0),
+        folder / "hpattern.csv",
+        folder / "hpattern.png",
+    )
+    yield pattern.text()
+    yield "and into reverse at standstill, with the synchronizer's physics:"
+    reverse = run_hpattern(
+        HPatternRunConfig(parse_sequence("N,R,N"), speed_kmh=0.0, synchronizer="physics"),
+        folder / "hpattern-reverse.csv",
+        folder / "hpattern-reverse.png",
+    )
+    yield reverse.text()
     yield ""
     yield "steering wheel torque, ISO 3888-1 double lane change (paper Fig. 3):"
     dlc = run_steering(

@@ -230,3 +230,67 @@ def _split_segments(result: Result) -> Result:
     }
     time = np.insert(result.time_s, cuts, np.nan)
     return Result(time, signals, result.metadata)
+
+
+def plot_hpattern(result: Result, layout: Any, path: str | Path, title: str = "H-pattern") -> Path:
+    """Write a PNG of an H-pattern run: the pattern with the knob's path coloured by the force,
+    and the force-position loop of each engagement along its slot (as the paper's Fig. 11)."""
+    plt = _pyplot()
+    from matplotlib.collections import LineCollection
+    from matplotlib.patches import Rectangle
+
+    x_mm, y_mm = result["x_m"] * 1e3, result["y_m"] * 1e3
+    force = np.hypot(result["force_x_N"], result["force_y_N"])
+    fig, (ax_p, ax_l) = plt.subplots(1, 2, figsize=(14, 6.5), layout="constrained")
+    fig.suptitle(title)
+
+    planes = np.asarray(layout.planes_y_m) * 1e3
+    half_slot, half_corridor = layout.slot_width_m * 500, layout.corridor_width_m * 500
+    reach = max(float(np.max(np.abs(x_mm))), 30.0) + 5.0
+    ax_p.add_patch(
+        Rectangle(
+            (planes[0] - half_slot, -half_corridor), planes[-1] - planes[0] + 2 * half_slot,
+            2 * half_corridor, color="#dddddd", zorder=0,
+        )
+    )  # fmt: skip
+    for gear in layout.gears:
+        y0 = planes[gear.plane] - half_slot
+        x0 = 0.0 if gear.direction > 0 else -reach
+        ax_p.add_patch(Rectangle((y0, x0), 2 * half_slot, reach, color="#dddddd", zorder=0))
+        ax_p.annotate(
+            gear.name, (planes[gear.plane], gear.direction * (reach - 2.0)), ha="center",
+            va="center", fontsize=14, fontweight="bold", color="#555555",
+        )  # fmt: skip
+    points = np.column_stack([y_mm, x_mm]).reshape(-1, 1, 2)
+    segments = np.concatenate([points[:-1], points[1:]], axis=1)
+    lines = LineCollection(list(segments), cmap="viridis", linewidths=2.0, zorder=2)
+    lines.set_array(force[1:])
+    ax_p.add_collection(lines)
+    fig.colorbar(lines, ax=ax_p, label="force on the knob [N]")
+    ax_p.set_xlim(planes[0] - 3 * half_slot, planes[-1] + 3 * half_slot)
+    ax_p.set_ylim(-reach, reach)
+    ax_p.set_aspect("equal")
+    ax_p.set_xlabel("select y [mm]")
+    ax_p.set_ylabel("engage x [mm] (forward up)")
+    ax_p.set_title("the pattern and the knob's path")
+
+    events, phases, targets = result["event"], result["driver_phase"], result["target"]
+    start = 0
+    for i, event in enumerate(events):
+        if not event.startswith("engage"):
+            continue
+        gear = layout.gear(event.split()[1])
+        window = np.arange(start, min(i + 400, len(events)))
+        window = window[(phases[window] == "push") | (window > i)]
+        window = window[targets[window] == gear.name]
+        s = gear.direction * x_mm[window]
+        f = gear.direction * result["force_x_N"][window]
+        ax_l.plot(s, f, lw=1.3, label=f"into {gear.name}")
+        start = i + 1
+    ax_l.set_xlabel("travel along the slot [mm]")
+    ax_l.set_ylabel("force along the slot [N]")
+    ax_l.set_title("force vs position of each engagement (cf. paper Fig. 11)")
+    ax_l.grid(alpha=0.3)
+    if any(e.startswith("engage") for e in events):
+        ax_l.legend(fontsize=8, ncols=2)
+    return _save(fig, plt, path)

@@ -1,16 +1,18 @@
 """A driver who works through a gear sequence on the H-pattern, and can make mistakes on request.
 
 For each gear of the sequence: pull the lever back into the corridor (the mirror of eq. 10), move
-it across to the gear's plane (a hand that aims at the plane: a spring-damper toward it, limited
-to `select_force_N`), push it in along the slot with the paper's law (eq. 10, through the same hand
-as `drivers.shift`), let go once in gear, wait `hold_s`, go on. "N" pulls back to neutral and
-leaves the knob on the centre plane. The clutch pedal is held at `clutch_pedal` throughout.
+it across to the gear's plane (a hand that aims at the plane: a spring toward it limited to
+`select_force_N`, less a damping that caps the crossing speed at select_force / damping, the
+mirror of eq. 10 across the gate), push it in along the slot with the paper's law (eq. 10,
+through the same hand as `drivers.shift`), let go once in gear, wait `hold_s`, go on. "N" pulls
+back to neutral and leaves the knob on the centre plane. The clutch pedal is held at
+`clutch_pedal` throughout.
 
 Mistakes, for the tests and for demonstrations:
 - `early_clutch_release_shift` = k > 0: the clutch is released (pedal 0) while pushing into the
   k-th gear of the sequence, so its synchronizer cannot finish (balk, grinding if forced);
-- `wall_push_shift` = k > 0: while selecting the k-th gear the driver already pushes toward it,
-  so the knob runs into the gate wall until it is aligned with the slot.
+- `wall_push_shift` = k > 0: while crossing between planes to the k-th gear the driver already
+  pushes toward it, so the knob runs into the gate wall until it is aligned with the slot.
 
 Signs: x forward, y toward the higher planes, as in `carfeel.models.gearshift.hpattern`.
 """
@@ -146,15 +148,18 @@ def step(
     # Along x: the hand pulls, pushes, lets go, or is off the knob.
     activation = 0.0 if changed and phase is not Phase.RELEASE else state.activation
     hand_x, hand_v = state.hand_position_m, state.hand_velocity_m_s
-    if (
-        phase is Phase.PULL
-        or phase is Phase.PUSH
-        or (phase is Phase.SELECT and script.wall_push_shift == shift_number)
-    ):
-        if changed or state.phase is Phase.DONE:
+    half_slot = 0.5 * script.layout.slot_width_m
+    between_planes = all(abs(inputs.y_m - p) > half_slot for p in script.layout.planes_y_m)
+    wall_push = phase is Phase.SELECT and script.wall_push_shift == shift_number and between_planes
+    # While selecting, the driver keeps the knob in the middle of the corridor (it may have
+    # slipped into a slot's mouth from the gate).
+    corridor = 0.5 * script.layout.corridor_width_m
+    recentre = phase is Phase.SELECT and not wall_push and abs(x) > 0.5 * corridor
+    if phase is Phase.PULL or phase is Phase.PUSH or wall_push or recentre:
+        if changed or state.phase is Phase.DONE or state.activation == 0.0:
             hand_x, hand_v = x, vx  # the hand takes hold of the knob where it is
         activation = 1.0 - (1.0 - activation) * math.exp(-dt_s / hand.activation_time_s)
-        if phase is Phase.PULL:
+        if phase is Phase.PULL or recentre:
             side = 1.0 if x > 0.0 else -1.0
             bias = -side * activation * hand.pull_force_N
             gain = activation * hand.pull_force_N / hand.pull_velocity_m_s
@@ -177,10 +182,11 @@ def step(
     # Along y: aim at the target plane while selecting and pushing; hands off otherwise.
     if phase is Phase.SELECT or phase is Phase.PUSH or phase is Phase.PULL:
         aim = plane_y if phase is not Phase.PULL else inputs.y_m
-        force_y = habits.select_stiffness_N_m * (aim - inputs.y_m) - (
-            habits.select_damping_N_s_m * inputs.vy_m_s
-        )
-        force_y = max(-habits.select_force_N, min(habits.select_force_N, force_y))
+        # Eq. (10) across the gate: the aimed force (a spring toward the plane, at most
+        # select_force_N) less the damping, so the knob crosses at select_force / damping.
+        aimed = habits.select_stiffness_N_m * (aim - inputs.y_m)
+        aimed = max(-habits.select_force_N, min(habits.select_force_N, aimed))
+        force_y = aimed - habits.select_damping_N_s_m * inputs.vy_m_s
     else:
         force_y = 0.0
 

@@ -136,6 +136,8 @@ class HPatternState(NamedTuple):
     vy_m_s: float
     plane: int
     """The plane the knob is in (frozen while in a slot, the nearest one in the corridor)."""
+    in_slot: bool
+    """The lever entered a slot from the corridor (aligned with it) and has not left it."""
     sync: SynchronizerState
     gear: str
 
@@ -179,6 +181,7 @@ def initial_state(
         layout.planes_y_m[centre],
         0.0,
         centre,
+        False,
         synchronizer.initial_state(input_speed_rad_s),
         NEUTRAL_GEAR,
     )
@@ -194,9 +197,13 @@ def nearest_plane(layout: Layout, y: float) -> int:
 
 
 def _select_springs(
-    y: float, layout: Layout, select: SelectParams, walls: WallParams
+    ahead: float, y: float, layout: Layout, select: SelectParams, walls: WallParams
 ) -> tuple[float, float, float]:
-    """(stiffness, rest, extra damping) of the springs on y in the corridor, combined."""
+    """(stiffness, rest, extra damping) of the springs on y in the corridor, combined.
+
+    `ahead` is where the knob would be at the end of the step at its speed: the corridor's end
+    walls switch on one step ahead, so the knob meets them at the edge.
+    """
     planes = layout.planes_y_m
     centre_y = planes[layout.centre_plane]
     k = select.centring_stiffness_N_m
@@ -220,9 +227,9 @@ def _select_springs(
             moment += k_l * rest
     half = 0.5 * layout.slot_width_m
     low, high = planes[0] - half, planes[-1] + half
-    if y > high or y < low:
+    if ahead > high or ahead < low:
         k += walls.stiffness_N_m
-        moment += walls.stiffness_N_m * (high if y > high else low)
+        moment += walls.stiffness_N_m * (high if ahead > high else low)
         damping += walls.damping_N_s_m
     return k, moment / k, damping
 
@@ -242,13 +249,13 @@ def step(
     s = lever.position_m
     y = state.y_m
     half_corridor = 0.5 * layout.corridor_width_m
-    in_corridor = s <= half_corridor
-    plane = nearest_plane(layout, y) if in_corridor else state.plane
+    in_slot = state.in_slot and s > half_corridor
+    plane = state.plane if in_slot else nearest_plane(layout, y)
     slot = layout.gear_at(plane, direction)
     aligned = slot is not None and abs(y - layout.planes_y_m[plane]) <= 0.5 * layout.slot_width_m
 
     # Synchronizer: which gear is selected, is it in mesh, how hard is the ring pressed.
-    ratio = slot.ratio if slot is not None and (aligned or not in_corridor) else None
+    ratio = slot.ratio if slot is not None and (aligned or in_slot) else None
     axial = direction * inputs.force_x_N if lever.stage is Stage.SYNCHRONIZATION else 0.0
     sync_state, sync_out = synchronizer.step(
         state.sync,
@@ -264,11 +271,10 @@ def step(
         dt_s,
     )
 
-    # X: the engagement along the slot, with the gate wall where no slot is open.
-    walled_x = (not aligned and in_corridor and s > half_corridor - 1e-12) or (
-        not in_corridor and slot is None
-    )
+    # X: the engagement along the slot; outside a slot and not aligned with one, the gate wall
+    # at the corridor's edge (switched on one step ahead, so the lever meets it at the edge).
     walls = params.walls
+    walled_x = not in_slot and not aligned and s + lever.velocity_m_s * dt_s > half_corridor
     x_inputs = engagement.EngagementInputs(
         direction * inputs.force_x_N,
         walls.stiffness_N_m if walled_x else 0.0,
@@ -277,11 +283,13 @@ def step(
         sync_out.gate_open,
     )
     lever, x_out = engagement.step(lever, x_inputs, eng, dt_s)
+    s1 = lever.position_m
+    entered = not in_slot and aligned and s1 > half_corridor
 
-    # Y: select springs in the corridor, the slot's hold in a slot.
+    # Y: select springs in the corridor (and in the gate wall), the slot's hold in a slot.
     sel = params.select
-    if in_corridor:
-        k_y, rest_y, damping_y = _select_springs(y, layout, sel, walls)
+    if not (in_slot or entered):
+        k_y, rest_y, damping_y = _select_springs(y + state.vy_m_s * dt_s, y, layout, sel, walls)
     else:
         k_y, rest_y, damping_y = (
             sel.slot_stiffness_N_m,
@@ -306,7 +314,6 @@ def step(
     # The engaged gear, with hysteresis: in mesh past the teeth, out of mesh back before them.
     gear = state.gear
     event = ""
-    s1 = lever.position_m
     if gear == NEUTRAL_GEAR:
         if lever.stage in IN_MESH and slot is not None:
             gear = slot.name
@@ -316,17 +323,16 @@ def step(
         gear = NEUTRAL_GEAR
 
     x1 = direction * s1
+    in_slot = in_slot or entered
     if s1 > half_corridor:
-        region = (
-            Region.SLOT if (aligned or not in_corridor) and slot is not None else Region.OUTSIDE
-        )
+        region = Region.SLOT if in_slot else Region.OUTSIDE
     else:
         half = 0.5 * layout.slot_width_m
         if y1 > layout.planes_y_m[-1] + half or y1 < layout.planes_y_m[0] - half:
             region = Region.OUTSIDE
         else:
             region = Region.MOUTH if aligned else Region.CORRIDOR
-    new_state = HPatternState(lever, direction, y1, vy1, plane, sync_state, gear)
+    new_state = HPatternState(lever, direction, y1, vy1, plane, in_slot, sync_state, gear)
     return new_state, HPatternOutputs(
         x1,
         y1,
