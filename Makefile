@@ -33,6 +33,7 @@ test: lint
 bench: $(VENV)/.installed
 	$(BIN)/python benchmarks/bench_engagement_step.py
 	$(BIN)/python benchmarks/bench_steering.py
+	$(BIN)/python benchmarks/bench_hpattern_step.py
 
 clean:
 	rm -rf $(VENV) $(OUT) .pytest_cache .mypy_cache .ruff_cache

@@ -268,3 +268,65 @@ def test_malformed_steering_preset_exits_2(tmp_path, capsys):
     )
     assert code == 2
     assert "must be shorter than vehicle.wheelbase_m" in capsys.readouterr().err
+
+
+def test_simulate_hpattern_writes_the_columns_and_the_plot(tmp_path, capsys):
+    out, plot = tmp_path / "h.csv", tmp_path / "h.png"
+    args = ["simulate", "hpattern", "--sequence", "N,1,2,3,2,N", "--seed", "2"]
+    assert main([*args, "--out", str(out), "--plot", str(plot)]) == 0
+    text = capsys.readouterr().out
+    assert "gears engaged    1 2 3 2; now in N" in text
+    result = Result.from_csv(out)
+    for column in ("time_s", "x_m", "y_m", "vx_m_s", "vy_m_s", "force_x_N", "force_y_N",
+                   "region", "gear"):  # fmt: skip
+        assert column in result.names
+    assert set(result["gear"].tolist()) == {"N", "1", "2", "3"}
+    assert plot.read_bytes()[:4] == b"\x89PNG"
+    meta = json.loads(out.with_suffix(".json").read_text())
+    assert meta["sequence"] == "N,1,2,3,2,N" and meta["synchronizer"] == "fixed"
+
+
+def test_hpattern_with_the_clutch_released_reports_the_balk(tmp_path, capsys):
+    out = tmp_path / "b.csv"
+    code = main(["simulate", "hpattern", "--sequence", "N,1", "--clutch", "0",
+                 "--synchronizer", "physics", "--out", str(out)])  # fmt: skip
+    assert code == 0
+    text = capsys.readouterr().out
+    assert "gears engaged    none" in text and "grinding" in text
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--sequence", "N,7,N"], "no gear 7 in layout 5r"),
+        (["--sequence", "N,,1"], "expected gear names separated by commas"),
+        (["--sequence", "N,1", "--clutch", "1.5"], "allowed 0 (released) .. 1 (pressed)"),
+        (["--sequence", "N,1", "--speed-kmh", "-3"], "allowed 0 <= value <= 250 km/h"),
+        (["--sequence", "N,1", "--mistake", "sneeze:1"], "expected early-clutch:K or wall:K"),
+        (["--sequence", "N,1", "--mistake", "wall:9"], "allowed 1 .. 2"),
+        (["--sequence", "N,1", "--layout", "7r"], "no hpattern preset named '7r'"),
+        (["--sequence", "N,1", "--dt", "0.01"], "use --substeps 10"),
+        (["--sequence", "N,1", "--synchronizer", "magic"], "invalid choice"),
+    ],
+)
+def test_bad_hpattern_requests_exit_2(tmp_path, capsys, args, message):
+    code: object
+    try:
+        code = main(["simulate", "hpattern", *args, "--out", str(tmp_path / "x.csv")])
+    except SystemExit as exc:
+        code = exc.code
+    assert code == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+
+
+def test_invalid_layout_file_exits_2(tmp_path, capsys):
+    from importlib import resources
+
+    text = resources.files("carfeel.presets").joinpath("hpattern", "5r.toml").read_text()
+    bad = tmp_path / "bad.toml"
+    bad.write_text(text.replace('name = "R"\nplane = 2', 'name = "R"\nplane = 5'))
+    code = main(["simulate", "hpattern", "--sequence", "N,1", "--layout", str(bad),
+                 "--out", str(tmp_path / "x.csv")])  # fmt: skip
+    assert code == 2
+    assert "gear R is on plane 5" in capsys.readouterr().err

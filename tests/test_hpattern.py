@@ -319,3 +319,11 @@ def test_a_layout_file_may_name_a_shift_preset_file_beside_it(tmp_path):
     path = tmp_path / "layout.toml"
     path.write_text(broken(lambda t: t.replace('"paper-first-gear"', '"mine.toml"')))
     assert load_hpattern(str(path)).name == "5r"
+
+
+@pytest.mark.parametrize("physics", [False, True])
+def test_a_normal_synchronization_does_not_grind(physics):
+    """Clutch pressed: the ring blocks by friction until the speeds match, without chatter."""
+    result = drive(("N", "1", "2", "N"), physics=physics)
+    assert engaged(result) == ["1", "2"]
+    assert np.all(result["grind_N"] == 0.0)

@@ -19,7 +19,8 @@ Two modes (`SynchronizerParams.physics`):
   speed step) takes longer than an upshift at the same speed; a clutch not pressed far enough
   drags the shaft toward the engine harder than the cone can pull it: no synchronization (balk).
 
-Grinding (both modes): while the ring balks the sleeve and the driver pushes harder than
+Grinding (both modes): while the clutch still drags the input shaft (the pedal short of
+`clutch_open_above`), the speeds are not matched and the driver pushes harder than
 `grind_force_N`, the sleeve's dog teeth chatter on the gear's: a vibration of amplitude
 `grind_amplitude_N` at the tooth-passing frequency n_teeth * |w_in / r - w_out| / (2 pi), felt on
 top of the balk. The ring itself still blocks: a balk is a wall, the grinding only a vibration.
@@ -137,7 +138,9 @@ def step(
     gate: bool | None = matched if p.physics else (None if clutch_open else False)
     phase = state.grind_phase_rad
     grind = 0.0
-    balked = (not matched) if p.physics else gate is False
+    # Grinding needs a ring that cannot win: the clutch still drags the input shaft. A ring
+    # that is synchronizing normally (clutch open) blocks by friction, silently.
+    balked = not matched and not clutch_open
     if balked and inputs.axial_force_N > p.grind_force_N:
         teeth_speed = abs(difference / ratio)
         phase = (phase + p.dog_teeth * teeth_speed * dt_s) % (2.0 * math.pi)
