@@ -125,10 +125,14 @@ def test_each_engagement_shows_the_synchronization_plateau():
 
 
 def test_fixed_mode_reproduces_the_single_engagement_exactly():
-    """The x axis in a slot, aligned, with the paper's synchronizer, is the 1-DOF model itself."""
+    """The x axis in a slot, aligned, with the paper's synchronizer, is the 1-DOF model itself
+    (with the latch, our addition beyond the paper, switched off)."""
     p = preset()
     one_dof = simulate_shift(p.shift, seed=4, duration_s=1.2)
     pattern = p.pattern(physics=False)
+    pattern = dataclasses.replace(
+        pattern, feel=dataclasses.replace(pattern.feel, latch_force_N=0.0)
+    )
     state = hpattern.initial_state(pattern, seed=4)
     for k, force in enumerate(one_dof["force_N"]):
         state, out = hpattern.step(state, HPatternInputs(float(force), 0.0, 1.0), pattern, 1e-3)
@@ -299,6 +303,8 @@ def broken(text_edit):
         (lambda t: t.replace("stiffness_N_m = 20000.0\ndamping_N_s_m = 4.0",
                              "stiffness_N_m = 200000.0\ndamping_N_s_m = 4.0"), "to stay passive"),
         (lambda t: t.replace("ratio = -3.818", "ratio = 3.818"), "reverse takes a negative ratio"),
+        (lambda t: t.replace("latch_position_m = 0.0095", "latch_position_m = 0.016"),
+         "must lie in the slot before the synchro ring"),
         (lambda t: t.replace("direction = -1\nratio = 2.157", "direction = 2\nratio = 2.157"),
          "allowed -1 <= value <= 1"),
     ],
@@ -327,3 +333,53 @@ def test_a_normal_synchronization_does_not_grind(physics):
     result = drive(("N", "1", "2", "N"), physics=physics)
     assert engaged(result) == ["1", "2"]
     assert np.all(result["grind_N"] == 0.0)
+
+
+def push_slowly(pattern, force_N: float = 12.0, steps: int = 1500):
+    """Push the knob on the centre plane with a constant force; the outputs of every step."""
+    state = hpattern.initial_state(pattern)
+    outs = []
+    for _ in range(steps):
+        state, out = hpattern.step(state, HPatternInputs(force_N, 0.0, 1.0), pattern, 1e-3)
+        outs.append(out)
+    return outs
+
+
+def test_the_latch_is_a_force_bump_before_the_synchro_ring():
+    p = preset()
+    pattern = p.pattern(physics=False)
+    feel = pattern.feel
+    with_latch = push_slowly(pattern)
+    without = push_slowly(
+        dataclasses.replace(pattern, feel=dataclasses.replace(feel, latch_force_N=0.0))
+    )
+
+    def resistance_at(outs, s):
+        near = [o.reaction_x_N for o in outs if abs(o.x_m - s) < 0.2e-3 and o.vx_m_s > 0.0]
+        return max(near)
+
+    centre = feel.latch_position_m
+    # At the bump's top the gearbox resists by the latch force more (within 10 %: the
+    # triangular bump is sampled over +-0.2 mm of its 2 mm half-width).
+    extra = resistance_at(with_latch, centre) - resistance_at(without, centre)
+    assert extra == pytest.approx(feel.latch_force_N, rel=0.1)
+    # Outside the bump nothing changes.
+    before = centre - 1.5 * feel.latch_width_m
+    assert resistance_at(with_latch, before) == pytest.approx(resistance_at(without, before))
+
+
+def test_the_click_at_the_end_stop_is_a_decaying_vibration():
+    p = preset()
+    feel = p.setup.feel
+    result = drive(("N", "1", "N"))
+    click = result["click_N"]
+    start = int(np.flatnonzero(click != 0.0)[0]) - 1
+    pulse = click[start : start + int(5 * feel.click_decay_s / 1e-3)]
+    assert result["stage"][start + 1] == "stop"
+    assert np.max(np.abs(pulse)) <= feel.click_amplitude_N
+    assert np.max(np.abs(pulse)) > 0.5 * feel.click_amplitude_N
+    # 180 Hz: a sign change every 2.8 ms; the 1 kHz samples see 5 periods' changes in 40 ms.
+    changes = np.count_nonzero(np.diff(np.sign(pulse[pulse != 0.0])))
+    assert changes == pytest.approx(2 * feel.click_frequency_hz * 5 * feel.click_decay_s, abs=2)
+    # It decays: the last period is under exp(-4) of the first.
+    assert np.max(np.abs(pulse[-6:])) < np.exp(-3.5) * feel.click_amplitude_N

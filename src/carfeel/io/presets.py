@@ -116,6 +116,14 @@ RANGES: dict[str, tuple[float, float, bool, bool]] = {
     "dog_teeth": (1.0, 500.0, True, True),
     "final_drive_ratio": (0.0, 20.0, False, True),
     "wheel_radius_m": (0.1, 1.0, True, True),
+    # hpattern: feel (latch, click)
+    "latch_position_m": (0.0, 0.1, False, True),
+    "latch_width_m": (0.0, 0.02, False, True),
+    "latch_force_N": (0.0, 100.0, True, True),
+    "click_amplitude_N": (0.0, 50.0, True, True),
+    "click_frequency_hz": (1.0, 1000.0, True, True),
+    "click_decay_s": (1e-4, 1.0, True, True),
+    "click_speed_m_s": (0.0, 10.0, True, True),
     # hpattern: driver
     "select_force_N": (0.0, 500.0, False, True),
     "select_stiffness_N_m": (0.0, 1e6, False, True),
@@ -517,7 +525,12 @@ class HPatternPreset:
         if physics is not None and physics != sync.physics:
             sync = dataclasses.replace(sync, physics=physics)
         return HPatternParams(
-            self.setup.layout, self.shift.gearbox, self.setup.select, self.setup.walls, sync
+            self.setup.layout,
+            self.shift.gearbox,
+            self.setup.select,
+            self.setup.walls,
+            sync,
+            self.setup.feel,
         )
 
 
@@ -592,6 +605,17 @@ def check_hpattern(setup: HPatternSetup, shift: ShiftParams) -> list[str]:
             f"layout.corridor_width_m = {layout.corridor_width_m:g} m: half of it must stay "
             f"short of the synchro ring at {g.synchronization_position_m:g} m"
         )
+    feel = setup.feel
+    first, last_latch = (
+        feel.latch_position_m - feel.latch_width_m,
+        feel.latch_position_m + feel.latch_width_m,
+    )
+    if not layout.corridor_width_m / 2 < first and last_latch < g.synchronization_position_m:
+        problems.append(
+            f"feel.latch_position_m = {feel.latch_position_m:g} m +- latch_width_m = "
+            f"{feel.latch_width_m:g} m must lie in the slot before the synchro ring: between "
+            f"{layout.corridor_width_m / 2:g} m and {g.synchronization_position_m:g} m"
+        )
     spacing = min((b - a for a, b in itertools.pairwise(planes)), default=math.inf)
     if setup.select.detent_width_m >= spacing / 2:
         problems.append(
@@ -625,7 +649,7 @@ def load_hpattern(name_or_path: str = "5r") -> HPatternPreset:
     data = parse(label, text)
     problems: list[str] = []
     allowed = ("name", "source", "engagement", "layout", "select", "walls", "synchronizer",
-               "driver")  # fmt: skip
+               "feel", "driver")  # fmt: skip
     for key in data:
         if key not in allowed:
             problems.append(f"{key}: unknown key; an hpattern preset has {', '.join(allowed)}")

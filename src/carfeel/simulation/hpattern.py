@@ -49,6 +49,7 @@ class LoopOutputs(NamedTuple):
     clutch_pedal: float
     speed_difference_rad_s: float
     grind_N: float
+    click_N: float
     driver_phase: str
     target: str
 
@@ -87,7 +88,8 @@ def step(
     return LoopState(driver_state, knob, out), LoopOutputs(
         out.x_m, out.y_m, out.vx_m_s, out.vy_m_s, out.force_x_N, out.force_y_N,
         out.reaction_x_N, out.reaction_y_N, out.region, out.gear, out.event, out.stage,
-        hand.clutch_pedal, out.speed_difference_rad_s, out.grind_N, hand.phase, hand.target,
+        hand.clutch_pedal, out.speed_difference_rad_s, out.grind_N, out.click_N, hand.phase,
+        hand.target,
     )  # fmt: skip
 
 
@@ -136,4 +138,5 @@ class HPatternSetup:
     select: hpattern.SelectParams
     walls: hpattern.WallParams
     synchronizer: SynchronizerParams
+    feel: hpattern.FeelParams
     driver: HPatternDriverParams

@@ -105,6 +105,8 @@ class EngagementInputs(NamedTuple):
     gate_open: bool | None = None
     """None: the synchro gate opens after `synchronization_duration_s` of pushing (the paper).
     True / False: an outside synchronizer model says whether the speeds are matched."""
+    extra_friction_N: float = 0.0
+    """Friction added to the stage's own, static and sliding (a latch of the H-pattern)."""
 
 
 class EngagementOutputs(NamedTuple):
@@ -193,7 +195,9 @@ def step(
         rest = (stiffness * rest + k_wall * inputs.wall_position_m) / (stiffness + k_wall)
         stiffness += k_wall
         damping += inputs.wall_damping_N_s_m
-    extra = state.tooth_force_N if stage is Stage.ENGAGEMENT else 0.0
+    extra = inputs.extra_friction_N
+    if stage is Stage.ENGAGEMENT:
+        extra += state.tooth_force_N
     x1, v1, _ = stick_slip_step(
         x,
         v,

@@ -29,6 +29,7 @@ event at each change.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from enum import Enum
 from typing import NamedTuple
@@ -120,12 +121,33 @@ class WallParams:
 
 
 @dataclass(frozen=True, slots=True)
+class FeelParams:
+    """What users of force-feedback shifters ask for, on top of the gearbox's own forces.
+
+    Latch: a friction bump a little way into every slot, before the synchro ring (triangular,
+    `latch_force_N` at `latch_position_m`, gone `latch_width_m` either side): you feel the lever
+    leave neutral, and come back into it. Friction is passive, so the latch is too.
+    Click: when the lever reaches the end stop faster than `click_speed_m_s`, a decaying
+    vibration A * exp(-t / decay) * sin(2 pi f t) on the force rendered at the knob.
+    """
+
+    latch_position_m: float
+    latch_width_m: float
+    latch_force_N: float
+    click_amplitude_N: float
+    click_frequency_hz: float
+    click_decay_s: float
+    click_speed_m_s: float
+
+
+@dataclass(frozen=True, slots=True)
 class HPatternParams:
     layout: Layout
     engagement: EngagementParams
     select: SelectParams
     walls: WallParams
     synchronizer: SynchronizerParams
+    feel: FeelParams
 
 
 class HPatternState(NamedTuple):
@@ -140,6 +162,8 @@ class HPatternState(NamedTuple):
     """The lever entered a slot from the corridor (aligned with it) and has not left it."""
     sync: SynchronizerState
     gear: str
+    click_s: float
+    """Time since the lever last hit the end stop (the click's clock); inf before any."""
 
 
 class HPatternInputs(NamedTuple):
@@ -167,6 +191,7 @@ class HPatternOutputs(NamedTuple):
     stage: str
     speed_difference_rad_s: float
     grind_N: float
+    click_N: float
 
 
 def initial_state(
@@ -184,6 +209,7 @@ def initial_state(
         False,
         synchronizer.initial_state(input_speed_rad_s),
         NEUTRAL_GEAR,
+        math.inf,
     )
 
 
@@ -275,16 +301,35 @@ def step(
     # at the corridor's edge (switched on one step ahead, so the lever meets it at the edge).
     walls = params.walls
     walled_x = not in_slot and not aligned and s + lever.velocity_m_s * dt_s > half_corridor
+    feel = params.feel
+    latch = 0.0
+    if lever.stage is Stage.NEUTRAL or lever.stage is Stage.RETURNING:
+        off = abs(s - feel.latch_position_m)
+        if off < feel.latch_width_m and (in_slot or aligned):
+            latch = feel.latch_force_N * (1.0 - off / feel.latch_width_m)
     x_inputs = engagement.EngagementInputs(
         direction * inputs.force_x_N,
         walls.stiffness_N_m if walled_x else 0.0,
         walls.damping_N_s_m if walled_x else 0.0,
         half_corridor,
         sync_out.gate_open,
+        latch,
     )
+    impact_speed = lever.velocity_m_s
+    was_stop = lever.stage is Stage.STOP
     lever, x_out = engagement.step(lever, x_inputs, eng, dt_s)
     s1 = lever.position_m
     entered = not in_slot and aligned and s1 > half_corridor
+    click_s = state.click_s + dt_s
+    if lever.stage is Stage.STOP and not was_stop and impact_speed > feel.click_speed_m_s:
+        click_s = 0.0
+    click = 0.0
+    if click_s < 5.0 * feel.click_decay_s:
+        click = (
+            feel.click_amplitude_N
+            * math.exp(-click_s / feel.click_decay_s)
+            * math.sin(2.0 * math.pi * feel.click_frequency_hz * click_s)
+        )
 
     # Y: select springs in the corridor (and in the gate wall), the slot's hold in a slot.
     sel = params.select
@@ -332,7 +377,7 @@ def step(
             region = Region.OUTSIDE
         else:
             region = Region.MOUTH if aligned else Region.CORRIDOR
-    new_state = HPatternState(lever, direction, y1, vy1, plane, in_slot, sync_state, gear)
+    new_state = HPatternState(lever, direction, y1, vy1, plane, in_slot, sync_state, gear, click_s)
     return new_state, HPatternOutputs(
         x1,
         y1,
@@ -340,7 +385,7 @@ def step(
         vy1,
         inputs.force_x_N,
         inputs.force_y_N,
-        direction * x_out.reaction_N + sync_out.grind_N * direction,
+        direction * (x_out.reaction_N + sync_out.grind_N + click),
         reaction_y,
         region.value,
         gear,
@@ -348,4 +393,5 @@ def step(
         x_out.stage,
         sync_out.speed_difference_rad_s,
         sync_out.grind_N,
+        click,
     )
