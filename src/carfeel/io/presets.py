@@ -610,7 +610,7 @@ def check_hpattern(setup: HPatternSetup, shift: ShiftParams) -> list[str]:
         feel.latch_position_m - feel.latch_width_m,
         feel.latch_position_m + feel.latch_width_m,
     )
-    if not layout.corridor_width_m / 2 < first and last_latch < g.synchronization_position_m:
+    if not (layout.corridor_width_m / 2 < first and last_latch < g.synchronization_position_m):
         problems.append(
             f"feel.latch_position_m = {feel.latch_position_m:g} m +- latch_width_m = "
             f"{feel.latch_width_m:g} m must lie in the slot before the synchro ring: between "
