@@ -95,8 +95,14 @@ class Result:
         return target
 
     @classmethod
-    def from_csv(cls, path: str | os.PathLike[str]) -> Result:
-        """Read a CSV written by `to_csv` (or any CSV with a `time_s` column)."""
+    def from_csv(
+        cls, path: str | os.PathLike[str], *, drop_partial_last_line: bool = False
+    ) -> Result:
+        """Read a CSV written by `to_csv` (or any CSV with a `time_s` column).
+
+        `drop_partial_last_line`: a recording cut short by a killed process may end in half a
+        line; it is dropped instead of rejected.
+        """
         source = Path(path)
         try:
             with source.open(newline="") as handle:
@@ -108,6 +114,8 @@ class Result:
         if not rows:
             raise InputError(f"{source}: empty file, expected a header row with time_s")
         header, body = rows[0], rows[1:]
+        if drop_partial_last_line and body and len(body[-1]) != len(header):
+            body = body[:-1]
         doubled = sorted({name for name in header if header.count(name) > 1})
         if doubled:
             raise InputError(f"{source}: column(s) {', '.join(doubled)} appear more than once")

@@ -1,0 +1,1 @@
+"""The haptic loop: fixed-rate rendering of the models on force-feedback devices, safely."""

@@ -1,0 +1,76 @@
+"""The protocol every device follows, used as a context manager.
+
+    with open_device("virtual") as device:
+        sample = device.read(t_s)           # positions (and a force estimate if it has one)
+        device.command((force_x, ...), t_s) # force (N) or torque (Nm) per axis, device units
+
+Units are the device's own, in SI: positions in m (joystick handle at the knob) or rad (wheel),
+forces in N or torques in Nm. Signs: a positive command pushes toward positive positions.
+A device that fails (unplugged, an I/O error) raises DeviceLost from read or command; the loop
+then fades the force to zero and stops.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from types import TracebackType
+from typing import NamedTuple, Protocol
+
+from carfeel.errors import CarfeelError
+
+
+class DeviceError(CarfeelError, RuntimeError):
+    """A device cannot be opened, or a backend library is missing."""
+
+
+class DeviceLost(DeviceError):
+    """A device stopped answering during a run."""
+
+
+@dataclass(frozen=True, slots=True)
+class DeviceInfo:
+    name: str
+    kind: str
+    """"joystick" (axes in m, forces in N) or "wheel" (one axis in rad, torque in Nm)."""
+    axes: int
+    max_force: float
+    """Largest force (N) or torque (Nm) per axis the device can render."""
+    travel: float
+    """Half-range of each axis from centre, m or rad."""
+    update_hz: float
+    """Fastest rate at which the device takes new force commands."""
+    measures_force: bool
+    """Whether `read` returns a force estimate (the paper's admittance display needs one)."""
+
+
+class DeviceSample(NamedTuple):
+    time_s: float
+    positions: tuple[float, ...]
+    """Per axis, m or rad, positive as the commands."""
+    forces: tuple[float, ...] | None
+    """The hand's force per axis if the device measures it (N or Nm), else None."""
+
+
+class Device(Protocol):
+    info: DeviceInfo
+
+    def __enter__(self) -> Device: ...
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        traceback: TracebackType | None,
+    ) -> None: ...
+
+    def read(self, time_s: float) -> DeviceSample:
+        """The device's state now (`time_s` is the loop's clock, for simulated devices)."""
+        ...
+
+    def command(self, forces: tuple[float, ...], time_s: float) -> None:
+        """Render these forces (N) or torques (Nm) per axis until the next command.
+
+        A device that is not commanded again within its hold time fades to zero by itself
+        (the evdev and SDL2 effects have a finite length): the deadman against a stalled loop.
+        """
+        ...

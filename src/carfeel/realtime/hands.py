@@ -1,0 +1,117 @@
+"""Simulated hands for the virtual devices: the scripted drivers, acting through the scales.
+
+A hand waits `start_s` (the loop's calibration and ramp-in: a person waits for the device to be
+ready), then works in the model's world (the driver laws are written for a real lever or wheel): it
+sees the device's motion divided by the position scale and its force is multiplied by the
+force scale before it reaches the handle, as a person's hand would be scaled down by the
+paper's 1/10 joystick.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+from carfeel.models.drivers import hpattern as hpattern_driver
+from carfeel.models.drivers import shift as shift_driver
+from carfeel.models.drivers.hpattern import Script
+from carfeel.models.drivers.shift import ShiftDriverParams
+
+
+class ShiftHand:
+    """The eq. (10) driver of the 1-DOF engagement, on the first axis; the second is left free."""
+
+    def __init__(
+        self,
+        params: ShiftDriverParams,
+        force_scale: float,
+        position_scale: float,
+        start_s: float = 0.0,
+    ):
+        self.start_s = start_s
+        self.params = params
+        self.force_scale = force_scale
+        self.position_scale = position_scale
+        self.state = shift_driver.initial_state()
+        self._last = 0.0
+
+    def forces(
+        self, time_s: float, positions: tuple[float, ...], velocities: tuple[float, ...]
+    ) -> tuple[float, ...]:
+        if time_s < self.start_s:  # waiting for the device to be ready
+            self._last = time_s
+            return (0.0,) * len(positions)
+        dt = time_s - self._last if time_s > self._last else 1e-4
+        self._last = time_s
+        inputs = shift_driver.DriverInputs(
+            positions[0] / self.position_scale, velocities[0] / self.position_scale
+        )
+        self.state, out = shift_driver.step(self.state, inputs, self.params, dt)
+        return (out.force_N * self.force_scale,) + (0.0,) * (len(positions) - 1)
+
+
+class HPatternHand:
+    """The 2-D gear-sequence driver on both axes (x engage, y select)."""
+
+    def __init__(
+        self, script: Script, force_scale: float, position_scale: float, start_s: float = 0.0
+    ):
+        self.start_s = start_s
+        self.script = script
+        self.force_scale = force_scale
+        self.position_scale = position_scale
+        self.state = hpattern_driver.initial_state()
+        self._last = 0.0
+        self.phase = "pull"
+        self.clutch_pedal = script.clutch_pedal
+
+    def forces(
+        self, time_s: float, positions: tuple[float, ...], velocities: tuple[float, ...]
+    ) -> tuple[float, ...]:
+        if time_s < self.start_s:  # waiting for the device to be ready
+            self._last = time_s
+            return (0.0,) * len(positions)
+        dt = time_s - self._last if time_s > self._last else 1e-4
+        self._last = time_s
+        ps = self.position_scale
+        inputs = hpattern_driver.HPatternDriverInputs(
+            positions[0] / ps, positions[1] / ps, velocities[0] / ps, velocities[1] / ps
+        )
+        self.state, out = hpattern_driver.step(self.state, inputs, self.script, dt)
+        self.phase = out.phase
+        self.clutch_pedal = out.clutch_pedal
+        return (out.force_x_N * self.force_scale, out.force_y_N * self.force_scale)
+
+    @property
+    def done(self) -> bool:
+        return self.state.phase is hpattern_driver.Phase.DONE
+
+
+class WheelHand:
+    """Hands on the rim that steer a wheel angle against its torque: a stiff, damped grip."""
+
+    def __init__(
+        self,
+        target: Callable[[float], float],
+        stiffness_Nm_rad: float = 20.0,
+        damping_Nm_s_rad: float = 1.0,
+        max_torque_Nm: float = 15.0,
+        position_scale: float = 1.0,
+    ):
+        self.target = target
+        self.stiffness = stiffness_Nm_rad
+        self.damping = damping_Nm_s_rad
+        self.max_torque = max_torque_Nm
+        self.position_scale = position_scale
+
+    def forces(
+        self, time_s: float, positions: tuple[float, ...], velocities: tuple[float, ...]
+    ) -> tuple[float, ...]:
+        aim = self.target(time_s) * self.position_scale
+        torque = self.stiffness * (aim - positions[0]) - self.damping * velocities[0]
+        return (max(-self.max_torque, min(self.max_torque, torque)),)
+
+
+def weave_target(amplitude_rad: float, frequency_hz: float) -> Callable[[float], float]:
+    """A steering wheel angle sine, for the wheel hand."""
+    return lambda t: amplitude_rad * math.sin(2.0 * math.pi * frequency_hz * t)

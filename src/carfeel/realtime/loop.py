@@ -1,0 +1,190 @@
+"""The fixed-rate loop: read the device, step the model, command the device, safely.
+
+Against absolute deadlines (t0 + k * period), so one late tick does not shift the ones after it.
+Before the loop, garbage collection is run and frozen (its 1-1.6 ms pauses would be overruns).
+An overrun is a period longer than 1.5 times the nominal one; every period's error is kept for
+the summary. Start-up: each axis is pulsed at a fifth of the force limit to check its polarity
+(a reversed axis is flipped and said so), then the force limit ramps in.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import gc
+import math
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+
+from carfeel.realtime.clock import Clock
+from carfeel.realtime.devices.base import Device, DeviceLost
+from carfeel.realtime.recording import Recorder
+from carfeel.realtime.rendering import Renderer
+from carfeel.realtime.safety import ForceLimiter, SafetyLimits, Watchdog
+
+OVERRUN_FACTOR = 1.5
+CALIBRATION_PULSE_S = 0.04
+CALIBRATION_FRACTION = 0.2
+
+
+@dataclass(frozen=True, slots=True)
+class LoopConfig:
+    rate_hz: float = 1000.0
+    duration_s: float = 10.0
+    calibrate: bool = True
+
+
+@dataclass
+class LoopSummary:
+    periods: int
+    overruns: int
+    period_error_p50_us: float
+    period_error_p99_us: float
+    period_error_max_us: float
+    max_force_N: float
+    faults: list[str]
+    gears: list[str]
+    notes: list[str] = field(default_factory=list)
+    stopped: str = "duration"
+
+    def as_dict(self) -> dict[str, object]:
+        return asdict(self)
+
+
+def _percentile(sorted_values: list[float], fraction: float) -> float:
+    if not sorted_values:
+        return math.nan
+    return sorted_values[min(len(sorted_values) - 1, int(fraction * len(sorted_values)))]
+
+
+def calibrate(
+    device: Device, clock: Clock, period_ns: int, limits: SafetyLimits, origin_ns: int
+) -> list[float]:
+    """Pulse each axis at a fifth of the limit; return +1 or -1 per axis (its polarity).
+
+    Times are seconds since `origin_ns`, the run's start, as in the loop.
+    """
+    signs = []
+    axes = device.info.axes
+
+    def now() -> float:
+        return (clock.now_ns() - origin_ns) / 1e9
+
+    for axis in range(axes):
+        start = device.read(now()).positions[axis]
+        moved = 0.0
+        pulse = [0.0] * axes
+        pulse[axis] = CALIBRATION_FRACTION * limits.max_force
+        deadline = clock.now_ns()
+        for _ in range(round(CALIBRATION_PULSE_S * 1e9 / period_ns)):
+            deadline += period_ns
+            clock.sleep_until(deadline)
+            device.command(tuple(pulse), now())
+            moved = device.read(now()).positions[axis] - start
+        device.command((0.0,) * axes, now())
+        signs.append(-1.0 if moved < -0.02 * device.info.travel else 1.0)
+    return signs
+
+
+def run_loop(
+    renderer: Renderer,
+    device: Device,
+    clock: Clock,
+    config: LoopConfig,
+    limits: SafetyLimits,
+    recorder: Recorder | None = None,
+    should_stop: Callable[[], bool] = lambda: False,
+) -> LoopSummary:
+    """Run until the duration ends, `should_stop()` says so, or a fault has faded out.
+
+    The device is commanded to zero force before this returns, whatever happened.
+    """
+    period_ns = round(1e9 / config.rate_hz)
+    dt = period_ns / 1e9
+    axes = device.info.axes
+    limiter = ForceLimiter(limits, axes)
+    watchdog = Watchdog(limits, device.info.travel)
+    notes: list[str] = []
+    errors: list[float] = []
+    overruns = 0
+    max_force = 0.0
+    stopped = "duration"
+    polarity = [1.0] * axes
+    frozen = False
+    origin = clock.now_ns()
+    try:
+        if config.calibrate:
+            polarity = calibrate(device, clock, period_ns, limits, origin)
+            for axis, sign in enumerate(polarity):
+                if sign < 0:
+                    notes.append(f"axis {axis} moved against its command: polarity flipped")
+        gc.collect()
+        gc.freeze()
+        frozen = True
+        start = clock.now_ns()
+        last = start
+        ticks = round(config.duration_s * config.rate_hz)
+        for k in range(1, ticks + 1):
+            deadline = start + k * period_ns
+            clock.sleep_until(deadline)
+            now = clock.now_ns()
+            period = now - last
+            last = now
+            errors.append((period - period_ns) / 1e3)
+            overrun = period > OVERRUN_FACTOR * period_ns
+            overruns += overrun
+            t = (now - origin) / 1e9
+            try:
+                sample = device.read(t)
+            except DeviceLost as exc:
+                watchdog.fault(f"device lost: {exc}")
+                stopped = "fault"
+                break
+            positions = tuple(p * s for p, s in zip(sample.positions, polarity, strict=True))
+            watchdog.check(positions, period / 1e9, t)
+            if watchdog.faulted:
+                # Hold the model; fade what the device renders.
+                envelope = watchdog.envelope(dt)
+                commands = tuple(f * envelope for f in limiter.last)
+                row: tuple[object, ...] = (math.nan,) * len(renderer.columns)
+            else:
+                commands, row = renderer.tick(sample._replace(positions=positions), dt)
+                envelope = 1.0
+            ramp = limits.start_fraction + (1.0 - limits.start_fraction) * min(
+                1.0, (now - start) / 1e9 / limits.ramp_s
+            )
+            safe = limiter.limit(
+                commands, dt, scale=min(ramp, envelope if watchdog.faulted else 1.0)
+            )
+            try:
+                device.command(tuple(f * s for f, s in zip(safe, polarity, strict=True)), t)
+            except DeviceLost as exc:
+                watchdog.fault(f"device lost: {exc}")
+                stopped = "fault"
+                break
+            max_force = max(max_force, *(abs(f) for f in safe))
+            if recorder is not None:
+                recorder.append((t, int(overrun), *safe, int(watchdog.faulted), *row))
+            if watchdog.finished:
+                stopped = "fault"
+                break
+            if should_stop():
+                stopped = "stopped"
+                break
+    finally:
+        if frozen:
+            gc.unfreeze()
+        with contextlib.suppress(DeviceLost):  # a lost device renders nothing anyway
+            device.command((0.0,) * axes, (clock.now_ns() - origin) / 1e9)
+    ordered = sorted(errors)
+    return LoopSummary(
+        periods=len(errors),
+        overruns=overruns,
+        period_error_p50_us=_percentile(ordered, 0.5),
+        period_error_p99_us=_percentile(ordered, 0.99),
+        period_error_max_us=ordered[-1] if ordered else math.nan,
+        max_force_N=max_force,
+        faults=list(watchdog.faults),
+        gears=list(renderer.gears),
+        notes=notes,
+        stopped=stopped,
+    )
