@@ -149,11 +149,12 @@ def build_parser() -> argparse.ArgumentParser:
         "the synchronizer decides when the gate opens. CSV columns: time_s, x_m (engage, "
         "forward +), y_m (select), vx_m_s, vy_m_s, force_x_N, force_y_N (the driver's force on "
         "the knob), reaction_x_N, reaction_y_N (the gearbox's force on it), region, gear (N, R, "
-        "1, 2 ...), event, stage, clutch_pedal, speed_difference_rad_s, grind_N, driver_phase, "
-        "target.",
+        "1, 2 ...), event, stage, clutch_pedal, speed_difference_rad_s, grind_N, click_N, "
+        "driver_phase, target.",
         epilog="layouts: 5r (default), 6r, 5r-reverse-left (see `carfeel presets`), or a TOML "
-        "file. mistakes: early-clutch:K releases the clutch while pushing into the K-th gear of "
-        "the sequence; wall:K pushes toward the K-th gear before the knob is in its plane.",
+        "file. mistakes (K counts the gears of --sequence, not N): early-clutch:K releases the "
+        "clutch while pushing into the K-th gear; wall:K pushes toward the K-th gear while the "
+        "knob is still between planes.",
     )
     hpattern.add_argument(
         "--sequence", required=True, metavar="N,1,2,...",

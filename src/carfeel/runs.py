@@ -356,7 +356,8 @@ class HPatternRunConfig:
     wall_push: int = 0
     dt_s: float = 1e-3
     substeps: int = 1
-    max_duration_s: float = 120.0
+    max_duration_s: float | None = None
+    """None: 3 s per entry of the sequence and 5 s more (a balked run ends there)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -402,8 +403,9 @@ class HPatternSummary:
         lines.append(f"  off the paths    at most {self.outside_max_m * 1e3:.2f} mm (into a wall)")
         if not self.followed:
             lines.append(
-                "  note: the sequence was not completed (balk: clutch not pressed far enough, "
-                "or the run ended); see the stage and grind_N columns"
+                "  note: the sequence was not completed in the run's time: a balk (the clutch not "
+                "pressed far enough, reverse while rolling), or a gear the driver could not "
+                "reach; see the stage, grind_N, driver_phase and target columns"
             )
         if self.peak_grind_N > 0.0:
             lines.append(f"  grinding         up to {self.peak_grind_N:.1f} N of vibration")
@@ -435,17 +437,25 @@ def run_hpattern(
         raise InputError(f"--clutch {config.clutch:g}: allowed 0 (released) .. 1 (pressed)")
     if not 0.0 <= config.speed_kmh <= 250.0:
         raise InputError(f"--speed-kmh {config.speed_kmh:g}: allowed 0 <= value <= 250 km/h")
-    shifts = sum(1 for g in config.sequence)
+    # --mistake K names the K-th gear of the sequence (N entries not counted); the driver
+    # counts every entry, so translate.
+    gear_positions = [i + 1 for i, g in enumerate(config.sequence) if g != NEUTRAL_GEAR]
+    entries = {}
     for option, value in (
         ("early-clutch", config.early_clutch_release),
         ("wall", config.wall_push),
     ):
-        if not 0 <= value <= shifts:
+        if value == 0:
+            entries[option] = 0
+        elif 1 <= value <= len(gear_positions):
+            entries[option] = gear_positions[value - 1]
+        else:
             raise InputError(
-                f"--mistake {option}:{value}: allowed 1 .. {shifts}, the position of a gear in "
-                "--sequence"
+                f"--mistake {option}:{value}: allowed 1 .. {len(gear_positions)}, the K-th gear "
+                f"(not counting N) of --sequence {','.join(config.sequence)}"
             )
-    check_steps(config.max_duration_s, config.dt_s, config.substeps, HPATTERN_MAX_STEP_S)
+    duration = config.max_duration_s or 3.0 * len(config.sequence) + 5.0
+    check_steps(duration, config.dt_s, config.substeps, HPATTERN_MAX_STEP_S)
     physics = None if config.synchronizer is None else config.synchronizer == "physics"
     pattern = preset.pattern(physics)
     script = Script(
@@ -454,11 +464,15 @@ def run_hpattern(
         preset.shift.driver,
         preset.setup.driver,
         config.clutch,
-        config.early_clutch_release,
-        config.wall_push,
+        entries["early-clutch"],
+        entries["wall"],
     )
     run_params = HPatternRun(
-        pattern, script, config.speed_kmh / 3.6, config.engine_rpm * 2 * math.pi / 60
+        pattern,
+        script,
+        config.speed_kmh / 3.6,
+        config.engine_rpm * 2 * math.pi / 60,
+        config.dt_s,
     )
     mode = "physics" if pattern.synchronizer.physics else "fixed"
     metadata = {
@@ -475,7 +489,7 @@ def run_hpattern(
         "substeps": str(config.substeps),
     }
     result = simulate_hpattern(
-        run_params, seed=config.seed, max_duration_s=config.max_duration_s, dt_s=config.dt_s,
+        run_params, seed=config.seed, max_duration_s=duration, dt_s=config.dt_s,
         substeps=config.substeps, metadata=metadata,
     )  # fmt: skip
     check_finite(result, "hpattern")

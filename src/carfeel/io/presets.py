@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any, Generic, TypeVar
 
 from carfeel.errors import PresetError
-from carfeel.models.gearshift.hpattern import HPatternParams
+from carfeel.models.gearshift.hpattern import WALL_DEPTH_M, HPatternParams
 from carfeel.simulation.hpattern import HPatternSetup
 from carfeel.simulation.shift import ShiftParams
 from carfeel.simulation.steering import SteeringCar
@@ -594,17 +594,35 @@ def check_hpattern(setup: HPatternSetup, shift: ShiftParams) -> list[str]:
         shared = reverse and any(
             g.plane == reverse[0].plane and g.name != "R" for g in layout.gears
         )
-        if not reverse or shared or reverse[0].plane not in (0, last):
+        if not reverse or shared or reverse[0].plane not in (0, last) or last == 0:
             problems.append(
                 f"layout.reverse_lockout_N = {layout.reverse_lockout_N:g} N needs reverse alone "
                 "on an outer plane (as 6+R with R beyond 6); set it to 0 for this layout"
             )
     g = shift.gearbox
-    if layout.corridor_width_m / 2 >= g.synchronization_position_m:
+    if layout.corridor_width_m / 2 + WALL_DEPTH_M >= g.synchronization_position_m:
         problems.append(
-            f"layout.corridor_width_m = {layout.corridor_width_m:g} m: half of it must stay "
-            f"short of the synchro ring at {g.synchronization_position_m:g} m"
+            f"layout.corridor_width_m = {layout.corridor_width_m:g} m: half of it, plus the "
+            f"{WALL_DEPTH_M:g} m a wall gives, must stay short of the synchro ring at "
+            f"{g.synchronization_position_m:g} m"
         )
+    # The driver must be able to hold the farthest plane against the select spring (and the
+    # lockout), with a fifth to spare for friction and the detents.
+    if 0 <= layout.centre_plane <= last:
+        centre = planes[layout.centre_plane]
+        reach = max(abs(p - centre) for p in planes)
+        needed = setup.select.centring_stiffness_N_m * reach + setup.select.static_friction_N
+        lock = layout.lockout_plane if last > 0 else None
+        if lock is not None:
+            neighbour = lock - 1 if lock > 0 else lock + 1
+            half_gap = abs(planes[lock] - planes[neighbour]) / 2
+            needed += layout.reverse_lockout_N + setup.select.lockout_stiffness_N_m * half_gap
+        if setup.driver.select_force_N < 1.2 * needed:
+            problems.append(
+                f"driver.select_force_N = {setup.driver.select_force_N:g} N cannot hold the "
+                f"farthest plane: the select spring{' and the lockout' if lock is not None else ''}"
+                f" need {needed:.1f} N there (with a fifth to spare: {1.2 * needed:.1f} N)"
+            )
     feel = setup.feel
     first, last_latch = (
         feel.latch_position_m - feel.latch_width_m,

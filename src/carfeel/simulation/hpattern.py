@@ -25,12 +25,16 @@ class HPatternRun:
     script: Script
     vehicle_speed_m_s: float
     engine_speed_rad_s: float
+    sample_s: float = 1e-3
+    """Output sample period: an event stays in the outputs this long, so sub-steps keep it."""
 
 
 class LoopState(NamedTuple):
     driver: driver.HPatternDriverState
     knob: hpattern.HPatternState
     last: hpattern.HPatternOutputs | None
+    event: str = ""
+    event_age_s: float = 0.0
 
 
 class LoopOutputs(NamedTuple):
@@ -85,9 +89,12 @@ def step(
         params.pattern,
         dt_s,
     )
-    return LoopState(driver_state, knob, out), LoopOutputs(
+    # An event is reported for a whole output sample, whichever sub-step it happened in.
+    event, age = (out.event, 0.0) if out.event else (state.event, state.event_age_s + dt_s)
+    shown = event if age < params.sample_s - 1e-12 else ""
+    return LoopState(driver_state, knob, out, event, age), LoopOutputs(
         out.x_m, out.y_m, out.vx_m_s, out.vy_m_s, out.force_x_N, out.force_y_N,
-        out.reaction_x_N, out.reaction_y_N, out.region, out.gear, out.event, out.stage,
+        out.reaction_x_N, out.reaction_y_N, out.region, out.gear, shown, out.stage,
         hand.clutch_pedal, out.speed_difference_rad_s, out.grind_N, out.click_N, hand.phase,
         hand.target,
     )  # fmt: skip

@@ -40,6 +40,8 @@ from carfeel.models.gearshift.synchronizer import SynchronizerParams, Synchroniz
 from carfeel.models.mechanics import stick_slip_step
 
 NEUTRAL_GEAR = "N"
+WALL_DEPTH_M = 0.003
+"""The deepest a knob sinks into a wall before the wall is rigid (the gate's compliance)."""
 IN_MESH = frozenset({Stage.FREE_TRAVEL, Stage.STOP, Stage.IN_GEAR})
 
 
@@ -320,6 +322,11 @@ def step(
     lever, x_out = engagement.step(lever, x_inputs, eng, dt_s)
     s1 = lever.position_m
     entered = not in_slot and aligned and s1 > half_corridor
+    if not in_slot and not entered and s1 > half_corridor + WALL_DEPTH_M:
+        # However hard the push, the gate is metal: no deeper than its compliance allows
+        # (a plastic contact: the lever stops there, which only takes energy away).
+        s1 = half_corridor + WALL_DEPTH_M
+        lever = lever._replace(position_m=s1, velocity_m_s=0.0)
     click_s = state.click_s + dt_s
     if lever.stage is Stage.STOP and not was_stop and impact_speed > feel.click_speed_m_s:
         click_s = 0.0
@@ -336,11 +343,16 @@ def step(
     if not (in_slot or entered):
         k_y, rest_y, damping_y = _select_springs(y + state.vy_m_s * dt_s, y, layout, sel, walls)
     else:
-        k_y, rest_y, damping_y = (
-            sel.slot_stiffness_N_m,
-            layout.planes_y_m[plane],
-            sel.slot_damping_N_s_m,
-        )
+        # The slot is a channel slot_width_m wide: its walls hold the knob only beyond it,
+        # switched on one step ahead like the other walls (so entering never stretches them).
+        y_p = layout.planes_y_m[plane]
+        ahead = y + state.vy_m_s * dt_s - y_p
+        half_slot = 0.5 * layout.slot_width_m
+        if ahead > half_slot or ahead < -half_slot:
+            edge = y_p + (half_slot if ahead > 0.0 else -half_slot)
+            k_y, rest_y, damping_y = sel.slot_stiffness_N_m, edge, sel.slot_damping_N_s_m
+        else:
+            k_y, rest_y, damping_y = 0.0, y_p, 0.0
     y1, vy1, _ = stick_slip_step(
         y,
         state.vy_m_s,

@@ -19,11 +19,15 @@ Two modes (`SynchronizerParams.physics`):
   speed step) takes longer than an upshift at the same speed; a clutch not pressed far enough
   drags the shaft toward the engine harder than the cone can pull it: no synchronization (balk).
 
-Grinding (both modes): while the clutch still drags the input shaft (the pedal short of
-`clutch_open_above`), the speeds are not matched and the driver pushes harder than
-`grind_force_N`, the sleeve's dog teeth chatter on the gear's: a vibration of amplitude
-`grind_amplitude_N` at the tooth-passing frequency n_teeth * |w_in / r - w_out| / (2 pi), felt on
-top of the balk. The ring itself still blocks: a balk is a wall, the grinding only a vibration.
+Reverse (a negative ratio) has no synchronizer, as in most manual boxes: it goes in only when
+the input shaft and the car have (nearly) stopped; in the fixed mode, only at standstill.
+
+Grinding (both modes): while the ring cannot win (physics: the clutch drags harder than the
+cone pulls, or the gear has no synchronizer; fixed: the gate is shut) and the driver pushes
+harder than `grind_force_N`, the sleeve's dog teeth chatter on the gear's: a vibration of
+amplitude `grind_amplitude_N` at the tooth-passing frequency n_teeth * |w_in / r - w_out| / (2 pi),
+rendered up to a quarter of the step rate (beyond, a sampled vibration would alias), felt on top
+of the balk. The ring itself still blocks: a balk is a wall, the grinding only a vibration.
 """
 
 from __future__ import annotations
@@ -118,31 +122,48 @@ def step(
     w_out = output_speed_rad_s(inputs.vehicle_speed_m_s, p)
     w_in = state.input_speed_rad_s
     ratio = inputs.ratio
+    j = p.input_inertia_kg_m2
+    engaged = (p.clutch_open_above - inputs.clutch_pedal) / p.clutch_open_above
+    clutch = p.clutch_capacity_Nm * min(1.0, max(0.0, engaged))
+    # Reverse (a negative ratio) has no synchronizer, as in most manual boxes: no cone.
+    synchronized_gear = ratio is not None and ratio > 0.0
+    cone = 0.0
+    if synchronized_gear and inputs.axial_force_N > 0.0:
+        cone = cone_torque_Nm(inputs.axial_force_N, p) / abs(ratio)  # type: ignore[arg-type]
     if ratio is not None and inputs.locked:
         w_in = w_out * ratio
     else:
-        j = p.input_inertia_kg_m2
-        engaged = (p.clutch_open_above - inputs.clutch_pedal) / p.clutch_open_above
-        clutch = p.clutch_capacity_Nm * min(1.0, max(0.0, engaged))
         w_in = _toward(w_in, inputs.engine_speed_rad_s, clutch * dt_s / j)
-        if ratio is not None and inputs.axial_force_N > 0.0:
-            cone = cone_torque_Nm(inputs.axial_force_N, p) / abs(ratio)
-            w_in = _toward(w_in, w_out * ratio, cone * dt_s / j)
+        if cone > 0.0:
+            w_in = _toward(w_in, w_out * ratio, cone * dt_s / j)  # type: ignore[operator]
         w_in = _toward(w_in, 0.0, p.drag_torque_Nm * dt_s / j)
     if ratio is None:
         return SynchronizerState(w_in, 0.0), SynchronizerOutputs(False, 0.0, 0.0)
     difference = w_in - w_out * ratio
     matched = -p.speed_tolerance_rad_s < difference < p.speed_tolerance_rad_s
-    # Fixed mode: the engagement's own timer runs (None) only with the clutch pressed enough.
     clutch_open = inputs.clutch_pedal >= p.clutch_open_above
-    gate: bool | None = matched if p.physics else (None if clutch_open else False)
+    gate: bool | None
+    if p.physics:
+        gate = matched
+    elif not clutch_open:
+        gate = False  # the paper's timer runs only with the clutch pressed far enough
+    elif not synchronized_gear and abs(w_out) * abs(ratio) > p.speed_tolerance_rad_s:
+        gate = False  # reverse without a synchronizer: only at standstill
+    else:
+        gate = None
+    # Grinding needs a ring that cannot win: the clutch drags harder than the cone pulls, or
+    # the gear has no synchronizer. A ring synchronizing normally blocks by friction, silently.
+    if p.physics:
+        balked = not matched and (clutch >= cone or not synchronized_gear)
+    else:
+        balked = gate is False
     phase = state.grind_phase_rad
     grind = 0.0
-    # Grinding needs a ring that cannot win: the clutch still drags the input shaft. A ring
-    # that is synchronizing normally (clutch open) blocks by friction, silently.
-    balked = not matched and not clutch_open
     if balked and inputs.axial_force_N > p.grind_force_N:
-        teeth_speed = abs(difference / ratio)
-        phase = (phase + p.dog_teeth * teeth_speed * dt_s) % (2.0 * math.pi)
+        # The dog teeth pass at n * |dw| at the gear; rendered at most at a quarter of the step
+        # rate (a 1 kHz loop cannot show 700 Hz: it would alias to a falling pitch).
+        teeth_rate = p.dog_teeth * abs(difference / ratio)
+        teeth_rate = min(teeth_rate, 0.5 * math.pi / dt_s)
+        phase = (phase + teeth_rate * dt_s) % (2.0 * math.pi)
         grind = p.grind_amplitude_N * math.sin(phase)
     return SynchronizerState(w_in, phase), SynchronizerOutputs(gate, difference, grind)

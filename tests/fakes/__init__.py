@@ -1,0 +1,1 @@
+"""Recorded fakes of the device libraries (python-evdev, pysdl2) for machines without them."""
