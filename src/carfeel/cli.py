@@ -258,6 +258,54 @@ def build_parser() -> argparse.ArgumentParser:
         "beside the CSV, else b-segment)",
     )
 
+    run = commands.add_parser(
+        "run",
+        help="render a model at 1 kHz on a force-feedback device (virtual by default)",
+        description="Run a model in a fixed-rate loop against a force-feedback device: "
+        "admittance (the paper's: the device's force drives the model, the model's motion is "
+        "displayed) or impedance with a virtual coupling (the device's motion drives the model, "
+        "the coupling force is rendered). Forces are limited in size and slew; a stall, a lost "
+        "device or a bad reading fades the force to zero. Ctrl-C stops cleanly, force first.",
+        epilog="devices: virtual (a 10 N joystick, or a 4 Nm wheel for --model steering, held by "
+        "a simulated hand that drives the model's own script), evdev:/dev/input/eventN, "
+        "sdl:INDEX, replay:RECORDING.csv. `carfeel devices` lists what is attached.",
+    )
+    run.add_argument("--model", choices=("shift", "hpattern", "steering"), default="hpattern")
+    run.add_argument("--device", default="virtual", metavar="SPEC",
+                     help="virtual (default), evdev:PATH, sdl:INDEX or replay:FILE")  # fmt: skip
+    run.add_argument("--mode", choices=("admittance", "impedance"), default="impedance",
+                     help="rendering (default impedance; steering: impedance)")  # fmt: skip
+    run.add_argument("--rate-hz", type=_positive_float, default=1000.0, metavar="HZ",
+                     help="loop rate, Hz (default 1000)")  # fmt: skip
+    run.add_argument("--duration", type=_positive_float, default=None, metavar="S",
+                     help="seconds to run (default: long enough for the script)")  # fmt: skip
+    run.add_argument("--sequence", default="N,1,2,3,4,5,4,3,2,1,N", metavar="N,1,2,...",
+                     help="gears for --model hpattern (the virtual hand's script)")  # fmt: skip
+    run.add_argument("--preset", default=None, metavar="NAME|PATH",
+                     help="shift, hpattern (layout) or steering preset for the model")  # fmt: skip
+    run.add_argument("--speed-kmh", type=float, default=30.0, metavar="V",
+                     help="vehicle speed (synchronizer, steering), km/h (default 30)")  # fmt: skip
+    run.add_argument("--seed", type=_seed, default=0, help="seed (default 0)")
+    run.add_argument("--clock", choices=("wall", "simulated"), default="wall",
+                     help="wall (real time, default) or simulated (as fast as it goes; "
+                          "virtual and replay devices only)")  # fmt: skip
+    run.add_argument("--no-calibration", action="store_true",
+                     help="skip the start-up polarity pulses and force ramp-in")  # fmt: skip
+    run.add_argument("--device-max-force", type=_positive_float, default=None, metavar="F",
+                     help="a real device's force (N) or torque (Nm) limit")  # fmt: skip
+    run.add_argument("--device-travel", type=_positive_float, default=None, metavar="X",
+                     help="a real device's half travel, m or rad")  # fmt: skip
+    run.add_argument("--record", metavar="FILE.csv", help="record every sample (+ FILE.json)")
+    run.add_argument("--json", action="store_true", help="print the summary as one JSON object")
+
+    devices = commands.add_parser(
+        "devices",
+        help="list the force-feedback devices evdev and SDL2 can see",
+        description="List the force-feedback devices the evdev (Linux) and SDL2 backends see, "
+        "and say plainly when there is none or a backend library is missing.",
+    )
+    devices.add_argument("--json", action="store_true", help="print one JSON object")
+
     presets = commands.add_parser(
         "presets",
         help="list the shipped presets",
@@ -282,6 +330,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             return handlers[args.model](args)
         if args.command == "metrics":
             return _metrics_steering(args)
+        if args.command == "run":
+            return _run(args)
+        if args.command == "devices":
+            return _devices(args)
         return _presets(args)
     except CarfeelError as exc:
         print(f"carfeel: error: {exc}", file=sys.stderr)
@@ -362,6 +414,47 @@ def _simulate_hpattern(args: argparse.Namespace) -> int:
         substeps=args.substeps,
     )
     print(run_hpattern(config, out, Path(args.plot) if args.plot else None).text())
+    return 0
+
+
+def _run(args: argparse.Namespace) -> int:
+    from carfeel.realtime.session import RealtimeRun, run_realtime
+    from carfeel.runs import parse_sequence
+
+    record = Path(args.record) if args.record else None
+    if record is not None:
+        _check_writable(record, ".csv")
+    config = RealtimeRun(
+        model=args.model,
+        device=args.device,
+        mode=args.mode,
+        rate_hz=args.rate_hz,
+        duration_s=args.duration,
+        sequence=parse_sequence(args.sequence),
+        preset=args.preset,
+        speed_kmh=args.speed_kmh,
+        seed=args.seed,
+        clock=args.clock,
+        record=record,
+        calibrate=not args.no_calibration,
+        device_max_force=args.device_max_force,
+        device_travel=args.device_travel,
+    )
+    if not args.json:
+        print(f"carfeel run: {args.model} on {args.device}, {args.mode}, {args.rate_hz:g} Hz "
+              f"({args.clock} clock); Ctrl-C stops")  # fmt: skip
+    result = run_realtime(config)
+    print(json.dumps(result.as_dict()) if args.json else result.text())
+    return 0
+
+
+def _devices(args: argparse.Namespace) -> int:
+    from carfeel.realtime.devices.listing import describe_backends, list_devices
+
+    if args.json:
+        print(json.dumps(describe_backends()))
+    else:
+        print("\n".join(list_devices()))
     return 0
 
 

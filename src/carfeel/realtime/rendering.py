@@ -73,19 +73,21 @@ def coupling_bound(gains: Gains, scaling: Scaling, rate_hz: float) -> float:
     return gains.coupling_stiffness * ratio / (2.0 * rate_hz) + gains.coupling_damping * ratio
 
 
-class Velocity:
-    """A device axis' velocity: the difference of readings through a 50 Hz low-pass."""
+class Reading:
+    """A device axis as the renderers use it: the reading itself, and its velocity (the
+    difference of readings through a 50 Hz low-pass). The position is not filtered: a filter's
+    lag inside the coupling's loop costs more stability than the sensor's noise costs tremor."""
 
-    __slots__ = ("_filter", "_last")
+    __slots__ = ("_last", "_velocity")
 
     def __init__(self, rate_hz: float) -> None:
-        self._filter: SosFilter = butterworth(VELOCITY_CUTOFF_HZ, rate_hz)
+        self._velocity: SosFilter = butterworth(min(VELOCITY_CUTOFF_HZ, 0.4 * rate_hz), rate_hz)
         self._last: float | None = None
 
-    def step(self, position: float, dt: float) -> float:
-        raw = 0.0 if self._last is None else (position - self._last) / dt
-        self._last = position
-        return self._filter.step(raw)
+    def step(self, raw: float, dt: float) -> tuple[float, float]:
+        velocity = self._velocity.step(0.0 if self._last is None else (raw - self._last) / dt)
+        self._last = raw
+        return raw, velocity
 
 
 class Renderer(Protocol):
@@ -122,7 +124,7 @@ class ShiftRenderer:
         self.g = gains or Gains()
         self.state = engagement.initial_state(seed)
         self.display = butterworth(DISPLAY_CUTOFF_HZ, rate_hz)
-        self.vx, self.vy = Velocity(rate_hz), Velocity(rate_hz)
+        self.rx, self.ry = Reading(rate_hz), Reading(rate_hz)
         self.gears: list[str] = []
 
     def tick(
@@ -130,8 +132,8 @@ class ShiftRenderer:
     ) -> tuple[tuple[float, ...], tuple[object, ...]]:
         fs, ps = self.scaling.force_scale, self.scaling.position_scale
         g = self.g
-        x_dev, y_dev = sample.positions[0], sample.positions[1]
-        vx_dev, vy_dev = self.vx.step(x_dev, dt_s), self.vy.step(y_dev, dt_s)
+        x_dev, vx_dev = self.rx.step(sample.positions[0], dt_s)
+        y_dev, vy_dev = self.ry.step(sample.positions[1], dt_s)
         lever = self.state
         if self.mode == "admittance":
             servo = g.servo_stiffness * (lever.position_m * ps - x_dev) - g.servo_damping * vx_dev
@@ -191,7 +193,7 @@ class HPatternRenderer:
         self.g = gains or Gains()
         self.state = hpattern.initial_state(pattern, seed, engine_speed_rad_s)
         self.display = butterworth(DISPLAY_CUTOFF_HZ, rate_hz)
-        self.vx, self.vy = Velocity(rate_hz), Velocity(rate_hz)
+        self.rx, self.ry = Reading(rate_hz), Reading(rate_hz)
         self.speed = vehicle_speed_m_s
         self.engine = engine_speed_rad_s
         self.clutch = clutch
@@ -208,8 +210,9 @@ class HPatternRenderer:
     ) -> tuple[tuple[float, ...], tuple[object, ...]]:
         fs, ps = self.scaling.force_scale, self.scaling.position_scale
         g = self.g
-        devices = sample.positions
-        v_dev = (self.vx.step(devices[0], dt_s), self.vy.step(devices[1], dt_s))
+        x_dev, vx_dev = self.rx.step(sample.positions[0], dt_s)
+        y_dev, vy_dev = self.ry.step(sample.positions[1], dt_s)
+        devices, v_dev = (x_dev, y_dev), (vx_dev, vy_dev)
         model = self._model_xy()
         hands = []
         for axis in (0, 1):
@@ -264,7 +267,7 @@ class SteeringRenderer:
     ) -> None:
         self.car, self.speed, self.scaling = car, speed_m_s, scaling
         self.vehicle = single_track.initial_state()
-        self.rate = Velocity(rate_hz)
+        self.reading = Reading(rate_hz)
         self.display = butterworth(DISPLAY_CUTOFF_HZ, rate_hz)
         self.gears: list[str] = []
 
@@ -272,8 +275,8 @@ class SteeringRenderer:
         self, sample: DeviceSample, dt_s: float
     ) -> tuple[tuple[float, ...], tuple[object, ...]]:
         ps, fs = self.scaling.position_scale, self.scaling.force_scale
-        angle = sample.positions[0] / ps
-        rate = self.rate.step(sample.positions[0], dt_s) / ps
+        position, velocity = self.reading.step(sample.positions[0], dt_s)
+        angle, rate = position / ps, velocity / ps
         self.vehicle, out = single_track.step(
             self.vehicle, VehicleInputs(self.speed, angle), self.car.vehicle, dt_s
         )

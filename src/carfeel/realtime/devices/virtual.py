@@ -131,7 +131,9 @@ class VirtualDevice:
         self._applied_at = -math.inf
         self.open = False
         self.log: list[tuple[float, tuple[float, ...], tuple[float, ...]]] = []
-        """(time, true positions, motor forces) of every tick, for tests."""
+        """(time, true positions, motor forces) of every read, for tests."""
+        self.sent: list[tuple[float, tuple[float, ...]]] = []
+        """(time, forces) of every command, for tests."""
 
     def __enter__(self) -> VirtualDevice:
         self.open = True
@@ -207,6 +209,7 @@ class VirtualDevice:
         if self.fail_at_s is not None and time_s >= self.fail_at_s:
             raise DeviceLost(f"{self.info.name} stopped answering at t = {time_s:.3f} s")
         self._queue.append((time_s, tuple(forces)))
+        self.sent.append((time_s, tuple(forces)))
 
 
 def virtual_joystick(hand: Hand | None = None, **options: object) -> VirtualDevice:
