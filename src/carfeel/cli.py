@@ -296,6 +296,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--device-travel", type=_positive_float, default=None, metavar="X",
                      help="a real device's half travel, m or rad")  # fmt: skip
     run.add_argument("--record", metavar="FILE.csv", help="record every sample (+ FILE.json)")
+    run.add_argument("--plot", metavar="FILE.png", help="plot the recording (needs --record)")
     run.add_argument("--json", action="store_true", help="print the summary as one JSON object")
 
     devices = commands.add_parser(
@@ -424,6 +425,10 @@ def _run(args: argparse.Namespace) -> int:
     record = Path(args.record) if args.record else None
     if record is not None:
         _check_writable(record, ".csv")
+    if args.plot:
+        if record is None:
+            raise InputError("--plot draws the recording: give --record FILE.csv too")
+        _check_writable(Path(args.plot), ".png")
     config = RealtimeRun(
         model=args.model,
         device=args.device,
@@ -444,6 +449,12 @@ def _run(args: argparse.Namespace) -> int:
         print(f"carfeel run: {args.model} on {args.device}, {args.mode}, {args.rate_hz:g} Hz "
               f"({args.clock} clock); Ctrl-C stops")  # fmt: skip
     result = run_realtime(config)
+    if args.plot and record is not None:
+        from carfeel.io.plots import plot_recording
+        from carfeel.simulation.result import Result
+
+        recording = Result.from_csv(record, drop_partial_last_line=True)
+        plot_recording(recording, Path(args.plot), f"{args.model} on {result.device}, {args.mode}")
     print(json.dumps(result.as_dict()) if args.json else result.text())
     return 0
 

@@ -592,6 +592,20 @@ def demo(folder: Path) -> Iterator[str]:
     )
     yield reverse.text()
     yield ""
+    yield "the H-pattern on the virtual force-feedback joystick, in real time (1 kHz):"
+    from carfeel.io.plots import plot_recording
+    from carfeel.realtime.session import RealtimeRun, run_realtime
+
+    record = folder / "realtime-hpattern.csv"
+    live = run_realtime(RealtimeRun(model="hpattern", mode="admittance", record=record))
+    plot_recording(
+        Result.from_csv(record, drop_partial_last_line=True),
+        folder / "realtime-hpattern.png",
+        "H-pattern on the virtual joystick, admittance (the paper's scheme)",
+    )
+    yield live.text()
+    yield f"plotted {folder / 'realtime-hpattern.png'} (cf. paper Fig. 10 and 11)"
+    yield ""
     yield "steering wheel torque, ISO 3888-1 double lane change (paper Fig. 3):"
     dlc = run_steering(
         SteeringRun("iso3888"), folder / "steering-iso3888.csv", folder / "steering-iso3888.png"

@@ -294,3 +294,41 @@ def plot_hpattern(result: Result, layout: Any, path: str | Path, title: str = "H
     if any(e.startswith("engage") for e in events):
         ax_l.legend(fontsize=8, ncols=2)
     return _save(fig, plt, path)
+
+
+def plot_recording(result: Result, path: str | Path, title: str = "Real-time run") -> Path:
+    """Write a PNG of a real-time recording, as the paper's Fig. 10 and 11: the force estimated
+    from the device (unfiltered and through the 20 Hz Butterworth low-pass) against time, and
+    force against position; for a steering run, torque against time and wheel angle."""
+    plt = _pyplot()
+    t = result.time_s
+    names = result.names
+    fig, (ax_t, ax_l) = plt.subplots(1, 2, figsize=(13, 5.5), layout="constrained")
+    fig.suptitle(title)
+    if "torque_Nm" in names:
+        raw, smooth = result["torque_Nm"], result["torque_filtered_Nm"]
+        where, where_label, unit = (
+            np.degrees(result["steering_angle_rad"]),
+            "wheel angle [deg]",
+            "Nm",
+        )
+        label = "steering wheel torque"
+    else:
+        force = "force_N" if "force_N" in names else "force_x_N"
+        raw, smooth = result[force], result[f"{force[:-2]}_filtered_N"]
+        position = "position_m" if "position_m" in names else "x_m"
+        where, where_label, unit = result[position] * 1e3, "knob position [mm]", "N"
+        label = "force on the knob, from the device"
+    ax_t.plot(t, raw, color="#bbbbbb", lw=0.8, label="unfiltered")
+    ax_t.plot(t, smooth, color="k", lw=1.3, label="Butterworth low-pass, 20 Hz")
+    ax_t.set_xlabel("time [s]")
+    ax_t.set_ylabel(f"{label} [{unit}]")
+    ax_t.set_title("filtered and unfiltered (cf. paper Fig. 10)")
+    ax_t.grid(alpha=0.3)
+    ax_t.legend(fontsize=8)
+    ax_l.plot(where, smooth, color="#1f77b4", lw=1.0)
+    ax_l.set_xlabel(where_label)
+    ax_l.set_ylabel(f"{label}, filtered [{unit}]")
+    ax_l.set_title("force vs position loop (cf. paper Fig. 11)")
+    ax_l.grid(alpha=0.3)
+    return _save(fig, plt, path)

@@ -22,7 +22,8 @@ from carfeel.realtime.rendering import Renderer
 from carfeel.realtime.safety import ForceLimiter, SafetyLimits, Watchdog
 
 OVERRUN_FACTOR = 1.5
-CALIBRATION_PULSE_S = 0.04
+CALIBRATION_PULSE_S = 0.01
+CALIBRATION_SETTLE_S = 0.1
 CALIBRATION_FRACTION = 0.2
 
 
@@ -81,7 +82,13 @@ def calibrate(
             device.command(tuple(pulse), now())
             moved = device.read(now()).positions[axis] - start
         device.command((0.0,) * axes, now())
-        signs.append(-1.0 if moved < -0.02 * device.info.travel else 1.0)
+        signs.append(-1.0 if moved < -0.005 * device.info.travel else 1.0)
+        # Let the axis come to rest before the next pulse (or the run).
+        for _ in range(round(CALIBRATION_SETTLE_S * 1e9 / period_ns)):
+            deadline += period_ns
+            clock.sleep_until(deadline)
+            device.command((0.0,) * axes, now())
+            device.read(now())
     return signs
 
 

@@ -13,8 +13,12 @@ driver's, the device renders its reaction:
     command = -F_c * fs
 Passivity (Colgate & Schenkel, sampled at T): the coupling, seen at the handle, is a spring
 K_c * fs / ps with damping B_c * fs / ps; K*T/2 + B must stay below the damping that dissipates
-(the device's own and the lever's). The defaults keep K*T/2 + B under a third of the device's
-damping at 1 kHz; `coupling_bound` says by how much.
+(the device's own and the lever's). With the virtual joystick's 3 N*s/m and the defaults
+(K_c = 30 kN/m, B_c = 5 N*s/m on the lever, fs = 0.09, ps = 0.89) the handle sees K*T/2 + B =
+2.0 N*s/m; `coupling_bound` computes it. The admittance servo (1 kN/m, 1.5 N*s/m at the handle:
+K*T/2 + B = 2.0 N*s/m) is soft on purpose: a stiffer servo lets a handle nobody holds ring (an
+admittance display is unstable against a free handle), and its effort is the force estimate,
+so its stiffness only sets how far the handle lags the lever under force (7 mm at 7 N).
 Scaling: fs (device force per model force) and ps (device travel per model travel) default to
 the largest that fit the device: the paper's joystick gave about 10 N against a 100 N lever,
 fs = 0.1.
@@ -53,8 +57,8 @@ class Scaling:
 class Gains:
     """Servo (admittance, device units) and coupling (impedance, model units) gains."""
 
-    servo_stiffness: float = 2000.0
-    servo_damping: float = 0.5
+    servo_stiffness: float = 1000.0
+    servo_damping: float = 1.5
     coupling_stiffness: float = 30000.0
     coupling_damping: float = 5.0
     hold_stiffness: float = 1000.0

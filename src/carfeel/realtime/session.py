@@ -17,7 +17,13 @@ from carfeel import __version__
 from carfeel.errors import InputError
 from carfeel.realtime.clock import Clock, SimulatedClock, WallClock
 from carfeel.realtime.devices.base import Device, DeviceError
-from carfeel.realtime.loop import CALIBRATION_PULSE_S, LoopConfig, LoopSummary, run_loop
+from carfeel.realtime.loop import (
+    CALIBRATION_PULSE_S,
+    CALIBRATION_SETTLE_S,
+    LoopConfig,
+    LoopSummary,
+    run_loop,
+)
 from carfeel.realtime.recording import Recorder
 from carfeel.realtime.rendering import (
     MODES,
@@ -198,7 +204,11 @@ def run_realtime(run: RealtimeRun) -> RealtimeResult:
 
     wheel = run.model == "steering"
     # The virtual hand waits for the calibration pulses and the ramp-in.
-    ready_s = (2 * CALIBRATION_PULSE_S + SafetyLimits(1.0, 1.0).ramp_s) if run.calibrate else 0.0
+    ready_s = (
+        2 * (CALIBRATION_PULSE_S + CALIBRATION_SETTLE_S) + SafetyLimits(1.0, 1.0).ramp_s
+        if run.calibrate
+        else 0.0
+    )
     probe = open_device("virtual", kind="wheel" if wheel else "joystick")
     renderer: Renderer
     hand: Any = None
