@@ -34,6 +34,7 @@ bench: $(VENV)/.installed
 	$(BIN)/python benchmarks/bench_engagement_step.py
 	$(BIN)/python benchmarks/bench_steering.py
 	$(BIN)/python benchmarks/bench_hpattern_step.py
+	$(BIN)/python benchmarks/bench_loop.py
 
 clean:
 	rm -rf $(VENV) $(OUT) .pytest_cache .mypy_cache .ruff_cache

@@ -46,10 +46,14 @@ def test_dt_and_substeps_options(tmp_path):
 
 def test_demo_writes_into_the_folder_it_names(tmp_path, capsys):
     folder = tmp_path / "demo"
-    assert main(["demo", "--out-dir", str(folder)]) == 0
+    assert main(["demo", "--clock", "simulated", "--out-dir", str(folder)]) == 0
     printed = capsys.readouterr().out
     assert str(folder.resolve()) in printed
-    assert (folder / "shift.csv").is_file() and (folder / "shift.png").is_file()
+    for name in ("shift.csv", "shift.png", "hpattern.png", "hpattern-reverse.png",
+                 "realtime-hpattern.csv", "realtime-hpattern.png", "steering-iso3888.png",
+                 "steering-weave.png"):  # fmt: skip
+        assert (folder / name).is_file(), name
+    assert "gears engaged: 1 2 3 4 5 4 3 2 1" in printed
 
 
 @pytest.mark.parametrize(

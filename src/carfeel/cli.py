@@ -74,9 +74,17 @@ def build_parser() -> argparse.ArgumentParser:
 
     demo = commands.add_parser(
         "demo",
-        help="simulate a gear engagement, write its CSV and plot into a folder",
-        description="Simulate a neutral-to-first engagement with the default preset and write "
-        "its CSV, metadata and PNG plot into a folder (created if missing).",
+        help="a tour: engagement, H-pattern, the haptic loop, steering; files into a folder",
+        description="Simulate a neutral-to-first engagement, the H-pattern up and down the box "
+        "and into reverse, run the H-pattern on the virtual force-feedback joystick in real "
+        "time, and drive the steering through ISO 3888-1 and a weave; write every run's CSV, "
+        "metadata and PNG plot into a folder (created if missing).",
+    )
+    demo.add_argument(
+        "--clock",
+        choices=("wall", "simulated"),
+        default="wall",
+        help="clock of the real-time part (default wall: it runs for about 16 s)",
     )
     demo.add_argument(
         "--out-dir",
@@ -486,7 +494,7 @@ def _demo(args: argparse.Namespace) -> int:
     from carfeel.runs import demo
 
     folder = Path(args.out_dir)
-    for line in demo(folder):
+    for line in demo(folder, args.clock):
         print(line)
     return 0
 

@@ -557,7 +557,7 @@ def outside_distance(result: Result, layout: Layout) -> np.ndarray:
     return np.asarray(best)
 
 
-def demo(folder: Path) -> Iterator[str]:
+def demo(folder: Path, clock: str = "wall") -> Iterator[str]:
     """Run the demo into `folder`, yielding a line to print per step."""
     if folder.exists() and not folder.is_dir():
         raise InputError(f"--out-dir {folder} exists and is not a folder")
@@ -597,7 +597,9 @@ def demo(folder: Path) -> Iterator[str]:
     from carfeel.realtime.session import RealtimeRun, run_realtime
 
     record = folder / "realtime-hpattern.csv"
-    live = run_realtime(RealtimeRun(model="hpattern", mode="admittance", record=record))
+    live = run_realtime(
+        RealtimeRun(model="hpattern", mode="admittance", record=record, clock=clock)
+    )
     plot_recording(
         Result.from_csv(record, drop_partial_last_line=True),
         folder / "realtime-hpattern.png",
