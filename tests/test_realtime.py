@@ -274,3 +274,13 @@ def test_devices_with_nothing_attached_says_so(capsys):
 def test_bad_run_requests_exit_2(capsys, args, message):
     assert main(["run", *args]) == 2
     assert message in capsys.readouterr().err
+
+
+def test_model_substeps_run_inside_each_tick():
+    """1 kHz loop, 10 kHz model: the same gears; and the 10 kHz ceiling is enforced."""
+    result = run_realtime(
+        RealtimeRun(model="hpattern", mode="impedance", clock="simulated", substeps=10,
+                    sequence=("N", "1", "2", "N"))
+    )  # fmt: skip
+    assert result.summary.gears == ["1", "2"]
+    assert main(["run", "--substeps", "20"]) == 2

@@ -285,6 +285,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="rendering (default impedance; steering: impedance)")  # fmt: skip
     run.add_argument("--rate-hz", type=_positive_float, default=1000.0, metavar="HZ",
                      help="loop rate, Hz (default 1000)")  # fmt: skip
+    run.add_argument("--substeps", type=_positive_int, default=1, metavar="N",
+                     help="model steps per tick (up to 10 kHz of model steps)")  # fmt: skip
     run.add_argument("--duration", type=_positive_float, default=None, metavar="S",
                      help="seconds to run (default: long enough for the script)")  # fmt: skip
     run.add_argument("--sequence", default="N,1,2,3,4,5,4,3,2,1,N", metavar="N,1,2,...",
@@ -442,6 +444,7 @@ def _run(args: argparse.Namespace) -> int:
         device=args.device,
         mode=args.mode,
         rate_hz=args.rate_hz,
+        substeps=args.substeps,
         duration_s=args.duration,
         sequence=parse_sequence(args.sequence),
         preset=args.preset,

@@ -98,6 +98,7 @@ class Renderer(Protocol):
     axes: int
     columns: tuple[str, ...]
     gears: list[str]
+    substeps: int
 
     def tick(
         self, sample: DeviceSample, dt_s: float
@@ -130,6 +131,8 @@ class ShiftRenderer:
         self.display = butterworth(DISPLAY_CUTOFF_HZ, rate_hz)
         self.rx, self.ry = Reading(rate_hz), Reading(rate_hz)
         self.gears: list[str] = []
+        self.substeps = 1
+        """Model steps per tick (the loop at 1 kHz, the model up to 10 kHz)."""
 
     def tick(
         self, sample: DeviceSample, dt_s: float
@@ -139,23 +142,27 @@ class ShiftRenderer:
         x_dev, vx_dev = self.rx.step(sample.positions[0], dt_s)
         y_dev, vy_dev = self.ry.step(sample.positions[1], dt_s)
         lever = self.state
+        h = dt_s / self.substeps
         if self.mode == "admittance":
             servo = g.servo_stiffness * (lever.position_m * ps - x_dev) - g.servo_damping * vx_dev
             hand = -servo / fs
-            self.state, out = engagement.step(
-                lever, engagement.EngagementInputs(hand), self.gearbox, dt_s
-            )
+            for _ in range(self.substeps):  # the estimate is held over the tick
+                self.state, out = engagement.step(
+                    self.state, engagement.EngagementInputs(hand), self.gearbox, h
+                )
             command_x = g.servo_stiffness * (out.position_m * ps - x_dev) - g.servo_damping * vx_dev
         else:
             hand = g.coupling_stiffness * (x_dev / ps - lever.position_m) + g.coupling_damping * (
                 vx_dev / ps - lever.velocity_m_s
             )
-            self.state, out = engagement.step(
-                lever, engagement.EngagementInputs(hand), self.gearbox, dt_s
-            )
-            coupling = g.coupling_stiffness * (x_dev / ps - out.position_m) + g.coupling_damping * (
-                vx_dev / ps - out.velocity_m_s
-            )
+            coupling = hand
+            for _ in range(self.substeps):  # the handle is held, the lever moves
+                self.state, out = engagement.step(
+                    self.state, engagement.EngagementInputs(coupling), self.gearbox, h
+                )
+                coupling = g.coupling_stiffness * (x_dev / ps - out.position_m) + (
+                    g.coupling_damping * (vx_dev / ps - out.velocity_m_s)
+                )
             command_x = -coupling * fs
         command_y = -g.hold_stiffness * y_dev - g.hold_damping * vy_dev
         if out.stage == "in_gear" and (not self.gears or self.gears[-1] != "1"):
@@ -203,6 +210,8 @@ class HPatternRenderer:
         self.clutch = clutch
         """An object with a `clutch_pedal` attribute (the virtual hand), or None (pressed)."""
         self.gears: list[str] = []
+        self.substeps = 1
+        """Model steps per tick (the loop at 1 kHz, the model up to 10 kHz)."""
 
     def _model_xy(self) -> tuple[float, float, float, float]:
         s = self.state
@@ -231,8 +240,24 @@ class HPatternRenderer:
                     + g.coupling_damping * (v_dev[axis] / ps - model[axis + 2])
                 )
         pedal = float(getattr(self.clutch, "clutch_pedal", 1.0))
-        inputs = HPatternInputs(hands[0], hands[1], pedal, self.speed, self.engine)
-        self.state, out = hpattern.step(self.state, inputs, self.pattern, dt_s)
+        h = dt_s / self.substeps
+        forces: tuple[float, ...] = (hands[0], hands[1])
+        event = ""
+        for _ in range(self.substeps):
+            inputs = HPatternInputs(forces[0], forces[1], pedal, self.speed, self.engine)
+            self.state, out = hpattern.step(self.state, inputs, self.pattern, h)
+            if out.event.startswith("engage"):  # whichever sub-step it happens in
+                self.gears.append(out.gear)
+                event = out.event
+            elif out.event:
+                event = out.event
+            if self.mode == "impedance":  # the handle is held, the knob moves
+                m = self._model_xy()
+                forces = tuple(
+                    g.coupling_stiffness * (devices[a] / ps - m[a])
+                    + g.coupling_damping * (v_dev[a] / ps - m[a + 2])
+                    for a in (0, 1)
+                )
         after = self._model_xy()
         commands = []
         for axis in (0, 1):
@@ -248,11 +273,9 @@ class HPatternRenderer:
                 commands.append(-coupling * fs)
         # The click and the grinding are rendered on top, as the gearbox's vibrations.
         commands[0] += (out.click_N + out.grind_N) * math.copysign(1.0, out.x_m or 1.0) * fs
-        if out.event.startswith("engage"):
-            self.gears.append(out.gear)
         row = (
             devices[0], devices[1], out.x_m, out.y_m, hands[0], hands[1],
-            self.display.step(hands[0]), out.region, out.gear, out.event, out.stage,
+            self.display.step(hands[0]), out.region, out.gear, event, out.stage,
         )  # fmt: skip
         return (commands[0], commands[1]), row
 
@@ -274,6 +297,8 @@ class SteeringRenderer:
         self.reading = Reading(rate_hz)
         self.display = butterworth(DISPLAY_CUTOFF_HZ, rate_hz)
         self.gears: list[str] = []
+        self.substeps = 1
+        """Model steps per tick (the loop at 1 kHz, the model up to 10 kHz)."""
 
     def tick(
         self, sample: DeviceSample, dt_s: float
@@ -281,9 +306,11 @@ class SteeringRenderer:
         ps, fs = self.scaling.position_scale, self.scaling.force_scale
         position, velocity = self.reading.step(sample.positions[0], dt_s)
         angle, rate = position / ps, velocity / ps
-        self.vehicle, out = single_track.step(
-            self.vehicle, VehicleInputs(self.speed, angle), self.car.vehicle, dt_s
-        )
+        for _ in range(self.substeps):
+            self.vehicle, out = single_track.step(
+                self.vehicle, VehicleInputs(self.speed, angle), self.car.vehicle,
+                dt_s / self.substeps,
+            )  # fmt: skip
         torque = torque_terms(self.speed, rate, out.lateral_accel_m_s2, self.car.torque)[0]
         row = (
             sample.positions[0],

@@ -62,6 +62,8 @@ class RealtimeRun:
     device_max_force: float | None = None
     """A real device's force (N) or torque (Nm) limit; None: DEVICE_DEFAULTS."""
     device_travel: float | None = None
+    substeps: int = 1
+    """Model steps per loop tick (rate_hz * substeps at most 10 kHz)."""
 
 
 @dataclass
@@ -123,6 +125,12 @@ def _check(run: RealtimeRun) -> None:
         )
     if not (10.0 <= run.rate_hz <= MAX_RATE_HZ) or not math.isfinite(run.rate_hz):
         raise InputError(f"--rate-hz {run.rate_hz:g}: allowed 10 <= value <= {MAX_RATE_HZ:g} Hz")
+    if run.substeps < 1 or run.rate_hz * run.substeps > MAX_RATE_HZ:
+        raise InputError(
+            f"--substeps {run.substeps}: the model may step at most {MAX_RATE_HZ:g} times a "
+            f"second: at --rate-hz {run.rate_hz:g}, allowed 1 .. "
+            f"{max(1, int(MAX_RATE_HZ // run.rate_hz))}"
+        )
     if run.duration_s is not None and not 0.0 < run.duration_s <= 3600.0:
         raise InputError(f"--duration {run.duration_s:g}: allowed 0 < value <= 3600 s")
     if run.clock not in ("wall", "simulated"):
@@ -243,6 +251,7 @@ def run_realtime(run: RealtimeRun) -> RealtimeResult:
         hand = hands.WheelHand(hands.weave_target(amplitude, 0.2))
         renderer = SteeringRenderer(car, run.speed_kmh / 3.6, scaling, run.rate_hz)
         duration = duration or 10.0
+    renderer.substeps = run.substeps
     device = open_device(
         run.device, hand, run.seed, "wheel" if wheel else "joystick",
         run.device_max_force, run.device_travel,
@@ -262,6 +271,7 @@ def run_realtime(run: RealtimeRun) -> RealtimeResult:
         "device": device.info.name,
         "device_spec": run.device,
         "rate_hz": run.rate_hz,
+        "substeps": run.substeps,
         "duration_s": duration,
         "clock": run.clock,
         "force_scale": scaling.force_scale,
