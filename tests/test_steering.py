@@ -20,6 +20,7 @@ from carfeel.models.vehicle.single_track import (
     VehicleParams,
     steady_state_lateral_accel,
 )
+from carfeel.runs import feel_of
 from carfeel.simulation import manoeuvres
 from carfeel.simulation.runner import run
 from carfeel.simulation.steering import ImposedInputs, SteeringCar, imposed_step, simulate_steering
@@ -363,11 +364,7 @@ def test_metrics_hold_up_on_a_noisy_lagging_log():
 def test_understeer_gradient_is_refused_for_a_transient_run():
     c = car()
     result = simulated("iso7401-sweep")
-    feel = steering_feel(
-        result.time_s, result["speed_m_s"], result["steering_angle_rad"],
-        result["lateral_accel_m_s2"], result["torque_Nm"],
-        steering_ratio=c.vehicle.steering_ratio, wheelbase_m=c.vehicle.wheelbase_m,
-    )  # fmt: skip
+    feel = feel_of(result, c.vehicle.steering_ratio, c.vehicle.wheelbase_m)
     assert math.isnan(feel.understeer_gradient_deg_per_g)
     assert any("quasi-steady" in note for note in feel.notes)
 
@@ -375,11 +372,7 @@ def test_understeer_gradient_is_refused_for_a_transient_run():
 def test_iso4138_gives_the_understeer_gradient_of_the_car():
     c = car()
     result = simulated("iso4138")
-    feel = steering_feel(
-        result.time_s, result["speed_m_s"], result["steering_angle_rad"],
-        result["lateral_accel_m_s2"], result["torque_Nm"],
-        steering_ratio=c.vehicle.steering_ratio, wheelbase_m=c.vehicle.wheelbase_m,
-    )  # fmt: skip
+    feel = feel_of(result, c.vehicle.steering_ratio, c.vehicle.wheelbase_m)
     # The steady holds between speed steps: within 3 % (the driver's pursuit error on the circle
     # and the last transients of each step).
     assert feel.understeer_gradient_deg_per_g == pytest.approx(
@@ -389,10 +382,7 @@ def test_iso4138_gives_the_understeer_gradient_of_the_car():
 
 def test_metrics_say_what_a_run_cannot_give():
     result = simulated("steer-cycle")
-    feel = steering_feel(
-        result.time_s, result["speed_m_s"], result["steering_angle_rad"],
-        result["lateral_accel_m_s2"], result["torque_Nm"],
-    )  # fmt: skip
+    feel = feel_of(result, None, None)
     assert math.isnan(feel.torque_gradient_Nm_per_g)
     assert any("understeer gradient needs" in note for note in feel.notes)
 
@@ -400,11 +390,7 @@ def test_metrics_say_what_a_run_cannot_give():
 def test_weave_metrics_of_the_default_car_match_its_parameters():
     c = car()
     result = simulated("weave")
-    feel = steering_feel(
-        result.time_s, result["speed_m_s"], result["steering_angle_rad"],
-        result["lateral_accel_m_s2"], result["torque_Nm"],
-        steering_ratio=c.vehicle.steering_ratio, wheelbase_m=c.vehicle.wheelbase_m,
-    )  # fmt: skip
+    feel = feel_of(result, c.vehicle.steering_ratio, c.vehicle.wheelbase_m)
     # Understeer gradient of the linear car: the 0.2 Hz weave is quasi-static to within 2 %.
     assert feel.understeer_gradient_deg_per_g == pytest.approx(
         c.vehicle.understeer_gradient_deg_per_g, rel=0.02

@@ -361,10 +361,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _simulate_shift(args: argparse.Namespace) -> int:
     from carfeel.runs import ShiftRun, run_shift
 
-    out = Path(args.out)
-    _check_writable(out, ".csv")
-    if args.plot:
-        _check_writable(Path(args.plot), ".png")
+    out, plot = _outputs(args)
     config = ShiftRun(
         preset=args.preset,
         seed=args.seed,
@@ -373,7 +370,7 @@ def _simulate_shift(args: argparse.Namespace) -> int:
         substeps=args.substeps,
         pull_out=args.pull_out,
     )
-    summary = run_shift(config, out, Path(args.plot) if args.plot else None)
+    summary = run_shift(config, out, plot)
     print(summary.text())
     return 0
 
@@ -381,10 +378,7 @@ def _simulate_shift(args: argparse.Namespace) -> int:
 def _simulate_steering(args: argparse.Namespace) -> int:
     from carfeel.runs import SteeringRun, run_steering
 
-    out = Path(args.out)
-    _check_writable(out, ".csv")
-    if args.plot:
-        _check_writable(Path(args.plot), ".png")
+    out, plot = _outputs(args)
     config = SteeringRun(
         manoeuvre=args.manoeuvre,
         speed_kmh=args.speed_kmh,
@@ -392,17 +386,14 @@ def _simulate_steering(args: argparse.Namespace) -> int:
         dt_s=args.dt,
         substeps=args.substeps,
     )
-    print(run_steering(config, out, Path(args.plot) if args.plot else None).text())
+    print(run_steering(config, out, plot).text())
     return 0
 
 
 def _simulate_hpattern(args: argparse.Namespace) -> int:
     from carfeel.runs import HPatternRunConfig, parse_sequence, run_hpattern
 
-    out = Path(args.out)
-    _check_writable(out, ".csv")
-    if args.plot:
-        _check_writable(Path(args.plot), ".png")
+    out, plot = _outputs(args)
     mistakes = {"early-clutch": 0, "wall": 0}
     for text in args.mistake:
         kind, _, number = text.partition(":")
@@ -424,7 +415,7 @@ def _simulate_hpattern(args: argparse.Namespace) -> int:
         dt_s=args.dt,
         substeps=args.substeps,
     )
-    print(run_hpattern(config, out, Path(args.plot) if args.plot else None).text())
+    print(run_hpattern(config, out, plot).text())
     return 0
 
 
@@ -512,6 +503,16 @@ def _presets(args: argparse.Namespace) -> int:
         for kind, names in listing.items():
             print(f"{kind}: {', '.join(names)}")
     return 0
+
+
+def _outputs(args: argparse.Namespace) -> tuple[Path, Path | None]:
+    """--out and --plot, checked before any work is done."""
+    out = Path(args.out)
+    _check_writable(out, ".csv")
+    plot = Path(args.plot) if args.plot else None
+    if plot is not None:
+        _check_writable(plot, ".png")
+    return out, plot
 
 
 def _check_writable(path: Path, suffix: str) -> None:

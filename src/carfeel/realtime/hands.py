@@ -18,7 +18,21 @@ from carfeel.models.drivers.hpattern import Script
 from carfeel.models.drivers.shift import ShiftDriverParams
 
 
-class ShiftHand:
+class _ScriptedHand:
+    """What the scripted hands share: a start delay and their own time step."""
+
+    start_s: float
+    _last: float
+
+    def _tick(self, time_s: float) -> float | None:
+        """The time since the last call, or None while the hand waits to start."""
+        last, self._last = self._last, time_s
+        if time_s < self.start_s:
+            return None
+        return time_s - last if time_s > last else 1e-4
+
+
+class ShiftHand(_ScriptedHand):
     """The eq. (10) driver of the 1-DOF engagement, on the first axis; the second is left free."""
 
     def __init__(
@@ -38,11 +52,9 @@ class ShiftHand:
     def forces(
         self, time_s: float, positions: tuple[float, ...], velocities: tuple[float, ...]
     ) -> tuple[float, ...]:
-        if time_s < self.start_s:  # waiting for the device to be ready
-            self._last = time_s
+        dt = self._tick(time_s)
+        if dt is None:  # waiting for the device to be ready
             return (0.0,) * len(positions)
-        dt = time_s - self._last if time_s > self._last else 1e-4
-        self._last = time_s
         inputs = shift_driver.DriverInputs(
             positions[0] / self.position_scale, velocities[0] / self.position_scale
         )
@@ -50,7 +62,7 @@ class ShiftHand:
         return (out.force_N * self.force_scale,) + (0.0,) * (len(positions) - 1)
 
 
-class HPatternHand:
+class HPatternHand(_ScriptedHand):
     """The 2-D gear-sequence driver on both axes (x engage, y select)."""
 
     def __init__(
@@ -68,11 +80,9 @@ class HPatternHand:
     def forces(
         self, time_s: float, positions: tuple[float, ...], velocities: tuple[float, ...]
     ) -> tuple[float, ...]:
-        if time_s < self.start_s:  # waiting for the device to be ready
-            self._last = time_s
+        dt = self._tick(time_s)
+        if dt is None:  # waiting for the device to be ready
             return (0.0,) * len(positions)
-        dt = time_s - self._last if time_s > self._last else 1e-4
-        self._last = time_s
         ps = self.position_scale
         inputs = hpattern_driver.HPatternDriverInputs(
             positions[0] / ps, positions[1] / ps, velocities[0] / ps, velocities[1] / ps
