@@ -58,38 +58,50 @@ def _percentile(sorted_values: list[float], fraction: float) -> float:
 
 
 def calibrate(
-    device: Device, clock: Clock, period_ns: int, limits: SafetyLimits, origin_ns: int
+    device: Device,
+    clock: Clock,
+    period_ns: int,
+    limiter: ForceLimiter,
+    watchdog: Watchdog,
+    origin_ns: int,
 ) -> list[float]:
-    """Pulse each axis at a fifth of the limit; return +1 or -1 per axis (its polarity).
+    """Pulse each axis at a fifth of the limit; return +1 or -1 per axis (its force polarity).
 
-    Times are seconds since `origin_ns`, the run's start, as in the loop.
+    Range: every reading is checked by the watchdog (a NaN, or a reading beyond the device's
+    travel, is a fault and the run does not start). Polarity: a pulse that moves the axis the
+    wrong way means the device pushes against its commands; the sign then flips the commands
+    (not the readings). The pulses go through the limiter, so they respect its slew too. Times
+    are seconds since `origin_ns`, the run's start, as in the loop.
     """
     signs = []
     axes = device.info.axes
+    dt = period_ns / 1e9
+    deadline = clock.now_ns()
 
-    def now() -> float:
-        return (clock.now_ns() - origin_ns) / 1e9
+    def tick(commands: tuple[float, ...]) -> tuple[float, ...]:
+        nonlocal deadline
+        deadline += period_ns
+        clock.sleep_until(deadline)
+        t = (clock.now_ns() - origin_ns) / 1e9
+        device.command(limiter.limit(commands, dt, CALIBRATION_FRACTION), t)
+        positions = device.read(t).positions
+        watchdog.check(positions, dt, t)
+        return positions
 
     for axis in range(axes):
-        start = device.read(now()).positions[axis]
+        start = tick((0.0,) * axes)[axis]
         moved = 0.0
         pulse = [0.0] * axes
-        pulse[axis] = CALIBRATION_FRACTION * limits.max_force
-        deadline = clock.now_ns()
-        for _ in range(round(CALIBRATION_PULSE_S * 1e9 / period_ns)):
-            deadline += period_ns
-            clock.sleep_until(deadline)
-            device.command(tuple(pulse), now())
-            moved = device.read(now()).positions[axis] - start
-        device.command((0.0,) * axes, now())
+        pulse[axis] = CALIBRATION_FRACTION * limiter.limits.max_force
+        for _ in range(round(CALIBRATION_PULSE_S / dt)):
+            moved = tick(tuple(pulse))[axis] - start
         signs.append(-1.0 if moved < -0.005 * device.info.travel else 1.0)
         # Let the axis come to rest before the next pulse (or the run).
-        for _ in range(round(CALIBRATION_SETTLE_S * 1e9 / period_ns)):
-            deadline += period_ns
-            clock.sleep_until(deadline)
-            device.command((0.0,) * axes, now())
-            device.read(now())
-    return signs
+        for _ in range(round(CALIBRATION_SETTLE_S / dt)):
+            tick((0.0,) * axes)
+        if watchdog.faulted:
+            break
+    return signs + [1.0] * (axes - len(signs))
 
 
 def run_loop(
@@ -120,10 +132,15 @@ def run_loop(
     origin = clock.now_ns()
     try:
         if config.calibrate:
-            polarity = calibrate(device, clock, period_ns, limits, origin)
+            polarity = calibrate(device, clock, period_ns, limiter, watchdog, origin)
             for axis, sign in enumerate(polarity):
                 if sign < 0:
-                    notes.append(f"axis {axis} moved against its command: polarity flipped")
+                    notes.append(
+                        f"axis {axis} moved against its command: its force is inverted from now on"
+                    )
+            if watchdog.faulted:
+                stopped = "fault"
+                return _summary([], 0, 0.0, watchdog, renderer, notes, stopped)
         gc.collect()
         gc.freeze()
         frozen = True
@@ -146,7 +163,7 @@ def run_loop(
                 watchdog.fault(f"device lost: {exc}")
                 stopped = "fault"
                 break
-            positions = tuple(p * s for p, s in zip(sample.positions, polarity, strict=True))
+            positions = sample.positions
             watchdog.check(positions, period / 1e9, t)
             if watchdog.faulted:
                 # Hold the model; fade what the device renders.
@@ -154,8 +171,10 @@ def run_loop(
                 commands = tuple(f * envelope for f in limiter.last)
                 row: tuple[object, ...] = (math.nan,) * len(renderer.columns)
             else:
-                commands, row = renderer.tick(sample._replace(positions=positions), dt)
+                commands, row = renderer.tick(sample, dt)
                 envelope = 1.0
+                if not all(math.isfinite(c) for c in commands):
+                    watchdog.fault(f"the model gave a non-finite force at t = {t:.3f} s")
             ramp = limits.start_fraction + (1.0 - limits.start_fraction) * min(
                 1.0, (now - start) / 1e9 / limits.ramp_s
             )
@@ -177,11 +196,32 @@ def run_loop(
             if should_stop():
                 stopped = "stopped"
                 break
+        if stopped != "fault":
+            # A normal end, or a stop request: take the force away within the slew limit.
+            deadline = clock.now_ns()
+            while any(f != 0.0 for f in limiter.last):
+                deadline += period_ns
+                clock.sleep_until(deadline)
+                t = (clock.now_ns() - origin) / 1e9
+                safe = limiter.limit((0.0,) * axes, dt)
+                device.command(tuple(f * s for f, s in zip(safe, polarity, strict=True)), t)
     finally:
         if frozen:
             gc.unfreeze()
         with contextlib.suppress(DeviceLost):  # a lost device renders nothing anyway
             device.command((0.0,) * axes, (clock.now_ns() - origin) / 1e9)
+    return _summary(errors, overruns, max_force, watchdog, renderer, notes, stopped)
+
+
+def _summary(
+    errors: list[float],
+    overruns: int,
+    max_force: float,
+    watchdog: Watchdog,
+    renderer: Renderer,
+    notes: list[str],
+    stopped: str,
+) -> LoopSummary:
     ordered = sorted(errors)
     return LoopSummary(
         periods=len(errors),

@@ -81,8 +81,9 @@ class Watchdog:
         return self._fade_left is not None
 
     def fault(self, reason: str) -> None:
-        self.faults.append(reason)
+        """Start the fade; the first fault is the one reported (later ones follow from it)."""
         if self._fade_left is None:
+            self.faults.append(reason)
             self._fade_left = self.limits.fade_s
 
     def check(self, positions: tuple[float, ...], period_s: float, time_s: float) -> None:

@@ -27,11 +27,13 @@ from carfeel.realtime.loop import (
 from carfeel.realtime.recording import Recorder
 from carfeel.realtime.rendering import (
     MODES,
+    Gains,
     HPatternRenderer,
     Renderer,
     Scaling,
     ShiftRenderer,
     SteeringRenderer,
+    coupling_bound,
     default_scaling,
 )
 from carfeel.realtime.safety import SafetyLimits
@@ -41,6 +43,7 @@ MODEL_FORCE_N = 100.0
 """The lever forces the shift models reach (the paper's 8-10 kgf), scaled onto the device."""
 MODEL_TORQUE_NM = 10.0
 MAX_RATE_HZ = 10_000.0
+MIN_RATE_HZ = 250.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -123,8 +126,18 @@ def _check(run: RealtimeRun) -> None:
             "--model steering renders the torque law straight onto a force-feedback wheel: "
             "use --mode impedance"
         )
-    if not (10.0 <= run.rate_hz <= MAX_RATE_HZ) or not math.isfinite(run.rate_hz):
-        raise InputError(f"--rate-hz {run.rate_hz:g}: allowed 10 <= value <= {MAX_RATE_HZ:g} Hz")
+    if not (MIN_RATE_HZ <= run.rate_hz <= MAX_RATE_HZ) or not math.isfinite(run.rate_hz):
+        raise InputError(
+            f"--rate-hz {run.rate_hz:g}: allowed {MIN_RATE_HZ:g} <= value <= {MAX_RATE_HZ:g} Hz "
+            "(below, the rendering's filters and the walls' passivity no longer hold)"
+        )
+    if not (math.isfinite(run.speed_kmh) and 0.0 <= run.speed_kmh <= 250.0):
+        raise InputError(f"--speed-kmh {run.speed_kmh:g}: allowed 0 <= value <= 250 km/h")
+    if run.device == "virtual" and (run.device_max_force or run.device_travel):
+        raise InputError(
+            "--device-max-force and --device-travel describe a real device; the virtual ones "
+            "have their own limits (a 10 N joystick, a 4 Nm wheel)"
+        )
     if run.substeps < 1 or run.rate_hz * run.substeps > MAX_RATE_HZ:
         raise InputError(
             f"--substeps {run.substeps}: the model may step at most {MAX_RATE_HZ:g} times a "
@@ -217,25 +230,38 @@ def run_realtime(run: RealtimeRun) -> RealtimeResult:
         if run.calibrate
         else 0.0
     )
-    probe = open_device("virtual", kind="wheel" if wheel else "joystick")
+    kind = "wheel" if wheel else "joystick"
+    # The device first: the scales come from its limits (its hand, if virtual, comes after).
+    device = open_device(run.device, None, run.seed, kind, run.device_max_force, run.device_travel)
+    if device.info.kind != kind or device.info.axes < (1 if wheel else 2):
+        raise InputError(
+            f"--model {run.model} needs a {kind} with {1 if wheel else 2} axes; "
+            f"{device.info.name} is a {device.info.kind} with {device.info.axes}"
+        )
+    info = device.info
     renderer: Renderer
     hand: Any = None
     duration = run.duration_s
     virtual = run.device == "virtual"
     if run.model == "shift":
         shift = load_shift(run.preset or "paper-first-gear").params
-        scaling = default_scaling(
-            MODEL_FORCE_N, shift.gearbox.in_gear_position_m + 0.005, probe.info
-        )
+        scaling = default_scaling(MODEL_FORCE_N, shift.gearbox.in_gear_position_m + 0.005, info)
         hand = hands.ShiftHand(shift.driver, scaling.force_scale, scaling.position_scale, ready_s)
         renderer = ShiftRenderer(shift.gearbox, run.mode, scaling, run.rate_hz, seed=run.seed)
         duration = duration or 2.0 + ready_s
     elif run.model == "hpattern":
         preset = load_hpattern(run.preset or "5r")
         layout = preset.setup.layout
+        names = {g.name for g in layout.gears} | {"N"}
+        unknown = [g for g in run.sequence if g not in names]
+        if unknown:
+            raise InputError(
+                f"--sequence: no gear {', '.join(unknown)} in layout {preset.name}; it has "
+                f"{', '.join(sorted(names))}"
+            )
         travel = max(preset.shift.gearbox.in_gear_position_m + 0.005,
                      max(abs(y) for y in layout.planes_y_m) + layout.slot_width_m)  # fmt: skip
-        scaling = default_scaling(MODEL_FORCE_N, travel, probe.info)
+        scaling = default_scaling(MODEL_FORCE_N, travel, info)
         script = Script(run.sequence, layout, preset.shift.driver, preset.setup.driver)
         hand = hands.HPatternHand(script, scaling.force_scale, scaling.position_scale, ready_s)
         renderer = HPatternRenderer(
@@ -246,18 +272,17 @@ def run_realtime(run: RealtimeRun) -> RealtimeResult:
         duration = duration or 1.2 * len(run.sequence) + 1.0 + ready_s
     else:
         car = load_steering(run.preset or "b-segment").params
-        scaling = Scaling(0.9 * probe.info.max_force / MODEL_TORQUE_NM, 1.0)
+        scaling = Scaling(0.9 * info.max_force / MODEL_TORQUE_NM, 1.0)
         amplitude = math.radians(15.0)
         hand = hands.WheelHand(hands.weave_target(amplitude, 0.2))
         renderer = SteeringRenderer(car, run.speed_kmh / 3.6, scaling, run.rate_hz)
         duration = duration or 10.0
     renderer.substeps = run.substeps
-    device = open_device(
-        run.device, hand, run.seed, "wheel" if wheel else "joystick",
-        run.device_max_force, run.device_travel,
-    )  # fmt: skip
+    if virtual:
+        device.hand = hand  # type: ignore[attr-defined]
     if run.device.startswith("replay"):
-        duration = min(duration, getattr(device, "duration_s", duration))
+        recorded = getattr(device, "duration_s", duration)
+        duration = min(duration, recorded - (ready_s - SafetyLimits(1.0, 1.0).ramp_s))
     limits = SafetyLimits(
         max_force=device.info.max_force,
         max_slew_per_s=max(device.info.max_force / 0.05, 200.0 * device.info.max_force),
@@ -280,12 +305,23 @@ def run_realtime(run: RealtimeRun) -> RealtimeResult:
         "speed_kmh": run.speed_kmh,
         "seed": run.seed,
         "max_force": limits.max_force,
+        "travel": device.info.travel,
+        "coupling_bound": coupling_bound(Gains(), scaling, run.rate_hz),
+        "device_kind": device.info.kind,
         "max_slew_per_s": limits.max_slew_per_s,
     }
     axes = device.info.axes
     columns = ("time_s", "overrun", *(f"command_{i}" for i in range(axes)), "fault",
                *renderer.columns)  # fmt: skip
     recorder = Recorder(run.record, columns, metadata) if run.record else None
+    bound = coupling_bound(Gains(), scaling, run.rate_hz)
+    plant = getattr(device, "plant", None)
+    caution = (
+        f"the coupling's K*T/2 + B at the handle, {bound:.2g}, is not below the device's own "
+        f"damping, {plant.damping:.2g}: the rendering may not be passive"
+        if run.mode == "impedance" and plant is not None and bound >= plant.damping
+        else None
+    )
     summary = None
     try:
         with _stop_on_signals() as stop, device:
@@ -298,4 +334,6 @@ def run_realtime(run: RealtimeRun) -> RealtimeResult:
     finally:
         if recorder is not None:
             recorder.close(summary.as_dict() if summary else {"stopped": "error"})
+    if caution and summary is not None:
+        summary.notes.append(caution)
     return RealtimeResult(summary, scaling, device.info.name, run.record)

@@ -19,7 +19,7 @@ WHEEL_COLUMNS = ("angle_device_rad",)
 
 
 class ReplayDevice:
-    def __init__(self, path: Path, max_force: float = 10.0) -> None:
+    def __init__(self, path: Path, max_force: float | None = None) -> None:
         self.path = path
         result = Result.from_csv(path, drop_partial_last_line=True)
         names = result.names
@@ -35,9 +35,14 @@ class ReplayDevice:
             )
         self._times = [float(t) for t in result.time_s]
         self._positions = [tuple(float(result[c][i]) for c in columns) for i in range(len(result))]
-        travel = max((abs(v) for row in self._positions for v in row), default=0.0) or 1.0
+        # The recorded device's limits, from the sidecar; else a virtual one's force and a
+        # travel half again as wide as the recorded motion.
+        meta = _sidecar(path)
+        widest = max((abs(v) for row in self._positions for v in row), default=0.0) or 1.0
+        force = max_force or _number(meta, "max_force") or (10.0 if kind == "joystick" else 4.0)
+        travel = _number(meta, "travel") or 1.5 * widest
         self.info = DeviceInfo(
-            f"replay of {path.name}", kind, len(columns), max_force, 1.5 * travel, 1000.0, False
+            f"replay of {path.name}", kind, len(columns), force, travel, 1000.0, False
         )
         self.commands: list[tuple[float, tuple[float, ...]]] = []
 
@@ -62,3 +67,18 @@ class ReplayDevice:
 
     def command(self, forces: tuple[float, ...], time_s: float) -> None:
         self.commands.append((time_s, forces))
+
+
+def _sidecar(path: Path) -> dict[str, object]:
+    import json
+
+    try:
+        meta = json.loads(path.with_suffix(".json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+    return meta if isinstance(meta, dict) else {}
+
+
+def _number(meta: dict[str, object], key: str) -> float | None:
+    value = meta.get(key)
+    return float(value) if isinstance(value, int | float) and value > 0 else None
