@@ -109,3 +109,18 @@ def test_a_preset_file_on_disk_loads(tmp_path):
     path = tmp_path / "mine.toml"
     path.write_text(DEFAULT.replace('name = "paper-first-gear"', 'name = "mine"'))
     assert presets.load_shift(str(path)).name == "mine"
+
+
+def test_presets_written_as_toml_load_back_the_same(tmp_path):
+    import dataclasses
+
+    shift = presets.load_shift()
+    text = presets.to_toml(shift.name, shift.source, {"gearbox": shift.params.gearbox,
+                                                      "driver": shift.params.driver})  # fmt: skip
+    assert presets.shift_from_toml("written", text).params == shift.params
+    layout = presets.load_hpattern()
+    tables = {f.name: getattr(layout.setup, f.name) for f in dataclasses.fields(layout.setup)}
+    path = tmp_path / "layout.toml"
+    path.write_text(presets.to_toml(layout.name, layout.source, tables,
+                                    {"engagement": layout.engagement}))  # fmt: skip
+    assert presets.load_hpattern(str(path)).setup == layout.setup

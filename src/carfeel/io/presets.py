@@ -687,3 +687,51 @@ def load_hpattern(name_or_path: str = "5r") -> HPatternPreset:
     if problems:
         raise PresetError(f"preset {label} is not valid:\n  " + "\n  ".join(problems))
     return HPatternPreset(data["name"], data["source"], data["engagement"], shift.params, setup)
+
+
+def to_toml(
+    name: str, source: str, tables: Mapping[str, Any], extra: Mapping[str, str] | None = None
+) -> str:
+    """A preset's TOML text: `name`, `source`, string keys of `extra`, then one table per
+    dataclass of `tables` (nested dataclasses as sub-tables, tuples of them as arrays of tables).
+    Loading it back with the matching loader gives the same parameters."""
+    lines = [f"name = {_toml_string(name)}", f'source = """\n{source.strip()}\n"""']
+    for key, value in (extra or {}).items():
+        lines.append(f"{key} = {_toml_string(value)}")
+    for key, value in tables.items():
+        _toml_table(lines, key, value)
+    return "\n".join(lines) + "\n"
+
+
+def _toml_string(text: str) -> str:
+    return '"' + text.replace("\\", "\\\\").replace('"', '\\"') + '"'
+
+
+def _toml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        return repr(value)
+    if isinstance(value, str):
+        return _toml_string(value)
+    if isinstance(value, tuple):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    raise TypeError(f"no TOML form for {value!r}")
+
+
+def _toml_table(lines: list[str], key: str, value: Any, array: bool = False) -> None:
+    lines.append("")
+    lines.append(f"[[{key}]]" if array else f"[{key}]")
+    nested = []
+    for field in dataclasses.fields(value):
+        item = getattr(value, field.name)
+        if dataclasses.is_dataclass(item):
+            nested.append((f"{key}.{field.name}", item, False))
+        elif isinstance(item, tuple) and item and dataclasses.is_dataclass(item[0]):
+            nested.extend((f"{key}.{field.name}", element, True) for element in item)
+        else:
+            lines.append(f"{field.name} = {_toml_value(item)}")
+    for sub_key, sub_value, is_array in nested:
+        _toml_table(lines, sub_key, sub_value, is_array)

@@ -1,0 +1,1 @@
+"""Identification from measured logs, and validation of the models against them."""
