@@ -1,0 +1,375 @@
+"""Fit the steering torque law (K1..K9 of eqs. 4-7) to measured logs by robust least squares.
+
+A log has `time_s, speed_m_s, steering_angle_rad, steering_torque_Nm` and optionally
+`lateral_accel_m_s2` (used when present; else the car's steady-state Ay from speed and angle,
+`Ay = V^2 * delta / (L * (1 + K * V^2))`) and `steering_rate_rad_s` (else derived: a
+Savitzky-Golay derivative, quadratic over 81 ms, on each stretch of the log between gaps, which
+differentiates without amplifying the angle sensor's noise the way a plain difference does).
+
+The fit is `scipy.optimize.least_squares` with an analytic Jacobian, bounds that keep each term
+physically signed (every K >= 0 and the scales > 0), and the robust 'soft_l1' loss, so spikes
+and dropouts do not drag it; a torque offset (a torque sensor's zero error) is fitted beside
+K1..K9 and reported, not kept. Starting values come from the data: K1 from the slope of torque
+on Ay while the wheel barely turns, K9 from the slope on the rate while it turns fast, the
+friction level from the rest, the tyre-spin scale from parking (V < 2 m/s) if there is any.
+Uncertainties are one standard deviation from the Jacobian at the solution (the Gauss-Newton
+covariance scaled by the residual variance). A parameter the data cannot pin down gets a
+warning: the tyre-spin terms K4..K6 without parking manoeuvres, the saturation K2, K3 without
+lateral accelerations beyond 3 m/s^2, any parameter whose uncertainty exceeds half its value.
+With `fit_vehicle` (and no measured Ay) the understeer gradient is fitted too (the speed steps of
+a steady-state test separate it from K1), and the preset's rear cornering stiffness is set to give
+it. The steering ratio is not fitted: in the linear range K1 * Ay ~ K1 / SR, so the two trade
+exactly; take SR from the car's data.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from carfeel.errors import InputError
+from carfeel.models.steering.torque import SteeringTorqueParams, torque_terms
+from carfeel.models.vehicle.single_track import VehicleParams
+from carfeel.simulation.result import Result
+from carfeel.simulation.steering import SteeringCar
+
+FloatArray = npt.NDArray[np.float64]
+REQUIRED = ("time_s", "speed_m_s", "steering_angle_rad", "steering_torque_Nm")
+K_NAMES = ("k1_Nm_s2_m", "k2", "k3", "k4_1_Nm", "k5_s_m_Nm", "k6_rad_s", "k7_Nm", "k8_rad_s",
+           "k9_Nm_s_rad")  # fmt: skip
+LOWER = (1e-3, 0.0, 0.3, 1e-2, 0.0, 1e-2, 0.0, 1e-3, 0.0)
+UPPER = (50.0, 10.0, 3.0, 100.0, 100.0, 10.0, 20.0, 5.0, 5.0)
+SAVGOL_WINDOW_S = 0.081
+PARKING_SPEED_M_S = 2.0
+
+
+@dataclass(frozen=True)
+class SteeringLog:
+    """One log's signals in SI units, checked, with the rate and Ay it will be fitted with."""
+
+    name: str
+    time_s: FloatArray
+    speed_m_s: FloatArray
+    angle_rad: FloatArray
+    rate_rad_s: FloatArray
+    torque_Nm: FloatArray
+    lateral_accel_m_s2: FloatArray | None
+
+
+@dataclass(frozen=True)
+class Estimate:
+    name: str
+    value: float
+    sigma: float
+    """One standard deviation."""
+
+
+@dataclass(frozen=True)
+class SteeringFit:
+    car: SteeringCar
+    estimates: tuple[Estimate, ...]
+    torque_offset_Nm: float
+    rms_error_Nm: float
+    r2: float
+    per_log: dict[str, dict[str, float]]
+    """Per log: rms_error_Nm, r2, mean residual (the bias left), samples."""
+    warnings: tuple[str, ...]
+    iterations: int
+
+    def as_dict(self) -> dict[str, object]:
+        return {
+            "parameters": {e.name: {"value": e.value, "sigma": e.sigma} for e in self.estimates},
+            "torque_offset_Nm": self.torque_offset_Nm,
+            "rms_error": self.rms_error_Nm,
+            "r2": self.r2,
+            "per_log": self.per_log,
+            "warnings": list(self.warnings),
+            "iterations": self.iterations,
+        }
+
+
+def savgol_rate(time_s: FloatArray, angle_rad: FloatArray) -> FloatArray:
+    """d(angle)/dt by a quadratic Savitzky-Golay filter over about 81 ms, per gap-free stretch."""
+    from scipy.signal import savgol_filter
+
+    rate = np.zeros_like(angle_rad)
+    steps = np.diff(time_s)
+    dt = float(np.median(steps))
+    cuts = np.concatenate([[0], np.flatnonzero(steps > 1.5 * dt) + 1, [len(time_s)]])
+    window = max(5, round(SAVGOL_WINDOW_S / dt) | 1)
+    for a, b in itertools.pairwise(cuts):
+        n = b - a
+        if n >= window:
+            rate[a:b] = savgol_filter(angle_rad[a:b], window, 2, deriv=1, delta=dt)
+        elif n > 1:
+            rate[a:b] = np.gradient(angle_rad[a:b], time_s[a:b])
+    return rate
+
+
+def read_log(result: Result, name: str) -> SteeringLog:
+    """Check a log's columns, units and samples; derive what is missing."""
+    missing = [c for c in REQUIRED if c not in result.names]
+    if missing:
+        raise InputError(
+            f"{name}: missing column(s) {', '.join(missing)}; a steering log needs "
+            f"{', '.join(REQUIRED)} (s, m/s, rad, Nm), and may have lateral_accel_m_s2 and "
+            "steering_rate_rad_s"
+        )
+    columns = [*REQUIRED] + [
+        c for c in ("lateral_accel_m_s2", "steering_rate_rad_s") if c in result.names
+    ]
+    for column in columns:
+        values = result[column]
+        if values.dtype.kind != "f":
+            raise InputError(f"{name}: column {column} must hold numbers")
+    time = result.time_s
+    if len(time) < 50:
+        raise InputError(f"{name}: {len(time)} samples; a fit needs a log of at least 50")
+    if np.any(np.diff(time) <= 0):
+        row = int(np.flatnonzero(np.diff(time) <= 0)[0]) + 3
+        raise InputError(f"{name}, line {row}: time_s does not increase")
+    keep = np.ones(len(time), dtype=bool)
+    for column in columns:
+        keep &= np.isfinite(result[column])
+    if keep.sum() < 0.5 * len(time):
+        raise InputError(f"{name}: more than half of the rows hold NaN; check the logger")
+    angle = result["steering_angle_rad"][keep]
+    speed = result["speed_m_s"][keep]
+    torque = result["steering_torque_Nm"][keep]
+    if np.max(np.abs(angle)) > 20.0:
+        raise InputError(
+            f"{name}: steering_angle_rad reaches {np.max(np.abs(angle)):.0f}: that looks like "
+            "degrees; convert to radians"
+        )
+    if np.max(np.abs(speed)) > 100.0:
+        raise InputError(
+            f"{name}: speed_m_s reaches {np.max(np.abs(speed)):.0f}: that looks like km/h; "
+            "divide by 3.6"
+        )
+    if np.max(np.abs(torque)) > 200.0:
+        raise InputError(
+            f"{name}: steering_torque_Nm reaches {np.max(np.abs(torque)):.0f}: check the units "
+            "(Nm at the steering wheel)"
+        )
+    t = time[keep]
+    rate = (
+        result["steering_rate_rad_s"][keep]
+        if "steering_rate_rad_s" in result.names
+        else savgol_rate(t, angle)
+    )
+    ay = result["lateral_accel_m_s2"][keep] if "lateral_accel_m_s2" in result.names else None
+    return SteeringLog(name, t, speed, angle, rate, torque, ay)
+
+
+def _steady_ay(
+    speed: FloatArray, angle: FloatArray, ratio: float, k_us: float, wheelbase: float
+) -> FloatArray:
+    v2 = speed * speed
+    return np.asarray(v2 * (angle / ratio) / (wheelbase * (1.0 + k_us / wheelbase * v2)))
+
+
+def _law(x: FloatArray) -> SteeringTorqueParams:
+    return SteeringTorqueParams(*(float(v) for v in x[:9]))
+
+
+def fit_steering(
+    logs: Sequence[SteeringLog],
+    base: SteeringCar,
+    *,
+    fit_vehicle: bool = False,
+    progress: Callable[[int, float], None] | None = None,
+) -> SteeringFit:
+    """Fit K1..K9 (and a torque offset; with `fit_vehicle`, SR and K_us) to the logs."""
+    from scipy.optimize import least_squares
+
+    if not logs:
+        raise InputError("no logs given")
+    vehicle = base.vehicle
+    measured_ay = all(log.lateral_accel_m_s2 is not None for log in logs)
+    if fit_vehicle and measured_ay:
+        raise InputError("--fit-vehicle fits SR and K_us from angle and torque: drop it when the "
+                         "logs measure lateral_accel_m_s2")  # fmt: skip
+    speed = np.concatenate([log.speed_m_s for log in logs])
+    angle = np.concatenate([log.angle_rad for log in logs])
+    rate = np.concatenate([log.rate_rad_s for log in logs])
+    torque = np.concatenate([log.torque_Nm for log in logs])
+    ay_given = (
+        np.concatenate(
+            [log.lateral_accel_m_s2 for log in logs if log.lateral_accel_m_s2 is not None]
+        )
+        if measured_ay
+        else None
+    )
+    ratio0, k_us0, wheelbase = (
+        vehicle.steering_ratio,
+        vehicle.understeer_gradient_rad_s2_m,
+        vehicle.wheelbase_m,
+    )
+
+    def lateral(x: FloatArray) -> FloatArray:
+        if ay_given is not None:
+            return ay_given
+        k_us = x[10] if fit_vehicle else k_us0
+        return _steady_ay(speed, angle, ratio0, k_us, wheelbase)
+
+    start = _start(speed, rate, torque, lateral(np.array([0.0] * 10 + [k_us0])))
+    lower = [*LOWER, -5.0]
+    upper = [*UPPER, 5.0]
+    if fit_vehicle:
+        start = np.concatenate([start, [k_us0]])
+        lower += [-0.01]
+        upper += [0.05]
+    start = np.clip(start, np.array(lower) + 1e-9, np.array(upper) - 1e-9)
+    evaluations = [0]
+
+    def residual(x: FloatArray) -> FloatArray:
+        evaluations[0] += 1
+        total = torque_terms(speed, rate, lateral(x), _law(x), atan=np.arctan)[0]
+        r = np.asarray(total + x[9] - torque)
+        if progress is not None:
+            progress(evaluations[0], float(np.sqrt(np.mean(r * r))))
+        return r
+
+    def jacobian(x: FloatArray) -> FloatArray:
+        return _jacobian(x, speed, rate, lateral(x), fit_vehicle, wheelbase, ratio0)
+
+    first = residual(start)
+    scale = float(1.4826 * np.median(np.abs(first - np.median(first)))) or 0.1
+    solution = least_squares(
+        residual, start, jac=jacobian, bounds=(lower, upper), loss="soft_l1", f_scale=scale,
+        x_scale="jac", max_nfev=200,
+    )  # fmt: skip
+    x = solution.x
+    r = residual(x)
+    n, p = len(r), len(x)
+    jac = np.asarray(solution.jac)
+    try:
+        covariance = np.linalg.pinv(jac.T @ jac) * float(np.sum(r * r)) / max(n - p, 1)
+        sigma = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
+    except np.linalg.LinAlgError:
+        sigma = np.full(p, math.inf)
+    names = [*K_NAMES, "torque_offset_Nm"] + (
+        ["understeer_gradient_rad_s2_m"] if fit_vehicle else []
+    )
+    estimates = tuple(
+        Estimate(nm, float(v), float(s)) for nm, v, s in zip(names, x, sigma, strict=True)
+    )
+    warnings = _identifiability(estimates, speed, rate, lateral(x))
+    ss_tot = float(np.sum((torque - torque.mean()) ** 2)) or 1.0
+    per_log: dict[str, dict[str, float]] = {}
+    offset = 0
+    for log in logs:
+        part = r[offset : offset + len(log.time_s)]
+        measured = torque[offset : offset + len(log.time_s)]
+        total = float(np.sum((measured - measured.mean()) ** 2)) or 1.0
+        per_log[log.name] = {
+            "rms_error_Nm": float(np.sqrt(np.mean(part**2))),
+            "r2": 1.0 - float(np.sum(part**2)) / total,
+            "mean_residual_Nm": float(np.mean(part)),
+            "samples": float(len(part)),
+        }
+        offset += len(log.time_s)
+    car = dataclasses.replace(base, torque=_law(x))
+    if fit_vehicle:
+        car = dataclasses.replace(car, vehicle=vehicle_with(vehicle, ratio0, float(x[10])))
+    return SteeringFit(
+        car, estimates, float(x[9]), float(np.sqrt(np.mean(r**2))),
+        1.0 - float(np.sum(r**2)) / ss_tot, per_log, tuple(warnings), int(solution.nfev),
+    )  # fmt: skip
+
+
+def vehicle_with(vehicle: VehicleParams, ratio: float, k_us: float) -> VehicleParams:
+    """The car with this steering ratio, and the rear cornering stiffness that gives K_us."""
+    a, b = vehicle.cg_to_front_axle_m, vehicle.cg_to_rear_axle_m
+    denominator = b / vehicle.front_cornering_stiffness_N_rad - k_us * vehicle.wheelbase_m / (
+        vehicle.mass_kg
+    )
+    if denominator <= 0.0:
+        raise InputError(
+            f"the fitted understeer gradient {math.degrees(k_us) * 9.80665:.2f} deg/g cannot be "
+            "reached by the rear axle with this car's front cornering stiffness"
+        )
+    return dataclasses.replace(
+        vehicle, steering_ratio=ratio, rear_cornering_stiffness_N_rad=a / denominator
+    )
+
+
+def _start(speed: FloatArray, rate: FloatArray, torque: FloatArray, ay: FloatArray) -> FloatArray:
+    """Starting values from the data (see the module docstring)."""
+    slow = (np.abs(rate) < 0.1) & (np.abs(ay) < 3.0) & (speed > PARKING_SPEED_M_S)
+    k1 = 2.0
+    if slow.sum() > 20 and np.ptp(ay[slow]) > 0.5:
+        k1 = float(max(np.polyfit(ay[slow], torque[slow], 1)[0], 0.05))
+    rest = torque - k1 * ay
+    fast = np.abs(rate) > 1.0
+    k9 = (
+        float(max(np.polyfit(rate[fast], rest[fast], 1)[0], 0.0)) * 0.3 if fast.sum() > 20 else 0.05
+    )
+    moving = np.abs(rate) > 0.05
+    k7 = float(np.median(np.abs(rest[moving]))) / 2.0 if moving.sum() > 20 else 0.5
+    parked = (speed < PARKING_SPEED_M_S) & (np.abs(rate) > 0.5)
+    k4 = 0.5
+    if parked.sum() > 20:
+        spin = float(np.percentile(np.abs(rest[parked]), 90)) - k7 * math.pi / 2
+        k4 = math.pi / 2 / max(spin, 0.5)
+    return np.array([k1, 0.1, 1.2, k4, 0.1, 0.5, max(k7, 0.05), 0.05, max(k9, 0.01), 0.0])
+
+
+def _jacobian(
+    x: FloatArray, speed: FloatArray, rate: FloatArray, ay: FloatArray, fit_vehicle: bool,
+    wheelbase: float, ratio: float,
+) -> FloatArray:  # fmt: skip
+    k1, k2, k3, k4, k5, k6, k7, k8 = (float(v) for v in x[:8])
+    abs_ay = np.abs(ay)
+    power = np.where(abs_ay > 0.0, abs_ay**k3, 0.0)
+    log_ay = np.where(abs_ay > 0.0, np.log(np.where(abs_ay > 0.0, abs_ay, 1.0)), 0.0)
+    d = 1.0 + k2 * power
+    spin_atan = np.arctan(rate / k6)
+    e = k4 + k5 * np.abs(speed)
+    columns = [
+        ay / d,
+        -k1 * ay * power / d**2,
+        -k1 * ay * k2 * power * log_ay / d**2,
+        -spin_atan / e**2,
+        -np.abs(speed) * spin_atan / e**2,
+        (1.0 / e) / (1.0 + (rate / k6) ** 2) * (-rate / k6**2),
+        np.arctan(rate / k8),
+        k7 / (1.0 + (rate / k8) ** 2) * (-rate / k8**2),
+        rate,
+        np.ones_like(rate),
+    ]
+    if fit_vehicle:
+        k_us = float(x[10])
+        d_tau_d_ay = k1 * (1.0 + k2 * (1.0 - k3) * power) / d**2
+        v2 = speed * speed
+        columns.append(d_tau_d_ay * (-ay * (v2 / wheelbase) / (1.0 + k_us / wheelbase * v2)))
+    return np.column_stack(columns)
+
+
+def _identifiability(
+    estimates: Sequence[Estimate], speed: FloatArray, rate: FloatArray, ay: FloatArray
+) -> list[str]:
+    warnings = []
+    parked = (speed < PARKING_SPEED_M_S) & (np.abs(rate) > 0.5)
+    if parked.mean() < 0.01:
+        warnings.append(
+            "tyre spin (K4, K5, K6) is not identifiable: the logs have almost no parking "
+            "manoeuvres (V < 2 m/s with the wheel turning); add a steer cycle at standstill"
+        )
+    if np.percentile(np.abs(ay), 99) < 3.0:
+        warnings.append(
+            "the aligning torque's saturation (K2, K3) is not identifiable: Ay stays under "
+            "3 m/s^2; add a steady-state circle or a lane change"
+        )
+    for e in estimates:
+        if e.name.startswith("k") and e.value > 0 and e.sigma > 0.5 * abs(e.value):
+            warnings.append(
+                f"{e.name} = {e.value:.3g} +- {e.sigma:.2g}: the data pin it down poorly"
+            )
+    return warnings
