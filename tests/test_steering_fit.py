@@ -157,3 +157,57 @@ def test_time_going_backwards_is_named():
                "steering_torque_Nm": r["torque_Nm"]}  # fmt: skip
     with pytest.raises(InputError, match="line 102: time_s does not increase"):
         read_log(Result(time, signals), "log.csv")
+
+
+def write_logs(folder, logs_from=("weave", "steer-cycle", "iso4138-left", "iso3888")):
+    """Measured-style CSV logs of the true car (200 Hz, noise, offsets) in `folder`."""
+    paths = []
+    chosen = [run for run in clean_runs() if any(run[0].startswith(n) for n in logs_from)]
+    for log in measured(chosen, seed=3):
+        path = folder / f"{log.name}.csv"
+        Result(log.time_s, {
+            "speed_m_s": log.speed_m_s, "steering_angle_rad": log.angle_rad,
+            "steering_torque_Nm": log.torque_Nm, "lateral_accel_m_s2": log.lateral_accel_m_s2,
+        }).to_csv(path)  # fmt: skip
+        paths.append(str(path))
+    return paths
+
+
+def test_fit_and_validate_from_the_command_line(tmp_path, capsys):
+    import json
+
+    from carfeel.cli import main
+    from carfeel.io.presets import load_steering as load
+
+    paths = write_logs(tmp_path)
+    preset, fit_report, check = tmp_path / "mine.toml", tmp_path / "fit", tmp_path / "check"
+    assert main(["fit", "steering", *paths, "--out", str(preset), "--report", str(fit_report),
+                 "--json"]) == 0  # fmt: skip
+    figures = json.loads(capsys.readouterr().out)
+    assert figures["r2"] > 0.99 and figures["rms_error"] < 0.2
+    fitted = load(str(preset)).params.torque
+    assert fitted.k1_Nm_s2_m == pytest.approx(TRUE["k1_Nm_s2_m"], rel=0.1)
+    assert (fit_report / "index.html").is_file()
+    assert len(list(fit_report.glob("*.png"))) == len(paths)
+    # The written preset runs, and validates against the logs it came from.
+    assert main(["simulate", "steering", "--manoeuvre", "weave", "--preset", str(preset),
+                 "--out", str(tmp_path / "w.csv")]) == 0  # fmt: skip
+    capsys.readouterr()
+    assert main(["validate", "--preset", str(preset), *paths, "--report", str(check),
+                 "--json"]) == 0  # fmt: skip
+    checked = json.loads(capsys.readouterr().out)
+    assert all(v["r2"] > 0.99 for v in checked.values())
+    page = (check / "index.html").read_text()
+    assert "torque_gradient_Nm_per_g" in page and "measured" in page
+
+
+def test_malformed_logs_exit_2_from_the_command_line(tmp_path, capsys):
+    from carfeel.cli import main
+
+    bad = tmp_path / "bad.csv"
+    bad.write_text("time_s,speed_m_s\n0,1\n")
+    assert main(["fit", "steering", str(bad), "--out", str(tmp_path / "p.toml")]) == 2
+    assert "missing column(s) steering_angle_rad" in capsys.readouterr().err
+    assert main(["validate", "--preset", "b-segment", str(tmp_path / "none.csv"),
+                 "--report", str(tmp_path / "r")]) == 2  # fmt: skip
+    assert "no such file" in capsys.readouterr().err

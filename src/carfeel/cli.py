@@ -309,6 +309,53 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--plot", metavar="FILE.png", help="plot the recording (needs --record)")
     run.add_argument("--json", action="store_true", help="print the summary as one JSON object")
 
+    fit = commands.add_parser(
+        "fit",
+        help="fit a model to measured logs and write a preset",
+        description="Identify a model's parameters from a car's measured logs; write a preset "
+        "that `carfeel simulate` and `carfeel run` accept, and optionally a report.",
+    )
+    fit_kinds = fit.add_subparsers(dest="kind", metavar="KIND", required=True)
+    fit_steer = fit_kinds.add_parser(
+        "steering",
+        help="K1..K9 of the torque law from steering logs",
+        description="Fit the steering torque law (K1..K9, robust least squares) to logs with "
+        "time_s, speed_m_s, steering_angle_rad, steering_torque_Nm and optionally "
+        "lateral_accel_m_s2 and steering_rate_rad_s (several files: one per manoeuvre).",
+    )
+    fit_steer.add_argument("logs", nargs="+", metavar="LOG.csv")
+    fit_steer.add_argument("--out", required=True, metavar="PRESET.toml", help="preset to write")
+    fit_steer.add_argument("--base", default="b-segment", metavar="NAME|PATH",
+                           help="car preset the fit starts from (default b-segment)")  # fmt: skip
+    fit_steer.add_argument("--fit-vehicle", action="store_true",
+                           help="also fit the understeer gradient (logs without Ay)")  # fmt: skip
+    fit_steer.add_argument("--report", metavar="DIR", help="write a report (HTML + PNG)")
+    fit_steer.add_argument("--json", action="store_true", help="print the fit as one JSON object")
+    fit_shift = fit_kinds.add_parser(
+        "shift",
+        help="engagement stages, forces and the stop from measured shift traces",
+        description="Fit the gear engagement to traces with time_s, position_m, force_N (the "
+        "knob's position and force, as the paper's Fig. 5/6).",
+    )
+    fit_shift.add_argument("traces", nargs="+", metavar="TRACE.csv")
+    fit_shift.add_argument("--out", required=True, metavar="PRESET.toml", help="preset to write")
+    fit_shift.add_argument("--base", default="paper-first-gear", metavar="NAME|PATH",
+                           help="shift preset the fit starts from")  # fmt: skip
+    fit_shift.add_argument("--report", metavar="DIR", help="write a report (HTML + PNG)")
+    fit_shift.add_argument("--json", action="store_true", help="print the fit as one JSON object")
+
+    validate = commands.add_parser(
+        "validate",
+        help="run a preset's model against measured logs and write a report",
+        description="Run the model of a steering or shift preset against measured logs and "
+        "write one report (HTML + PNG): overlays, residuals and, for steering, the feel metrics "
+        "measured and modelled side by side.",
+    )
+    validate.add_argument("logs", nargs="+", metavar="LOG.csv")
+    validate.add_argument("--preset", required=True, metavar="PRESET.toml")
+    validate.add_argument("--report", required=True, metavar="DIR")
+    validate.add_argument("--json", action="store_true", help="print the figures as JSON")
+
     devices = commands.add_parser(
         "devices",
         help="list the force-feedback devices evdev and SDL2 can see",
@@ -345,6 +392,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _run(args)
         if args.command == "devices":
             return _devices(args)
+        if args.command == "fit":
+            return _fit(args)
+        if args.command == "validate":
+            return _validate(args)
         return _presets(args)
     except CarfeelError as exc:
         print(f"carfeel: error: {exc}", file=sys.stderr)
@@ -458,6 +509,48 @@ def _run(args: argparse.Namespace) -> int:
         recording = Result.from_csv(record, drop_partial_last_line=True)
         plot_recording(recording, Path(args.plot), f"{args.model} on {result.device}, {args.mode}")
     print(json.dumps(result.as_dict()) if args.json else result.text())
+    return 0
+
+
+def _fit(args: argparse.Namespace) -> int:
+    out = Path(args.out)
+    if out.suffix.lower() != ".toml":
+        raise InputError(f"{out}: expected a .toml file name for the preset")
+    _check_writable(out.with_suffix(".csv"), ".csv")  # the folder exists and is writable
+    report_dir = Path(args.report) if args.report else None
+    if args.kind == "steering":
+        from carfeel.identification.workflows import fit_steering_logs, fit_summary
+
+        fit = fit_steering_logs(
+            [Path(p) for p in args.logs], out, base=args.base, fit_vehicle=args.fit_vehicle,
+            report_dir=report_dir, show_progress=not args.json,
+        )  # fmt: skip
+        if args.json:
+            print(json.dumps(fit.as_dict()))
+        else:
+            print(fit_summary(fit))
+            print(f"wrote {out}" + (f" and {report_dir / 'index.html'}" if report_dir else ""))
+        return 0
+    from importlib import import_module
+
+    shift_workflows = import_module("carfeel.identification.shift_workflows")
+    result = shift_workflows.fit_shift_traces(
+        [Path(p) for p in args.traces], out, base=args.base, report_dir=report_dir
+    )
+    print(json.dumps(result) if args.json else shift_workflows.summary_text(result, out))
+    return 0
+
+
+def _validate(args: argparse.Namespace) -> int:
+    from carfeel.identification.workflows import validate
+
+    figures = validate(args.preset, [Path(p) for p in args.logs], Path(args.report))
+    if args.json:
+        print(json.dumps(figures))
+    else:
+        for name, values in figures.items():
+            print(f"{name}: " + ", ".join(f"{k} {v:.4g}" for k, v in values.items()))
+        print(f"wrote {Path(args.report) / 'index.html'}")
     return 0
 
 

@@ -332,3 +332,66 @@ def plot_recording(result: Result, path: str | Path, title: str = "Real-time run
     ax_l.set_title("force vs position loop (cf. paper Fig. 11)")
     ax_l.grid(alpha=0.3)
     return _save(fig, plt, path)
+
+
+def plot_torque_validation(
+    time_s: np.ndarray,
+    lateral_accel_m_s2: np.ndarray,
+    measured_Nm: np.ndarray,
+    model_Nm: np.ndarray,
+    path: str | Path,
+    title: str,
+) -> Path:
+    """Measured and model steering torque against time and Ay, and the residual."""
+    plt = _pyplot()
+    fig, (ax_t, ax_a, ax_r) = plt.subplots(1, 3, figsize=(15, 4.5), layout="constrained")
+    fig.suptitle(title)
+    ax_t.plot(time_s, measured_Nm, color="#999999", lw=0.8, label="measured")
+    ax_t.plot(time_s, model_Nm, color="#d62728", lw=1.0, label="model")
+    ax_t.set_xlabel("time [s]")
+    ax_t.set_ylabel("steering wheel torque [Nm]")
+    ax_t.legend(fontsize=8)
+    ax_t.grid(alpha=0.3)
+    ay_g = lateral_accel_m_s2 / 9.80665
+    ax_a.plot(ay_g, measured_Nm, ".", color="#999999", ms=1, label="measured")
+    ax_a.plot(ay_g, model_Nm, ".", color="#d62728", ms=1, label="model")
+    ax_a.set_xlabel("lateral acceleration [g]")
+    ax_a.set_ylabel("torque [Nm]")
+    ax_a.grid(alpha=0.3)
+    residual = model_Nm - measured_Nm
+    ax_r.hist(residual, bins=80, color="#1f77b4")
+    ax_r.set_xlabel("model - measured [Nm]")
+    ax_r.set_ylabel("samples")
+    ax_r.set_title(f"rms {np.sqrt(np.mean(residual**2)):.3f} Nm")
+    return _save(fig, plt, path)
+
+
+def plot_shift_validation(
+    time_s: np.ndarray,
+    force_N: np.ndarray,
+    measured_m: np.ndarray,
+    model_m: np.ndarray,
+    path: str | Path,
+    title: str,
+) -> Path:
+    """A measured engagement trace and the model driven by its force: position vs time, force
+    vs position (as the paper's Fig. 5/6 and 9)."""
+    plt = _pyplot()
+    fig, (ax_t, ax_l) = plt.subplots(1, 2, figsize=(13, 4.8), layout="constrained")
+    fig.suptitle(title)
+    ax_t.plot(time_s, measured_m * 1e3, color="#999999", lw=1.0, label="measured position")
+    ax_t.plot(time_s, model_m * 1e3, color="#d62728", lw=1.0, label="model position")
+    ax_t.set_xlabel("time [s]")
+    ax_t.set_ylabel("knob position [mm]")
+    ax_f = ax_t.twinx()
+    ax_f.plot(time_s, force_N, color="#1f77b4", lw=0.6, alpha=0.6)
+    ax_f.set_ylabel("force at the knob [N]", color="#1f77b4")
+    ax_t.legend(fontsize=8, loc="upper left")
+    ax_t.grid(alpha=0.3)
+    ax_l.plot(measured_m * 1e3, force_N, color="#999999", lw=0.8, label="measured")
+    ax_l.plot(model_m * 1e3, force_N, color="#d62728", lw=0.8, label="model")
+    ax_l.set_xlabel("knob position [mm]")
+    ax_l.set_ylabel("force at the knob [N]")
+    ax_l.legend(fontsize=8)
+    ax_l.grid(alpha=0.3)
+    return _save(fig, plt, path)

@@ -1,0 +1,203 @@
+"""What `carfeel fit` and `carfeel validate` do: read logs, fit or compare, write presets and
+reports. Functions over paths and small configs; the CLI only parses and prints."""
+
+from __future__ import annotations
+
+import importlib
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from carfeel import __version__
+from carfeel.analysis.steering_feel import SteeringFeel, steering_feel
+from carfeel.errors import InputError, PresetError
+from carfeel.identification.steering_fit import (
+    SteeringFit,
+    SteeringLog,
+    fit_steering,
+    read_log,
+)
+from carfeel.io import report
+from carfeel.io.presets import load_steering, to_toml
+from carfeel.models.steering.torque import torque_terms
+from carfeel.simulation.result import Result
+from carfeel.simulation.steering import SteeringCar
+
+FEEL_KEYS = (
+    "torque_gradient_Nm_per_g", "torque_at_0_1g_Nm", "deadband_g", "hysteresis_Nm",
+    "sensitivity_g_per_100deg", "understeer_gradient_deg_per_g",
+)  # fmt: skip
+
+
+class Progress:
+    """A one-line progress display on stderr, for fits that take more than a moment."""
+
+    def __init__(self, label: str, enabled: bool) -> None:
+        self.label, self.enabled = label, enabled and sys.stderr.isatty()
+        self.start = time.monotonic()
+        self.shown = False
+
+    def __call__(self, evaluations: int, rms: float) -> None:
+        if self.enabled and time.monotonic() - self.start > 0.5:
+            self.shown = True
+            print(f"\r{self.label}: evaluation {evaluations}, rms {rms:.4g}", end="",
+                  file=sys.stderr, flush=True)  # fmt: skip
+
+    def done(self) -> None:
+        if self.shown:
+            print(file=sys.stderr)
+
+
+def load_logs(paths: Sequence[Path]) -> list[SteeringLog]:
+    logs = []
+    for path in paths:
+        logs.append(read_log(Result.from_csv(path), str(path)))
+    return logs
+
+
+def model_torque(car: SteeringCar, log: SteeringLog) -> tuple[np.ndarray, np.ndarray]:
+    """(Ay, model torque) for a log: its measured Ay, else the car's steady state."""
+    if log.lateral_accel_m_s2 is not None:
+        ay = log.lateral_accel_m_s2
+    else:
+        v = car.vehicle
+        v2 = log.speed_m_s**2
+        ay = (
+            v2
+            * (log.angle_rad / v.steering_ratio)
+            / (v.wheelbase_m * (1.0 + v.understeer_gradient_rad_s2_m / v.wheelbase_m * v2))
+        )
+    torque = torque_terms(log.speed_m_s, log.rate_rad_s, ay, car.torque, atan=np.arctan)[0]
+    return np.asarray(ay), np.asarray(torque)
+
+
+def feel_pair(car: SteeringCar, log: SteeringLog) -> tuple[SteeringFeel, SteeringFeel]:
+    ay, model = model_torque(car, log)
+    ratio, base = car.vehicle.steering_ratio, car.vehicle.wheelbase_m
+    measured = steering_feel(log.time_s, log.speed_m_s, log.angle_rad, ay, log.torque_Nm,
+                             steering_ratio=ratio, wheelbase_m=base)  # fmt: skip
+    simulated = steering_feel(log.time_s, log.speed_m_s, log.angle_rad, ay, model,
+                              steering_ratio=ratio, wheelbase_m=base)  # fmt: skip
+    return measured, simulated
+
+
+def steering_sections(
+    car: SteeringCar, logs: Sequence[SteeringLog], folder: Path
+) -> list[report.Section]:
+    """Per log: overlays, residuals and the feel metrics measured vs model."""
+    from carfeel.io.plots import plot_torque_validation
+
+    sections = []
+    for i, log in enumerate(logs):
+        ay, model = model_torque(car, log)
+        residual = model - log.torque_Nm
+        figure = plot_torque_validation(
+            log.time_s, ay, log.torque_Nm, model, folder / f"steering-{i + 1}.png",
+            f"{Path(log.name).name}: measured vs model",
+        )  # fmt: skip
+        measured, simulated = feel_pair(car, log)
+        table = [["metric", "measured", "model"]] + [
+            [key, report.number(getattr(measured, key)), report.number(getattr(simulated, key))]
+            for key in FEEL_KEYS
+        ]
+        ss = float(np.sum((log.torque_Nm - log.torque_Nm.mean()) ** 2)) or 1.0
+        source = "measured" if log.lateral_accel_m_s2 is not None else "from the car model"
+        sections.append(report.Section(
+            f"Log {i + 1}: {log.name}",
+            [f"rms error {np.sqrt(np.mean(residual**2)):.4g} Nm, mean residual "
+             f"{np.mean(residual):.3g} Nm, r2 {1 - float(np.sum(residual**2)) / ss:.4f}, "
+             f"{len(log.time_s)} samples, Ay {source}"],
+            table, [figure],
+        ))  # fmt: skip
+    return sections
+
+
+def fit_steering_logs(
+    paths: Sequence[Path],
+    out: Path,
+    *,
+    base: str = "b-segment",
+    fit_vehicle: bool = False,
+    report_dir: Path | None = None,
+    show_progress: bool = True,
+) -> SteeringFit:
+    """Fit the torque law to the logs; write the preset (and the report)."""
+    preset = load_steering(base)
+    logs = load_logs(paths)
+    progress = Progress("fitting K1..K9", show_progress)
+    fit = fit_steering(logs, preset.params, fit_vehicle=fit_vehicle, progress=progress)
+    progress.done()
+    lines = [
+        f"Fitted by carfeel {__version__} to {', '.join(Path(p).name for p in paths)}",
+        f"(rms error {fit.rms_error_Nm:.4g} Nm, r2 {fit.r2:.4f}; torque sensor offset "
+        f"{fit.torque_offset_Nm:.3g} Nm removed), from the base preset {preset.name}.",
+        *(f"{e.name} = {e.value:.6g} +- {e.sigma:.2g}" for e in fit.estimates),
+        *(f"warning: {w}" for w in fit.warnings),
+    ]
+    car = fit.car
+    out.write_text(to_toml(out.stem, "\n".join(lines), {
+        "vehicle": car.vehicle, "torque": car.torque, "driver": car.driver}))  # fmt: skip
+    if report_dir is not None:
+        folder = report.prepare(report_dir)
+        table = [["parameter", "value", "1 sigma"]] + [
+            [e.name, report.number(e.value, 6), report.number(e.sigma, 2)] for e in fit.estimates
+        ]
+        summary = report.Section(
+            "Fit",
+            [f"rms error {fit.rms_error_Nm:.4g} Nm, r2 {fit.r2:.4f}, {fit.iterations} evaluations",
+             *(f"Warning: {w}" for w in fit.warnings)],
+            table,
+        )  # fmt: skip
+        report.write(folder, f"Steering fit: {out.name}",
+                     [summary, *steering_sections(car, logs, folder)])  # fmt: skip
+    return fit
+
+
+def validate(preset: str, paths: Sequence[Path], report_dir: Path) -> dict[str, Any]:
+    """Run a preset's model against logs; write the report; return the figures."""
+    folder = report.prepare(report_dir)
+    try:
+        car = load_steering(preset).params
+    except PresetError as steering_error:
+        return _validate_shift(preset, paths, folder, steering_error)
+    logs = load_logs(paths)
+    sections = steering_sections(car, logs, folder)
+    figures: dict[str, Any] = {}
+    for log in logs:
+        _, model = model_torque(car, log)
+        residual = model - log.torque_Nm
+        ss = float(np.sum((log.torque_Nm - log.torque_Nm.mean()) ** 2)) or 1.0
+        figures[log.name] = {"rms_error": float(np.sqrt(np.mean(residual**2))),
+                             "r2": 1.0 - float(np.sum(residual**2)) / ss}  # fmt: skip
+    report.write(folder, f"Validation of {Path(preset).name}", sections)
+    return figures
+
+
+def _validate_shift(
+    preset: str, paths: Sequence[Path], folder: Path, why: Exception
+) -> dict[str, Any]:
+    from carfeel.io.presets import load_shift
+
+    try:
+        params = load_shift(preset).params
+    except PresetError as shift_error:
+        raise InputError(
+            f"{preset} is neither a steering nor a shift preset:\n{why}\n{shift_error}"
+        ) from None
+    shift_workflows = importlib.import_module("carfeel.identification.shift_workflows")
+    figures: dict[str, Any] = shift_workflows.validate_traces(params, paths, folder)
+    return figures
+
+
+def fit_summary(fit: SteeringFit) -> str:
+    lines = [f"fitted {len(fit.estimates)} parameters in {fit.iterations} evaluations: rms error "
+             f"{fit.rms_error_Nm:.4g} Nm, r2 {fit.r2:.4f}"]  # fmt: skip
+    lines += [f"  {e.name:30s} {e.value:10.5g} +- {e.sigma:.2g}" for e in fit.estimates]
+    lines += [f"  {name}: rms {v['rms_error_Nm']:.4g} Nm, r2 {v['r2']:.4f}"
+              for name, v in fit.per_log.items()]  # fmt: skip
+    lines += [f"warning: {w}" for w in fit.warnings]
+    return "\n".join(lines)
