@@ -124,3 +124,16 @@ def test_presets_written_as_toml_load_back_the_same(tmp_path):
     path.write_text(presets.to_toml(layout.name, layout.source, tables,
                                     {"engagement": layout.engagement}))  # fmt: skip
     assert presets.load_hpattern(str(path)).setup == layout.setup
+
+
+def test_numpy_scalars_from_a_fit_are_written_as_plain_toml_numbers():
+    import dataclasses
+
+    import numpy as np
+
+    shift = presets.load_shift()
+    gearbox = dataclasses.replace(shift.params.gearbox, in_gear_position_m=np.float64(0.0431))
+    text = presets.to_toml("fitted", "a fit", {"gearbox": gearbox, "driver": shift.params.driver})
+    assert "np.float64" not in text
+    loaded = presets.shift_from_toml("fitted", text).params.gearbox
+    assert loaded.in_gear_position_m == 0.0431 and type(loaded.in_gear_position_m) is float

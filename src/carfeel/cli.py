@@ -531,9 +531,8 @@ def _fit(args: argparse.Namespace) -> int:
             print(fit_summary(fit))
             print(f"wrote {out}" + (f" and {report_dir / 'index.html'}" if report_dir else ""))
         return 0
-    from importlib import import_module
+    from carfeel.identification import shift_workflows
 
-    shift_workflows = import_module("carfeel.identification.shift_workflows")
     result = shift_workflows.fit_shift_traces(
         [Path(p) for p in args.traces], out, base=args.base, report_dir=report_dir
     )

@@ -3,7 +3,6 @@ reports. Functions over paths and small configs; the CLI only parses and prints.
 
 from __future__ import annotations
 
-import importlib
 import sys
 import time
 from collections.abc import Sequence
@@ -171,7 +170,7 @@ def validate(preset: str, paths: Sequence[Path], report_dir: Path) -> dict[str, 
         _, model = model_torque(car, log)
         residual = model - log.torque_Nm
         ss = float(np.sum((log.torque_Nm - log.torque_Nm.mean()) ** 2)) or 1.0
-        figures[log.name] = {"rms_error": float(np.sqrt(np.mean(residual**2))),
+        figures[log.name] = {"rms_error_Nm": float(np.sqrt(np.mean(residual**2))),
                              "r2": 1.0 - float(np.sum(residual**2)) / ss}  # fmt: skip
     report.write(folder, f"Validation of {Path(preset).name}", sections)
     return figures
@@ -188,7 +187,8 @@ def _validate_shift(
         raise InputError(
             f"{preset} is neither a steering nor a shift preset:\n{why}\n{shift_error}"
         ) from None
-    shift_workflows = importlib.import_module("carfeel.identification.shift_workflows")
+    from carfeel.identification import shift_workflows
+
     figures: dict[str, Any] = shift_workflows.validate_traces(params, paths, folder)
     return figures
 

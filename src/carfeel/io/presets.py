@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import math
+import numbers
 import re
 import tomllib
 import typing
@@ -710,10 +711,10 @@ def _toml_string(text: str) -> str:
 def _toml_value(value: Any) -> str:
     if isinstance(value, bool):
         return "true" if value else "false"
-    if isinstance(value, int):
-        return str(value)
-    if isinstance(value, float):
-        return repr(value)
+    if isinstance(value, numbers.Integral):
+        return str(int(value))
+    if isinstance(value, numbers.Real):  # float, and numpy scalars a fit may leave behind
+        return repr(float(value))
     if isinstance(value, str):
         return _toml_string(value)
     if isinstance(value, tuple):

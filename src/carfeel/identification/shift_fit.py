@@ -1,0 +1,952 @@
+"""Fit the gearshift engagement (section 3 of the paper) to measured knob traces.
+
+A trace has `time_s`, `position_m` (the knob along the engagement slot, 0 = neutral, + toward the
+gear) and `force_N` (the hand's force on the knob, + toward the gear, as the paper's Fig. 5/6), at
+200 Hz or more, with noise and gaps, and any number of engagements (push in, pull out, push in
+again). No stage labels are needed.
+
+Preparation. The noise of a signal is sigma = 1.4826 * MAD(second differences) / sqrt(6) (the
+second difference of white noise has variance 6 sigma^2; the median ignores the moving parts).
+A sample farther than 10 sigma (force: plus 5 % of its 99th percentile) from the median of its
+5 neighbours is an outlier: replaced by that median, and left out of every comparison. The rules
+below run on a uniform grid at the median sample period (gaps bridged linearly) and on 5-sample
+medians of it; peaks and the stop on a Savitzky-Golay smoothing (quadratic, about 7 ms).
+
+Segmentation rules, per trace:
+  plateau   the knob stays within +-3 sigma (at least 2 um) of the plateau's median position for
+            at least MIN_PLATEAU_S, while the force is positive and, for at least part of it,
+            above half the highest force the trace holds for 20 ms; and then the knob moves on at
+            least MIN_TRAVEL_M toward the gear before the next plateau (pushing against the end
+            stop is still and forceful too, but nothing follows it). Duration = last - first
+            sample in the band; force = the median over its second half (the first holds the
+            hand's force building up).
+  arrival   the approach (the last samples 0.05-2 mm short of the plateau) extrapolated by a line
+            to the plateau's position: when the blocker ring stopped the knob.
+  window    an engagement runs from the end of its plateau to the start of the next (or the end).
+  stop      where the smoothed position is largest in the window.
+  settled   the median position after the stop, before the knob is pulled back (force below -10 %
+            of the plateau force, or halfway back to the plateau), while the force is within
+            +-10 % of the plateau force (the driver has let go). Overshoot = stop - settled.
+  tooth     the highest peak (prominence 3 sigma) of the smoothed force from where the force has
+            fallen below half the plateau force to where the knob first reaches the settled
+            position: neither the synchronization force nor the stop's impact counts.
+
+Fit, over all engagements of all traces:
+  synchronization_position_m and driver.push_force_N: medians of the plateaus (while blocked the
+  driver pushes with F_max, eq. 10).
+  teeth_position_m, teeth_end_position_m, and each engagement's teeth resistance R_i and gate
+  opening instant: the force peak at the knob is the hand catching up with a lever the teeth have
+  slowed (it comes near the teeth's end, and is about twice their resistance), so these are
+  fitted by simulating the passage from the gate's opening to just before the stop, open loop,
+  with the recorded force (the engagement model's own `step`; its random tooth draw replaced by
+  R_i). synchronization_duration_s is the median of opening - arrival (finer than the plateau's
+  samples). The teeth's sliding friction and `tooth_force_spread_N` are the bounds of a uniform
+  law fitted to the R_i (the unbiased ones from min and max: the model draws U(0, 1) * spread);
+  the static friction keeps the base's margin over the sliding. With one engagement the spread
+  is kept from the base, with a warning.
+  stop.stiffness_N_m, stop.damping_N_s_m and in_gear_position_m: the same simulation from the
+  free travel just before the stop through the overshoot, the push against the stop, the release
+  and the settling (STOP_WINDOW_S). x_gear may lie up to 2 mm below the settled position (the
+  detent's friction holds the knob up to F_st / k off it).
+  The fits are bounded least squares with the robust 'soft_l1' loss at 3 sigma of the noise.
+  They simulate at FIT_STEP_S, and redo a step in which the stage changes in REFINE sub-steps, so
+  a guard fires close to the crossing and the positions move smoothly with the parameters: the
+  fitted values are the physical (continuous-time) ones, not ones tuned to the 1 ms model's own
+  discretization error. Everything else is kept from the base preset; `check_shift` is run and
+  what it finds is repaired (with a warning) or warned about.
+
+Figures: each trace is simulated open loop with the fitted parameters and its recorded force,
+from its first sample, restarting at each arrival at the synchro ring (the one point where the
+knob's state is known: blocked, at rest); rms error and r^2 of the position, per trace and over
+all, at the measured samples that are not outliers.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from carfeel.errors import InputError
+from carfeel.io.presets import check_shift, load_shift
+from carfeel.models.gearshift import engagement
+from carfeel.models.gearshift.engagement import EngagementParams, EngagementState, Stage
+from carfeel.simulation.result import Result
+from carfeel.simulation.shift import ShiftParams
+
+FloatArray = npt.NDArray[np.float64]
+BoolArray = npt.NDArray[np.bool_]
+Trace = Result | Mapping[str, npt.ArrayLike]
+REQUIRED = ("time_s", "position_m", "force_N")
+
+MIN_SAMPLES = 50
+MAX_SAMPLE_PERIOD_S = 5e-3
+"""Sampled slower than 200 Hz, the start of a plateau and a tooth's impact are not resolved."""
+NOISE_BAND = 3.0
+"""Half-width of the plateau band, in sigmas of the position noise."""
+BAND_FLOOR_M = 2e-6
+MIN_PLATEAU_S = 0.04
+MIN_TRAVEL_M = 0.002
+HIGH_FORCE_FRACTION = 0.5
+LOW_FORCE_FRACTION = 0.1
+STILL_WINDOW_S = 0.02
+APPROACH_S = 0.04
+STOP_WINDOW_S = 0.15
+"""How long after reaching the stop the stop fit looks: overshoot, push, release, settling."""
+GEAR_SLACK_M = 0.002
+"""How far below the settled position x_gear may be fitted."""
+FIT_STEP_S = 2e-4
+"""Model step of the fits. The model's implicit Euler lags a free lever by about v * dt / 2,
+and the teeth's position trades against their resistance; at 1 ms that lag moves the fitted
+teeth by about 1 mm, at 0.2 ms by less than 0.2 mm."""
+REFINE = 50
+DIFF_STEP = 0.05
+"""Forward-difference step of the Jacobians, in the scaled unknowns (mm, ms, N, kN/m, N*s/m)."""
+SOFT_L1_SCALE = 3.0
+TOLERANCE = 1e-4
+"""ftol and xtol of the fits: far below the noise, and a few times faster than the default."""
+
+
+@dataclass(frozen=True, slots=True)
+class EngagementFeatures:
+    """What one engagement of a trace shows. Positions in m, forces in N, times in s."""
+
+    trace: int
+    """Index of the trace in the sequence given to `fit_shift`."""
+    start_time_s: float
+    """When the knob reached the synchro ring (its approach extrapolated to the plateau)."""
+    synchronization_position_m: float
+    plateau_force_N: float
+    plateau_duration_s: float
+    """From the first to the last sample within the band (a multiple of the sample period)."""
+    tooth_peak_force_N: float
+    """Highest knob force between the synchronization and the stop; NaN if there is none."""
+    tooth_peak_position_m: float
+    stop_position_m: float
+    """Largest position of the engagement (the overshoot into the end stop)."""
+    settled_position_m: float
+    overshoot_m: float
+    synchronization_time_s: float = math.nan
+    """Fitted: from the arrival at the ring to the gate's opening."""
+    tooth_resistance_N: float = math.nan
+    """Fitted: the teeth's sliding resistance in this engagement (friction + tooth draw)."""
+
+
+@dataclass(frozen=True)
+class ShiftFit:
+    params: ShiftParams
+    """The base preset with the fitted fields replaced."""
+    engagements: tuple[EngagementFeatures, ...]
+    figures: dict[str, float]
+    """rms_error_m and r2 of the open-loop position, overall and per trace (`trace<i>.`), each
+    trace's noise, the rms of the passage and stop fits, and each fitted value by its path in
+    the preset (`gearbox.stop.stiffness_N_m`, `driver.push_force_N`, ...)."""
+    warnings: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class _Trace:
+    """One checked trace: measured samples (outliers replaced) and the uniform grid."""
+
+    label: str
+    index: int
+    time_s: FloatArray
+    position_m: FloatArray
+    force_N: FloatArray
+    keep: BoolArray
+    """Samples that are not outliers: the ones the fits and figures compare."""
+    sigma_m: float
+    sigma_N: float
+    dt_s: float
+    grid_s: FloatArray
+    x_med: FloatArray
+    f_med: FloatArray
+    x_smooth: FloatArray
+    f_smooth: FloatArray
+    f_wide: FloatArray
+
+
+@dataclass(frozen=True)
+class _Found:
+    """An engagement as segmented, with the times the fits need."""
+
+    trace: _Trace
+    features: EngagementFeatures
+    plateau_end_s: float
+    """Time of the plateau's last sample."""
+    stop_reach_s: float
+    """When the knob first reaches the settled position."""
+    stop_end_s: float
+    """End of the stop fit's window."""
+
+
+def fit_shift(traces: Sequence[Trace], base: ShiftParams | None = None) -> ShiftFit:
+    """Fit the engagement model and the driver's push force to measured knob traces.
+
+    `traces`: Results (or mappings of arrays) with time_s (s), position_m (m) and force_N (N).
+    `base`: the preset whose other fields are kept (default: the shipped paper-first-gear).
+    Raises InputError naming the trace if one is malformed or holds no engagement.
+    """
+    if base is None:
+        base = load_shift().params
+    if len(traces) == 0:
+        raise InputError(
+            "no traces given; pass one or more Results with time_s, position_m and force_N"
+        )
+    warnings: list[str] = []
+    prepared = [_prepare(trace, index, warnings) for index, trace in enumerate(traces)]
+    found = [e for trace in prepared for e in _segment(trace, warnings)]
+
+    gb = base.gearbox
+    x_sync = float(np.median([e.features.synchronization_position_m for e in found]))
+    push = float(np.median([e.features.plateau_force_N for e in found]))
+    settled = float(np.median([e.features.settled_position_m for e in found]))
+
+    teeth, teeth_end, found, passage_rms = _fit_passage(found, gb, x_sync, settled, warnings)
+    times = [e.features.synchronization_time_s for e in found]
+    times = [t for t in times if math.isfinite(t)]
+    if times:
+        duration = float(np.median(times))
+    else:
+        duration = float(np.median([e.features.plateau_duration_s for e in found]))
+    sliding, spread = _tooth_law([e.features.tooth_resistance_N for e in found], gb, warnings)
+    margin = gb.engagement.static_friction_N - gb.engagement.sliding_friction_N
+    gearbox = dataclasses.replace(
+        gb,
+        synchronization_position_m=x_sync,
+        synchronization_duration_s=duration,
+        teeth_position_m=teeth,
+        teeth_end_position_m=teeth_end,
+        in_gear_position_m=settled,
+        tooth_force_spread_N=spread,
+        engagement=dataclasses.replace(
+            gb.engagement, sliding_friction_N=sliding, static_friction_N=sliding + margin
+        ),
+    )
+    gearbox, stop_rms = _fit_stop(found, gearbox, settled, warnings)
+    # The driver lets go as far before the gear as in the base.
+    early = gb.in_gear_position_m - base.driver.release_position_m
+    driver = dataclasses.replace(
+        base.driver, push_force_N=push, release_position_m=gearbox.in_gear_position_m - early
+    )
+    params = _fix_up(ShiftParams(gearbox, driver), base, warnings)
+
+    figures = _figures(prepared, found, params.gearbox)
+    figures["engagements"] = float(len(found))
+    figures["passage_rms_m"] = passage_rms
+    figures["stop_rms_m"] = stop_rms
+    for trace in prepared:
+        figures[f"trace{trace.index}.position_noise_m"] = trace.sigma_m
+        figures[f"trace{trace.index}.force_noise_N"] = trace.sigma_N
+    figures.update(_fitted_values(params))
+    return ShiftFit(params, tuple(e.features for e in found), figures, tuple(warnings))
+
+
+# --- reading and preparing a trace -------------------------------------------------------------
+
+
+def _label(trace: object, index: int) -> str:
+    name = getattr(trace, "name", None)
+    if name is None and isinstance(trace, Result):
+        name = trace.metadata.get("name")
+    return f"trace {index}" + (f" ({name})" if name else "")
+
+
+def _columns(trace: Trace, label: str) -> tuple[FloatArray, FloatArray, FloatArray]:
+    if isinstance(trace, Result):
+        names = trace.names
+    elif isinstance(trace, Mapping):
+        names = list(trace)
+    else:
+        raise InputError(
+            f"{label}: expected a Result or a mapping of arrays, got {type(trace).__name__}"
+        )
+    missing = [c for c in REQUIRED if c not in names]
+    if missing:
+        raise InputError(
+            f"{label}: missing column(s) {', '.join(missing)}; a shift trace needs time_s (s), "
+            "position_m (m along the slot, 0 = neutral, + toward the gear) and force_N (N, the "
+            "hand's force on the knob, + toward the gear)"
+        )
+    arrays = []
+    for column in REQUIRED:
+        try:
+            values = np.asarray(trace[column], dtype=float)
+        except (TypeError, ValueError):
+            raise InputError(
+                f"{label}: column {column} must hold numbers; {_first_non_number(trace[column])}"
+            ) from None
+        if values.ndim != 1:
+            raise InputError(f"{label}: column {column} must be one-dimensional")
+        arrays.append(values)
+    t, x, f = arrays
+    if not len(t) == len(x) == len(f):
+        raise InputError(
+            f"{label}: columns differ in length (time_s {len(t)}, position_m {len(x)}, "
+            f"force_N {len(f)}); give one value of each per sample"
+        )
+    return t, x, f
+
+
+def _first_non_number(values: Any) -> str:
+    for i, value in enumerate(values):
+        try:
+            float(value)
+        except (TypeError, ValueError):
+            return f"sample {i} is {str(value)!r}"
+    return "it holds something else"
+
+
+def checked_columns(trace: Trace, label: str) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """A trace's time_s, position_m and force_N as float arrays, after the checks a fit and a
+    validation need (numbers, finite, time increasing, sampled at 100 Hz or faster)."""
+    t, x, f = _columns(trace, label)
+    _check(label, t, x, f)
+    return t, x, f
+
+
+def _check(label: str, t: FloatArray, x: FloatArray, f: FloatArray) -> None:
+    if len(t) < MIN_SAMPLES:
+        raise InputError(f"{label}: {len(t)} samples; a fit needs at least {MIN_SAMPLES}")
+    for column, values in zip(REQUIRED, (t, x, f), strict=True):
+        bad = np.flatnonzero(~np.isfinite(values))
+        if bad.size:
+            at = f" (t = {t[bad[0]]:g} s)" if np.isfinite(t[bad[0]]) else ""
+            raise InputError(
+                f"{label}: {column} holds {bad.size} NaN or infinite value(s), the first at "
+                f"sample {bad[0]}{at}; drop those samples (a gap is fine) or repair them"
+            )
+    back = np.flatnonzero(np.diff(t) <= 0.0)
+    if back.size:
+        i = int(back[0]) + 1
+        raise InputError(
+            f"{label}: time_s does not increase at sample {i} ({t[i - 1]:g} s, then {t[i]:g} s); "
+            "sort the samples by time and drop duplicates"
+        )
+    dt = float(np.median(np.diff(t)))
+    if dt > MAX_SAMPLE_PERIOD_S:
+        raise InputError(
+            f"{label}: sampled every {dt * 1e3:.3g} ms; the segmentation needs at least "
+            f"{1.0 / MAX_SAMPLE_PERIOD_S:.0f} Hz (a sample every {MAX_SAMPLE_PERIOD_S * 1e3:g} ms)"
+        )
+
+
+def _noise_sigma(values: FloatArray) -> float:
+    """Noise of a signal from its second differences, robust to the moving parts."""
+    second = values[2:] - 2.0 * values[1:-1] + values[:-2]
+    mad = float(np.median(np.abs(second - np.median(second))))
+    return 1.4826 * mad / math.sqrt(6.0)
+
+
+def _despike(values: FloatArray, threshold: float) -> tuple[FloatArray, BoolArray]:
+    """Replace samples farther than `threshold` from their 5-sample median; (clean, outliers).
+
+    Only the farthest sample of a window counts (a spike on a steep slope shifts its
+    neighbours' medians too), and a second pass catches a spike two samples wide.
+    """
+    from scipy.ndimage import maximum_filter1d, median_filter
+
+    clean = values.copy()
+    outliers = np.zeros(len(values), dtype=bool)
+    for _ in range(2):
+        median = np.asarray(median_filter(clean, size=5, mode="nearest"), dtype=float)
+        deviation = np.abs(clean - median)
+        spike = (deviation > threshold) & (deviation >= maximum_filter1d(deviation, 5))
+        clean = np.where(spike, median, clean)
+        outliers |= spike
+    return clean, outliers
+
+
+def _odd(n: float, least: int) -> int:
+    return max(least, round(n) | 1)
+
+
+def _prepare(trace: Trace, index: int, warnings: list[str]) -> _Trace:
+    from scipy.ndimage import median_filter
+    from scipy.signal import savgol_filter
+
+    label = _label(trace, index)
+    t, x, f = _columns(trace, label)
+    _check(label, t, x, f)
+    sigma_x = _noise_sigma(x)
+    sigma_f = _noise_sigma(f)
+    x, out_x = _despike(x, 10.0 * sigma_x + 1e-5)
+    f, out_f = _despike(f, 10.0 * sigma_f + 0.05 * float(np.percentile(np.abs(f), 99)))
+    outliers = out_x | out_f
+    if outliers.any():
+        warnings.append(
+            f"{label}: {int(outliers.sum())} outlier sample(s) replaced by the median of their "
+            "neighbours and left out of the fits and figures"
+        )
+    steps = np.diff(t)
+    dt = float(np.median(steps))
+    gaps = steps > 2.0 * dt
+    if gaps.any():
+        warnings.append(
+            f"{label}: {int(gaps.sum())} gap(s) in the samples, the longest "
+            f"{steps.max() * 1e3:.3g} ms; bridged linearly for the segmentation, the force "
+            "interpolated across them in the simulations"
+        )
+    grid = t[0] + dt * np.arange(int((t[-1] - t[0]) / dt + 1e-9) + 1)
+    xg = np.interp(grid, t, x)
+    fg = np.interp(grid, t, f)
+    x_med = np.asarray(median_filter(xg, size=5, mode="nearest"), dtype=float)
+    f_med = np.asarray(median_filter(fg, size=5, mode="nearest"), dtype=float)
+    window = min(_odd(0.007 / dt, 5), len(grid) - 1 + len(grid) % 2)
+    x_smooth = np.asarray(savgol_filter(x_med, window, 2, mode="interp"), dtype=float)
+    f_smooth = np.asarray(savgol_filter(f_med, window, 2, mode="interp"), dtype=float)
+    f_wide = np.asarray(
+        median_filter(fg, size=_odd(STILL_WINDOW_S / dt, 5), mode="nearest"), dtype=float
+    )
+    return _Trace(
+        label, index, t, x, f, ~outliers, sigma_x, sigma_f, dt, grid, x_med, f_med, x_smooth,
+        f_smooth, f_wide,
+    )  # fmt: skip
+
+
+def _window(tr: _Trace, start_s: float, end_s: float) -> npt.NDArray[np.intp]:
+    """Indices of the trace's kept samples with start_s <= t <= end_s."""
+    inside = (tr.time_s >= start_s) & (tr.time_s <= end_s) & tr.keep
+    return np.flatnonzero(inside)
+
+
+# --- segmentation ------------------------------------------------------------------------------
+
+
+def _runs(mask: BoolArray) -> list[tuple[int, int]]:
+    """[start, end) of each run of True."""
+    edges = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
+    starts = np.flatnonzero(edges == 1)
+    ends = np.flatnonzero(edges == -1)
+    return [(int(a), int(b)) for a, b in zip(starts, ends, strict=True)]
+
+
+def _plateaus(tr: _Trace) -> tuple[list[tuple[int, int]], float, float]:
+    """Plateaus [a, b) on the grid, the band's half-width (m) and the high force (N)."""
+    from scipy.ndimage import maximum_filter1d, minimum_filter1d
+
+    dt, x, f = tr.dt_s, tr.x_med, tr.f_med
+    band = max(NOISE_BAND * tr.sigma_m, BAND_FLOOR_M)
+    n_still = _odd(STILL_WINDOW_S / dt, 5)
+    spread = maximum_filter1d(x, n_still) - minimum_filter1d(x, n_still)
+    f_high = max(HIGH_FORCE_FRACTION * float(tr.f_wide.max()), 5.0 * tr.sigma_N)
+    f_positive = 3.0 * tr.sigma_N
+    cores: list[tuple[int, int]] = []
+    for a, b in _runs((spread <= 2.0 * band) & (f >= f_high)):
+        if cores:  # a noisy sample may split a plateau: join the parts
+            pa, pb = cores[-1]
+            same = abs(float(np.median(x[pa:pb])) - float(np.median(x[a:b]))) <= band
+            if a - pb <= n_still and same:
+                cores[-1] = (pa, b)
+                continue
+        cores.append((a, b))
+    plateaus: list[tuple[int, int]] = []
+    for k, (a, b) in enumerate(cores):
+        centre = float(np.median(x[a:b]))
+        floor = plateaus[-1][1] if plateaus else 0
+        while a - 1 >= floor and abs(x[a - 1] - centre) <= band and f[a - 1] > f_positive:
+            a -= 1
+        while b < len(x) and abs(x[b] - centre) <= band and f[b] > f_positive:
+            b += 1
+        if (b - a) * dt < MIN_PLATEAU_S:
+            continue
+        following = cores[k + 1][0] if k + 1 < len(cores) else len(x)
+        if following <= b or x[b:following].max() < centre + MIN_TRAVEL_M:
+            continue  # nothing moves on toward the gear: a push against the stop, or a balk
+        plateaus.append((a, b))
+    return plateaus, band, f_high
+
+
+def _arrival(tr: _Trace, first_s: float, centre: float, band: float) -> float:
+    """When the knob reached `centre`: a line through its approach, or the first still sample."""
+    idx = _window(tr, first_s - APPROACH_S, first_s)
+    x = tr.position_m[idx]
+    idx = idx[(x <= centre - max(band, 5e-5)) & (x >= centre - 2e-3)][-6:]
+    if len(idx) < 2:
+        return first_s
+    slope, offset = np.polyfit(tr.time_s[idx], tr.position_m[idx], 1)
+    if slope <= 0.0:
+        return first_s
+    t = float((centre - offset) / slope)
+    return t if abs(t - first_s) <= 2.0 * tr.dt_s else first_s
+
+
+def _segment(tr: _Trace, warnings: list[str]) -> list[_Found]:
+    from scipy.signal import find_peaks
+
+    plateaus, band, f_high = _plateaus(tr)
+    if not plateaus:
+        raise InputError(
+            f"{tr.label}: no engagement found: no stretch of at least {MIN_PLATEAU_S * 1e3:.0f} "
+            f"ms where the knob stays within +-{band * 1e3:.2g} mm while pushed with more than "
+            f"{f_high:.3g} N, and then moves on at least {MIN_TRAVEL_M * 1e3:g} mm toward the "
+            "gear; check that the trace holds a push into gear, position_m in m (+ toward the "
+            "gear) and force_N in N (+ pushing toward the gear)"
+        )
+    g, x, f, dt = tr.grid_s, tr.x_med, tr.f_med, tr.dt_s
+    found: list[_Found] = []
+    for k, (a, b) in enumerate(plateaus):
+        end = plateaus[k + 1][0] if k + 1 < len(plateaus) else len(g)
+        where = f"{tr.label}, engagement at {g[a]:.3f} s"
+        centre = float(np.median(x[a:b]))
+        force = float(np.median(f[a + (b - a) // 2 : b]))
+        i_max = b + int(np.argmax(tr.x_smooth[b:end]))
+        x_max = float(tr.x_smooth[i_max])
+        f_low = max(5.0 * tr.sigma_N, LOW_FORCE_FRACTION * force)
+        after = np.arange(i_max, end)
+        back = after[(f[after] < -f_low) | (x[after] < 0.5 * (x_max + centre))]
+        i_back = int(back[0]) if back.size else end
+        rest = np.arange(i_max, i_back)
+        rest = rest[np.abs(f[rest]) <= f_low]
+        if rest.size * dt >= 0.01:
+            settled = float(np.median(x[rest]))
+        else:
+            tail = x[max(i_max, i_back - max(3, round(0.02 / dt))) : i_back]
+            settled = float(np.median(tail)) if tail.size else x_max
+            warnings.append(
+                f"{where}: the driver never let go in gear; the settled position "
+                f"({settled * 1e3:.2f} mm) is taken while pushed"
+            )
+        settled = min(settled, x_max)
+        reach = np.flatnonzero(x[b : i_max + 1] >= settled)
+        i_reach = b + int(reach[0]) if reach.size else i_max
+        falling = np.flatnonzero(f[b:i_reach] < 0.5 * force)
+        i_from = b + int(falling[0]) if falling.size else i_reach
+        peak_force = peak_position = math.nan
+        if i_reach - i_from >= 3:
+            segment = tr.f_smooth[i_from:i_reach]
+            peaks, _ = find_peaks(segment, prominence=max(3.0 * tr.sigma_N, 1e-9))
+            if peaks.size:
+                top = i_from + int(peaks[np.argmax(segment[peaks])])
+                peak_force, peak_position = float(tr.f_smooth[top]), float(tr.x_smooth[top])
+        if math.isnan(peak_force):
+            warnings.append(f"{where}: no tooth peak between the synchronization and the stop")
+        pulled = np.flatnonzero(f[i_max:end] < -f_low)
+        stop_end = float(g[min(i_max + int(pulled[0]) if pulled.size else end, len(g) - 1)])
+        features = EngagementFeatures(
+            trace=tr.index,
+            start_time_s=_arrival(tr, float(g[a]), centre, band),
+            synchronization_position_m=centre,
+            plateau_force_N=force,
+            plateau_duration_s=float(g[b - 1] - g[a]),
+            tooth_peak_force_N=peak_force,
+            tooth_peak_position_m=peak_position,
+            stop_position_m=x_max,
+            settled_position_m=settled,
+            overshoot_m=x_max - settled,
+        )
+        stop_end = min(stop_end, float(g[i_reach]) + STOP_WINDOW_S)
+        found.append(_Found(tr, features, float(g[b - 1]), float(g[i_reach]), stop_end))
+    return found
+
+
+# --- open-loop simulation ----------------------------------------------------------------------
+
+
+def simulate_open_loop(
+    params: EngagementParams,
+    state: EngagementState,
+    start_s: float,
+    sample_times_s: FloatArray,
+    time_s: FloatArray,
+    force_N: FloatArray,
+    step_s: float = FIT_STEP_S,
+    tooth_force_N: float | None = None,
+) -> FloatArray:
+    """Position (m) at `sample_times_s` of the engagement model driven by a recorded force (N).
+
+    The model starts in `state` at `start_s` and steps by `step_s`, the force interpolated
+    linearly at the end of each step (as the runner does); before `start_s` the position is the
+    state's. A step in which the stage changes is redone in REFINE sub-steps, so a guard fires
+    within step_s / REFINE of the crossing. `tooth_force_N`, if given, replaces the model's
+    random tooth draw each time the lever enters the teeth.
+    """
+    stop_s = float(sample_times_s[-1]) if len(sample_times_s) else start_s
+    n = max(0, math.ceil((stop_s - start_s) / step_s - 1e-9))
+    ends = start_s + step_s * np.arange(1, n + 1)
+    forces = np.interp(ends, time_s, force_N).tolist()
+    positions = [state.position_m]
+    previous = float(np.interp(start_s, time_s, force_N))
+    step, inputs, teeth = engagement.step, engagement.EngagementInputs, Stage.ENGAGEMENT
+    fine = step_s / REFINE
+    for k in range(n):
+        force = forces[k]
+        new, _ = step(state, inputs(force), params, step_s)
+        if new.stage is not state.stage:
+            new = state
+            for j in range(1, REFINE + 1):
+                before = new.stage
+                new, _ = step(new, inputs(previous + (force - previous) * j / REFINE), params, fine)
+                if tooth_force_N is not None and new.stage is teeth and before is not teeth:
+                    new = new._replace(tooth_force_N=tooth_force_N)
+        state = new
+        positions.append(state.position_m)
+        previous = force
+    times = np.concatenate([[start_s], ends])
+    return np.asarray(np.interp(sample_times_s, times, positions), dtype=float)
+
+
+# --- the fits ----------------------------------------------------------------------------------
+
+
+def _solve(
+    residuals: Callable[[FloatArray], FloatArray],
+    lower: FloatArray,
+    upper: FloatArray,
+    groups: Sequence[Sequence[int]],
+    rows_of: Sequence[slice | None],
+) -> Any:
+    """Bounded robust least squares from 0 over unknowns scaled to order 1.
+
+    The Jacobian is a forward difference of fixed step DIFF_STEP: scipy's relative steps vanish
+    at 0, and the simulated positions move in quanta of a refined step that a step of 1e-8
+    cannot see. The columns of a group touch disjoint rows (`rows_of`, None = all rows) and are
+    differenced together, so per-engagement unknowns cost one simulation per kind, not per
+    engagement.
+    """
+    from scipy.optimize import least_squares
+
+    last: dict[bytes, FloatArray] = {}
+
+    def fun(z: FloatArray) -> FloatArray:
+        key = z.tobytes()
+        if key not in last:
+            last.clear()
+            last[key] = residuals(z)
+        return last[key]
+
+    def jac(z: FloatArray) -> FloatArray:
+        f0 = fun(z)
+        jacobian = np.zeros((len(f0), len(z)))
+        for group in groups:
+            cols = np.asarray(group)
+            step = np.where(z[cols] + DIFF_STEP <= upper[cols], DIFF_STEP, -DIFF_STEP)
+            moved = z.copy()
+            moved[cols] += step
+            change = residuals(moved) - f0
+            for col, h in zip(cols, step, strict=True):
+                rows = rows_of[col]
+                if rows is None:
+                    jacobian[:, col] = change / h
+                else:
+                    jacobian[rows, col] = change[rows] / h
+        return jacobian
+
+    return least_squares(
+        fun, np.zeros(len(lower)), jac=jac, bounds=(lower, upper), loss="soft_l1",
+        f_scale=SOFT_L1_SCALE, xtol=TOLERANCE, ftol=TOLERANCE, max_nfev=100,
+    )  # fmt: skip
+
+
+def _fit_passage(
+    found: Sequence[_Found],
+    gb: EngagementParams,
+    x_sync: float,
+    settled: float,
+    warnings: list[str],
+) -> tuple[float, float, list[_Found], float]:
+    """Teeth positions (m), the engagements with their synchronization time and teeth
+    resistance filled in, and the fit's rms (m)."""
+    fallback = (
+        x_sync + gb.teeth_position_m - gb.synchronization_position_m,
+        x_sync + gb.teeth_end_position_m - gb.synchronization_position_m,
+    )
+    cases = []
+    for e in found:
+        tr = e.trace
+        idx = _window(tr, e.plateau_end_s - 4.0 * tr.dt_s, e.stop_reach_s - 2.0 * tr.dt_s)
+        if len(idx) >= 8:
+            cases.append((e, idx))
+        else:
+            warnings.append(
+                f"{tr.label}, engagement at {e.features.start_time_s:.3f} s: too few samples "
+                "from the synchronization to the stop; left out of the teeth fit"
+            )
+    if not cases:
+        warnings.append("no engagement could be used to fit the teeth; placed as in the base")
+        return *fallback, list(found), math.nan
+    n = len(cases)
+    margin = gb.engagement.static_friction_N - gb.engagement.sliding_friction_N
+    # The teeth's resistance R_i is the tooth draw; the stage's own friction is 0 here.
+    bare = dataclasses.replace(
+        gb,
+        engagement=dataclasses.replace(
+            gb.engagement, sliding_friction_N=0.0, static_friction_N=margin
+        ),
+    )
+    lo_teeth = x_sync + 2e-4
+    hi_teeth = max(settled - GEAR_SLACK_M, lo_teeth + 1e-4)
+    teeth0 = float(np.clip(fallback[0], lo_teeth, hi_teeth))
+    length0 = float(np.clip(fallback[1] - fallback[0], 2e-4, settled - teeth0 - 1e-4))
+    r0 = gb.engagement.sliding_friction_N + 0.5 * gb.tooth_force_spread_N
+    # Unknowns, scaled to order 1: the teeth and their length in mm, the gate's opening instants
+    # in ms (within a few samples of the plateau's end), R_i in N.
+    lower = np.concatenate(
+        [[(lo_teeth - teeth0) * 1e3, (2e-4 - length0) * 1e3],
+         [-3.5 * e.trace.dt_s * 1e3 for e, _ in cases], np.full(n, -r0)]
+    )  # fmt: skip
+    upper = np.concatenate(
+        [[(hi_teeth - teeth0) * 1e3, (settled - x_sync - length0) * 1e3],
+         [1.5 * e.trace.dt_s * 1e3 for e, _ in cases], np.full(n, 200.0)]
+    )  # fmt: skip
+    sigma = max(float(np.median([e.trace.sigma_m for e, _ in cases])), 1e-5)
+
+    def unpack(z: FloatArray) -> tuple[float, float, FloatArray, FloatArray]:
+        teeth = teeth0 + z[0] * 1e-3
+        opened = np.array([e.plateau_end_s - 0.5 * e.trace.dt_s for e, _ in cases])
+        return teeth, teeth + length0 + z[1] * 1e-3, opened + z[2 : 2 + n] * 1e-3, r0 + z[2 + n :]
+
+    def residuals(z: FloatArray) -> FloatArray:
+        teeth, teeth_end, opened, rs = unpack(z)
+        parts = []
+        for (e, idx), start, r in zip(cases, opened, rs, strict=True):
+            tr, ring = e.trace, e.features.synchronization_position_m
+            params = dataclasses.replace(
+                bare,
+                synchronization_position_m=ring,
+                teeth_position_m=teeth,
+                teeth_end_position_m=teeth_end,
+                in_gear_position_m=max(e.features.settled_position_m, teeth_end + 1e-4),
+            )
+            state = engagement.initial_state()._replace(
+                stage=Stage.GATE_OPEN, position_m=ring, synchronization_progress=1.0
+            )
+            sim = simulate_open_loop(
+                params, state, float(start), tr.time_s[idx], tr.time_s, tr.force_N,
+                tooth_force_N=float(r),
+            )  # fmt: skip
+            parts.append((sim - tr.position_m[idx]) / sigma)
+        return np.concatenate(parts)
+
+    spans, row = [], 0
+    for _, idx in cases:
+        spans.append(slice(row, row + len(idx)))
+        row += len(idx)
+    groups = [[0], [1], list(range(2, 2 + n)), list(range(2 + n, 2 + 2 * n))]
+    solution = _solve(residuals, lower, upper, groups, [None, None, *spans, *spans])
+    if not solution.success:
+        warnings.append(f"the teeth fit did not converge ({solution.message}); check the result")
+    teeth, teeth_end, opened, rs = unpack(solution.x)
+    fitted = {
+        id(e): (float(start) - e.features.start_time_s, float(r))
+        for (e, _), start, r in zip(cases, opened, rs, strict=True)
+    }
+    updated = []
+    for e in found:
+        sync_time, resistance = fitted.get(id(e), (math.nan, math.nan))
+        features = dataclasses.replace(
+            e.features, synchronization_time_s=sync_time, tooth_resistance_N=resistance
+        )
+        updated.append(dataclasses.replace(e, features=features))
+    rms = float(np.sqrt(np.mean(solution.fun**2))) * sigma
+    return float(teeth), float(teeth_end), updated, rms
+
+
+def _tooth_law(
+    resistances: Sequence[float], gb: EngagementParams, warnings: list[str]
+) -> tuple[float, float]:
+    """Sliding friction and spread (N) of the uniform law of the teeth's resistance."""
+    rs = [r for r in resistances if math.isfinite(r)]
+    n = len(rs)
+    if n == 0:
+        return gb.engagement.sliding_friction_N, gb.tooth_force_spread_N
+    if n == 1:
+        spread = gb.tooth_force_spread_N
+        warnings.append(
+            "one engagement: the spread of the tooth force is not identifiable from a single "
+            f"engagement; tooth_force_spread_N kept from the base ({spread:g} N), the teeth's "
+            "friction set so that the engagement's resistance is the law's mean"
+        )
+        return max(rs[0] - 0.5 * spread, 0.0), spread
+    low, high = min(rs), max(rs)
+    # The unbiased bounds of a uniform law from n draws (their expected extremes lie 1/(n+1)
+    # of the width inside the bounds).
+    lower = (n * low - high) / (n - 1)
+    upper = (n * high - low) / (n - 1)
+    if n < 4:
+        warnings.append(
+            f"{n} engagements: the spread of the tooth force rests on few draws; record more "
+            "engagements for a firm value"
+        )
+    sliding = max(lower, 0.0)
+    return sliding, max(upper - sliding, 0.0)
+
+
+def _fit_stop(
+    found: Sequence[_Found], gb: EngagementParams, settled: float, warnings: list[str]
+) -> tuple[EngagementParams, float]:
+    """Stop stiffness, damping and x_gear, simulating from the free travel through the stop."""
+    cases = []
+    for e in found:
+        tr = e.trace
+        # A line through the free travel just short of the stop gives the state to start from.
+        idx = _window(tr, e.stop_reach_s - APPROACH_S, e.stop_reach_s)
+        x = tr.position_m[idx]
+        below = e.features.settled_position_m - GEAR_SLACK_M - 2e-4
+        idx = idx[(x <= below) & (x >= gb.teeth_end_position_m + 5e-4)][-8:]
+        compare = _window(tr, tr.time_s[idx[-1]] + 1e-9, e.stop_end_s) if len(idx) else idx
+        slope = float(np.polyfit(tr.time_s[idx], tr.position_m[idx], 1)[0]) if len(idx) > 1 else 0
+        if len(idx) < 2 or slope <= 0.0 or len(compare) < 5:
+            warnings.append(
+                f"{tr.label}, engagement at {e.features.start_time_s:.3f} s: too few samples "
+                "before or in the stop; left out of the stop fit"
+            )
+            continue
+        t0 = float(tr.time_s[idx[-1]])
+        offset = float(np.polyfit(tr.time_s[idx] - t0, tr.position_m[idx], 1)[1])
+        state = engagement.initial_state()._replace(
+            stage=Stage.FREE_TRAVEL, position_m=offset, velocity_m_s=slope
+        )
+        cases.append((tr, state, t0, compare))
+    if not cases:
+        warnings.append(
+            "no engagement could be used to fit the stop; its stiffness and damping are the "
+            "base's and x_gear is the settled position"
+        )
+        return gb, math.nan
+    sigma = max(float(np.median([c[0].sigma_m for c in cases])), 1e-5)
+    k0, c0 = gb.stop.stiffness_N_m, gb.stop.damping_N_s_m
+    # Unknowns, scaled to order 1: kN/m, N*s/m, and mm from the settled position.
+    lower = np.array([(500.0 - k0) / 1e3, -c0, -GEAR_SLACK_M * 1e3])
+    upper = np.array([(2e6 - k0) / 1e3, 2000.0 - c0, 0.5])
+
+    def params_of(z: FloatArray) -> EngagementParams:
+        stop = dataclasses.replace(gb.stop, stiffness_N_m=k0 + z[0] * 1e3, damping_N_s_m=c0 + z[1])
+        return dataclasses.replace(gb, stop=stop, in_gear_position_m=settled + z[2] * 1e-3)
+
+    def residuals(z: FloatArray) -> FloatArray:
+        params = params_of(z)
+        parts = []
+        for tr, state, t0, idx in cases:
+            sim = simulate_open_loop(params, state, t0, tr.time_s[idx], tr.time_s, tr.force_N)
+            parts.append((sim - tr.position_m[idx]) / sigma)
+        return np.concatenate(parts)
+
+    solution = _solve(residuals, lower, upper, [[0], [1], [2]], [None] * 3)
+    if not solution.success:
+        warnings.append(f"the stop fit did not converge ({solution.message}); check the result")
+    rms = float(np.sqrt(np.mean(solution.fun**2))) * sigma
+    return params_of(solution.x), rms
+
+
+def _fix_up(params: ShiftParams, base: ShiftParams, warnings: list[str]) -> ShiftParams:
+    """Repair what `check_shift` would find where a safe repair exists; warn about the rest."""
+    g, d = params.gearbox, params.driver
+    x_sync = g.synchronization_position_m
+    if not x_sync < g.teeth_position_m < g.teeth_end_position_m < g.in_gear_position_m:
+        b = base.gearbox
+        # The base's teeth, shifted with the ring, and shrunk if the travel is shorter.
+        room = g.in_gear_position_m - b.detent_release_m - x_sync
+        scale = min(1.0, 0.9 * room / (b.teeth_end_position_m - b.synchronization_position_m))
+        teeth = x_sync + scale * (b.teeth_position_m - b.synchronization_position_m)
+        end = x_sync + scale * (b.teeth_end_position_m - b.synchronization_position_m)
+        warnings.append(
+            f"fitted positions out of order (synchronization {x_sync:.4g} m, teeth "
+            f"{g.teeth_position_m:.4g}..{g.teeth_end_position_m:.4g} m, in gear "
+            f"{g.in_gear_position_m:.4g} m); the teeth are placed as in the base instead"
+        )
+        g = dataclasses.replace(g, teeth_position_m=teeth, teeth_end_position_m=end)
+    if g.in_gear.stiffness_N_m > g.stop.stiffness_N_m:
+        warnings.append(
+            f"gearbox.in_gear.stiffness_N_m lowered from {g.in_gear.stiffness_N_m:g} to the "
+            f"fitted stop's {g.stop.stiffness_N_m:.4g} N/m (the detent may not be stiffer)"
+        )
+        g = dataclasses.replace(
+            g, in_gear=dataclasses.replace(g.in_gear, stiffness_N_m=g.stop.stiffness_N_m)
+        )
+    held = g.stop.static_friction_N / g.stop.stiffness_N_m
+    if g.settle_distance_m <= held:
+        warnings.append(
+            f"gearbox.settle_distance_m raised from {g.settle_distance_m:g} to {2 * held:.3g} m: "
+            "the fitted stop's friction holds the knob farther off x_gear"
+        )
+        g = dataclasses.replace(g, settle_distance_m=2.0 * held)
+    room = g.in_gear_position_m - g.teeth_end_position_m
+    if g.detent_release_m >= room:
+        warnings.append(
+            f"gearbox.detent_release_m shortened from {g.detent_release_m:g} to {room / 2:.3g} m "
+            "to fit between the teeth and the gear"
+        )
+        g = dataclasses.replace(g, detent_release_m=room / 2)
+    if not g.teeth_end_position_m < d.release_position_m <= g.in_gear_position_m:
+        d = dataclasses.replace(d, release_position_m=g.in_gear_position_m)
+    if d.neutral_position_m >= g.synchronization_position_m:
+        warnings.append(
+            f"driver.neutral_position_m lowered from {d.neutral_position_m:g} m to half the "
+            "fitted synchronization position"
+        )
+        d = dataclasses.replace(d, neutral_position_m=0.5 * g.synchronization_position_m)
+    params = ShiftParams(g, d)
+    warnings.extend(f"check_shift: {problem}" for problem in check_shift(params))
+    return params
+
+
+def _figures(
+    traces: Sequence[_Trace], found: Sequence[_Found], gb: EngagementParams
+) -> dict[str, float]:
+    """rms error (m) and r^2 of each trace's open-loop position, and over all traces."""
+    figures: dict[str, float] = {}
+    sum_sq = sum_tot = 0.0
+    count = 0
+    sliding = gb.engagement.sliding_friction_N
+    typical = float(np.nanmedian([e.features.tooth_resistance_N for e in found]))
+    for tr in traces:
+        mine = sorted(
+            (e.features.start_time_s, e.features.tooth_resistance_N) for e in found if e.trace is tr
+        )
+        x0 = float(tr.position_m[0])
+        if x0 >= gb.in_gear_position_m - gb.detent_release_m:
+            stage = Stage.IN_GEAR
+        elif x0 < gb.synchronization_position_m:
+            stage = Stage.NEUTRAL
+        else:
+            stage = Stage.RETURNING
+        # (start, stage, position, teeth resistance) of each piece of the simulation.
+        pieces = [(float(tr.time_s[0]), stage, x0, mine[0][1])]
+        pieces += [(t, Stage.SYNCHRONIZATION, gb.synchronization_position_m, r) for t, r in mine]
+        idx = np.flatnonzero(tr.keep)
+        sim = np.empty(len(idx))
+        for k, (start, stage, x, r) in enumerate(pieces):
+            end = pieces[k + 1][0] if k + 1 < len(pieces) else math.inf
+            part = np.flatnonzero((tr.time_s[idx] >= start) & (tr.time_s[idx] < end))
+            if part.size == 0:
+                continue
+            state = engagement.initial_state()._replace(stage=stage, position_m=x)
+            tooth = max((r if math.isfinite(r) else typical) - sliding, 0.0)
+            sim[part] = simulate_open_loop(
+                gb, state, start, tr.time_s[idx[part]], tr.time_s, tr.force_N,
+                tooth_force_N=tooth,
+            )  # fmt: skip
+        measured = tr.position_m[idx]
+        sq = float(np.sum((sim - measured) ** 2))
+        tot = float(np.sum((measured - measured.mean()) ** 2))
+        figures[f"trace{tr.index}.rms_error_m"] = math.sqrt(sq / len(idx))
+        figures[f"trace{tr.index}.r2"] = 1.0 - sq / tot if tot > 0 else math.nan
+        sum_sq += sq
+        sum_tot += tot
+        count += len(idx)
+    figures["rms_error_m"] = math.sqrt(sum_sq / count)
+    figures["r2"] = 1.0 - sum_sq / sum_tot if sum_tot > 0 else math.nan
+    return figures
+
+
+def _fitted_values(params: ShiftParams) -> dict[str, float]:
+    g, d = params.gearbox, params.driver
+    return {
+        "gearbox.synchronization_position_m": g.synchronization_position_m,
+        "gearbox.synchronization_duration_s": g.synchronization_duration_s,
+        "gearbox.teeth_position_m": g.teeth_position_m,
+        "gearbox.teeth_end_position_m": g.teeth_end_position_m,
+        "gearbox.in_gear_position_m": g.in_gear_position_m,
+        "gearbox.tooth_force_spread_N": g.tooth_force_spread_N,
+        "gearbox.engagement.static_friction_N": g.engagement.static_friction_N,
+        "gearbox.engagement.sliding_friction_N": g.engagement.sliding_friction_N,
+        "gearbox.stop.stiffness_N_m": g.stop.stiffness_N_m,
+        "gearbox.stop.damping_N_s_m": g.stop.damping_N_s_m,
+        "driver.push_force_N": d.push_force_N,
+    }

@@ -1,0 +1,148 @@
+"""What `carfeel fit shift` and the shift half of `carfeel validate` do."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from carfeel import __version__
+from carfeel.identification.shift_fit import checked_columns, fit_shift, simulate_open_loop
+from carfeel.io import report
+from carfeel.io.presets import load_shift, to_toml
+from carfeel.models.gearshift import engagement
+from carfeel.simulation.result import Result
+from carfeel.simulation.shift import ShiftParams
+
+COLUMNS = ("time_s", "position_m", "force_N")
+
+
+def read_traces(paths: Sequence[Path]) -> list[Result]:
+    traces = []
+    for path in paths:
+        t, x, f = checked_columns(Result.from_csv(path), str(path))
+        traces.append(Result(t, {"position_m": x, "force_N": f}, {"name": Path(path).name}))
+    return traces
+
+
+def model_position(params: ShiftParams, trace: Result) -> np.ndarray:
+    """The engagement model driven open loop by the trace's force, at the trace's times."""
+    t = np.asarray(trace.time_s, dtype=float)
+    force = np.asarray(trace["force_N"], dtype=float)
+    step = min(1e-3, float(np.median(np.diff(t))))
+    state = engagement.initial_state(0, float(trace["position_m"][0]))
+    return np.asarray(
+        simulate_open_loop(params.gearbox, state, float(t[0]), t, t, force, step), dtype=float
+    )
+
+
+def _figures(measured: np.ndarray, model: np.ndarray) -> dict[str, float]:
+    residual = model - measured
+    total = float(np.sum((measured - measured.mean()) ** 2)) or 1.0
+    return {
+        "rms_error_m": float(np.sqrt(np.mean(residual**2))),
+        "r2": 1.0 - float(np.sum(residual**2)) / total,
+    }
+
+
+def _sections(
+    params: ShiftParams, traces: Sequence[Result], paths: Sequence[Path], folder: Path
+) -> tuple[list[report.Section], dict[str, Any]]:
+    from carfeel.io.plots import plot_shift_validation
+
+    sections, figures = [], {}
+    for i, (trace, path) in enumerate(zip(traces, paths, strict=True)):
+        model = model_position(params, trace)
+        measured = np.asarray(trace["position_m"], dtype=float)
+        numbers = _figures(measured, model)
+        rms_mm = numbers["rms_error_m"] * 1e3
+        figures[str(path)] = numbers
+        png = plot_shift_validation(
+            trace.time_s,
+            trace["force_N"],
+            measured,
+            model,
+            folder / f"shift-{i + 1}.png",
+            f"{Path(path).name}: measured vs the model driven by the measured force",
+        )
+        sections.append(
+            report.Section(
+                f"Trace {i + 1}: {path}",
+                [f"position rms error {rms_mm:.3g} mm, r2 {numbers['r2']:.4f}"],
+                figures=[png],
+            )
+        )
+    return sections, figures
+
+
+def fit_shift_traces(
+    paths: Sequence[Path],
+    out: Path,
+    *,
+    base: str = "paper-first-gear",
+    report_dir: Path | None = None,
+) -> dict[str, Any]:
+    """Fit the engagement to the traces; write the preset (and the report); the fit as data."""
+    preset = load_shift(base)
+    traces = read_traces(paths)
+    fit = fit_shift(traces, preset.params)
+    params = fit.params
+    lines = [
+        f"Fitted by carfeel {__version__} to {', '.join(Path(p).name for p in paths)}, from "
+        f"the base preset {preset.name}: {len(fit.engagements)} engagement(s); position rms "
+        f"error {fit.figures.get('rms_error_m', float('nan')) * 1e3:.3g} mm, r2 "
+        f"{fit.figures.get('r2', float('nan')):.4f}.",
+        *(f"warning: {w}" for w in fit.warnings),
+    ]
+    out.write_text(
+        to_toml(out.stem, "\n".join(lines), {"gearbox": params.gearbox, "driver": params.driver})
+    )
+    result: dict[str, Any] = {
+        "rms_error_m": fit.figures.get("rms_error_m"),
+        "r2": fit.figures.get("r2"),
+        "figures": fit.figures,
+        "engagements": [_fields(e) for e in fit.engagements],
+        "warnings": list(fit.warnings),
+        "preset": str(out),
+    }
+    if report_dir is not None:
+        folder = report.prepare(report_dir)
+        table = [["parameter", "value"]] + [
+            [k, report.number(v, 6)]
+            for k, v in fit.figures.items()
+            if k.startswith(("gearbox.", "driver."))
+        ]
+        summary = report.Section("Fit", [*lines], table)
+        sections, _ = _sections(params, traces, paths, folder)
+        report.write(folder, f"Shift fit: {out.name}", [summary, *sections])
+    return result
+
+
+def _fields(item: Any) -> dict[str, Any]:
+    import dataclasses
+
+    return {f.name: getattr(item, f.name) for f in dataclasses.fields(item)}
+
+
+def validate_traces(params: ShiftParams, paths: Sequence[Path], folder: Path) -> dict[str, Any]:
+    traces = read_traces(paths)
+    sections, figures = _sections(params, traces, paths, folder)
+    report.write(folder, "Validation of a shift preset", sections)
+    return figures
+
+
+def summary_text(result: dict[str, Any], out: Path) -> str:
+    lines = [
+        f"fitted {len(result['engagements'])} engagement(s): position rms error "
+        f"{(result['rms_error_m'] or float('nan')) * 1e3:.3g} mm, r2 {result['r2']:.4f}",
+    ]
+    lines += [
+        f"  {k:44s} {v:.5g}"
+        for k, v in result["figures"].items()
+        if k.startswith(("gearbox.", "driver."))
+    ]
+    lines += [f"warning: {w}" for w in result["warnings"]]
+    lines.append(f"wrote {out}")
+    return "\n".join(lines)
