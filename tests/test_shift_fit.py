@@ -350,11 +350,17 @@ def test_fit_and_validate_shift_traces_from_the_command_line(tmp_path, capsys):
                  "--json"]) == 0  # fmt: skip
     figures = json.loads(capsys.readouterr().out)
     assert set(figures) == set(paths)
-    # The open-loop re-simulation drifts where a pull-out sits at the detent's release force
-    # (module docstring); 10 mm rms is a third of the 43 mm travel and still catches a model
-    # that does not engage at all (rms ~ 20 mm).
-    assert all(v["rms_error_m"] < 0.010 for v in figures.values())
+    # The truth itself re-simulates these seeds to 1.8-2.1 mm rms: open loop, the knob's force
+    # (which sags while the hand catches up) meets the preset's mean tooth resistance instead of
+    # each engagement's own draw. 5 mm bounds the fitted preset; the shipped preset, whose
+    # stages sit elsewhere, must do far worse on the same traces (26 mm on seed 11).
+    assert all(v["rms_error_m"] < 0.005 for v in figures.values())
     assert len(list(check.glob("*.png"))) == len(SEEDS)
+    assert "engagement(s)" in (check / "index.html").read_text()
+    assert main(["validate", "--preset", "paper-first-gear", *paths, "--report",
+                 str(tmp_path / "shipped"), "--json"]) == 0  # fmt: skip
+    shipped = json.loads(capsys.readouterr().out)
+    assert all(shipped[p]["rms_error_m"] > 3 * figures[p]["rms_error_m"] for p in paths)
 
 
 def test_malformed_shift_traces_exit_2_from_the_command_line(tmp_path, capsys):

@@ -184,7 +184,7 @@ def test_fit_and_validate_from_the_command_line(tmp_path, capsys):
     assert main(["fit", "steering", *paths, "--out", str(preset), "--report", str(fit_report),
                  "--json"]) == 0  # fmt: skip
     figures = json.loads(capsys.readouterr().out)
-    assert figures["r2"] > 0.99 and figures["rms_error_Nm"] < 0.2
+    assert figures["r2"] > 0.99 and figures["rms_error"] < 0.2
     fitted = load(str(preset)).params.torque
     assert fitted.k1_Nm_s2_m == pytest.approx(TRUE["k1_Nm_s2_m"], rel=0.1)
     assert (fit_report / "index.html").is_file()

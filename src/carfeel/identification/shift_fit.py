@@ -58,7 +58,8 @@ Fit, over all engagements of all traces:
 Figures: each trace is simulated open loop with the fitted parameters and its recorded force,
 from its first sample, restarting at each arrival at the synchro ring (the one point where the
 knob's state is known: blocked, at rest); rms error and r^2 of the position, per trace and over
-all, at the measured samples that are not outliers.
+all, at the measured samples that are not outliers. `resimulate` does the same for `carfeel
+validate`, where no engagement has a fitted resistance: the teeth resist with the preset's mean.
 """
 
 from __future__ import annotations
@@ -366,11 +367,11 @@ def _odd(n: float, least: int) -> int:
     return max(least, round(n) | 1)
 
 
-def _prepare(trace: Trace, index: int, warnings: list[str]) -> _Trace:
+def _prepare(trace: Trace, index: int, warnings: list[str], label: str | None = None) -> _Trace:
     from scipy.ndimage import median_filter
     from scipy.signal import savgol_filter
 
-    label = _label(trace, index)
+    label = label or _label(trace, index)
     t, x, f = _columns(trace, label)
     _check(label, t, x, f)
     sigma_x = _noise_sigma(x)
@@ -886,6 +887,42 @@ def _fix_up(params: ShiftParams, base: ShiftParams, warnings: list[str]) -> Shif
     return params
 
 
+def _resimulate(
+    tr: _Trace, found: Sequence[_Found], gb: EngagementParams, typical_N: float
+) -> FloatArray:
+    """The trace's position (m) at its kept samples, simulated open loop with its force from its
+    first sample, restarted blocked at the synchro ring at each engagement's arrival; the teeth
+    resist with the engagement's fitted resistance, or `typical_N` where it has none."""
+    mine = sorted(
+        (e.features.start_time_s, e.features.tooth_resistance_N) for e in found if e.trace is tr
+    )
+    x0 = float(tr.position_m[0])
+    if x0 >= gb.in_gear_position_m - gb.detent_release_m:
+        stage = Stage.IN_GEAR
+    elif x0 < gb.synchronization_position_m:
+        stage = Stage.NEUTRAL
+    else:
+        stage = Stage.RETURNING
+    # (start, stage, position, teeth resistance) of each piece of the simulation.
+    first_r = mine[0][1] if mine else typical_N
+    pieces = [(float(tr.time_s[0]), stage, x0, first_r)]
+    pieces += [(t, Stage.SYNCHRONIZATION, gb.synchronization_position_m, r) for t, r in mine]
+    idx = np.flatnonzero(tr.keep)
+    sim = np.empty(len(idx))
+    sliding = gb.engagement.sliding_friction_N
+    for k, (start, stage, x, r) in enumerate(pieces):
+        end = pieces[k + 1][0] if k + 1 < len(pieces) else math.inf
+        part = np.flatnonzero((tr.time_s[idx] >= start) & (tr.time_s[idx] < end))
+        if part.size == 0:
+            continue
+        state = engagement.initial_state()._replace(stage=stage, position_m=x)
+        tooth = max((r if math.isfinite(r) else typical_N) - sliding, 0.0)
+        sim[part] = simulate_open_loop(
+            gb, state, start, tr.time_s[idx[part]], tr.time_s, tr.force_N, tooth_force_N=tooth
+        )
+    return sim
+
+
 def _figures(
     traces: Sequence[_Trace], found: Sequence[_Found], gb: EngagementParams
 ) -> dict[str, float]:
@@ -893,35 +930,10 @@ def _figures(
     figures: dict[str, float] = {}
     sum_sq = sum_tot = 0.0
     count = 0
-    sliding = gb.engagement.sliding_friction_N
     typical = float(np.nanmedian([e.features.tooth_resistance_N for e in found]))
     for tr in traces:
-        mine = sorted(
-            (e.features.start_time_s, e.features.tooth_resistance_N) for e in found if e.trace is tr
-        )
-        x0 = float(tr.position_m[0])
-        if x0 >= gb.in_gear_position_m - gb.detent_release_m:
-            stage = Stage.IN_GEAR
-        elif x0 < gb.synchronization_position_m:
-            stage = Stage.NEUTRAL
-        else:
-            stage = Stage.RETURNING
-        # (start, stage, position, teeth resistance) of each piece of the simulation.
-        pieces = [(float(tr.time_s[0]), stage, x0, mine[0][1])]
-        pieces += [(t, Stage.SYNCHRONIZATION, gb.synchronization_position_m, r) for t, r in mine]
         idx = np.flatnonzero(tr.keep)
-        sim = np.empty(len(idx))
-        for k, (start, stage, x, r) in enumerate(pieces):
-            end = pieces[k + 1][0] if k + 1 < len(pieces) else math.inf
-            part = np.flatnonzero((tr.time_s[idx] >= start) & (tr.time_s[idx] < end))
-            if part.size == 0:
-                continue
-            state = engagement.initial_state()._replace(stage=stage, position_m=x)
-            tooth = max((r if math.isfinite(r) else typical) - sliding, 0.0)
-            sim[part] = simulate_open_loop(
-                gb, state, start, tr.time_s[idx[part]], tr.time_s, tr.force_N,
-                tooth_force_N=tooth,
-            )  # fmt: skip
+        sim = _resimulate(tr, found, gb, typical)
         measured = tr.position_m[idx]
         sq = float(np.sum((sim - measured) ** 2))
         tot = float(np.sum((measured - measured.mean()) ** 2))
@@ -933,6 +945,33 @@ def _figures(
     figures["rms_error_m"] = math.sqrt(sum_sq / count)
     figures["r2"] = 1.0 - sum_sq / sum_tot if sum_tot > 0 else math.nan
     return figures
+
+
+@dataclass(frozen=True)
+class Resimulation:
+    """A trace next to a preset's model driven by the trace's force (kept samples only)."""
+
+    time_s: FloatArray
+    force_N: FloatArray
+    measured_m: FloatArray
+    model_m: FloatArray
+    engagements: int
+
+
+def resimulate(trace: Trace, params: ShiftParams, label: str = "trace") -> Resimulation:
+    """What `carfeel validate` compares: the preset's engagement model driven open loop by the
+    trace's recorded force, restarted at each arrival at the synchro ring that the segmentation
+    finds (the one point where the knob's state is known), the teeth resisting with the mean of
+    the preset's law (sliding friction + spread / 2). Outliers are left out; InputError as for
+    a fit, naming `label`."""
+    warnings: list[str] = []
+    tr = _prepare(trace, 0, warnings, label)
+    found = _segment(tr, warnings)
+    gb = params.gearbox
+    typical = gb.engagement.sliding_friction_N + 0.5 * gb.tooth_force_spread_N
+    idx = np.flatnonzero(tr.keep)
+    model = _resimulate(tr, found, gb, typical)
+    return Resimulation(tr.time_s[idx], tr.force_N[idx], tr.position_m[idx], model, len(found))
 
 
 def _fitted_values(params: ShiftParams) -> dict[str, float]:

@@ -9,10 +9,9 @@ from typing import Any
 import numpy as np
 
 from carfeel import __version__
-from carfeel.identification.shift_fit import checked_columns, fit_shift, simulate_open_loop
+from carfeel.identification.shift_fit import checked_columns, fit_shift, resimulate
 from carfeel.io import report
 from carfeel.io.presets import load_shift, to_toml
-from carfeel.models.gearshift import engagement
 from carfeel.simulation.result import Result
 from carfeel.simulation.shift import ShiftParams
 
@@ -25,17 +24,6 @@ def read_traces(paths: Sequence[Path]) -> list[Result]:
         t, x, f = checked_columns(Result.from_csv(path), str(path))
         traces.append(Result(t, {"position_m": x, "force_N": f}, {"name": Path(path).name}))
     return traces
-
-
-def model_position(params: ShiftParams, trace: Result) -> np.ndarray:
-    """The engagement model driven open loop by the trace's force, at the trace's times."""
-    t = np.asarray(trace.time_s, dtype=float)
-    force = np.asarray(trace["force_N"], dtype=float)
-    step = min(1e-3, float(np.median(np.diff(t))))
-    state = engagement.initial_state(0, float(trace["position_m"][0]))
-    return np.asarray(
-        simulate_open_loop(params.gearbox, state, float(t[0]), t, t, force, step), dtype=float
-    )
 
 
 def _figures(measured: np.ndarray, model: np.ndarray) -> dict[str, float]:
@@ -54,23 +42,26 @@ def _sections(
 
     sections, figures = [], {}
     for i, (trace, path) in enumerate(zip(traces, paths, strict=True)):
-        model = model_position(params, trace)
-        measured = np.asarray(trace["position_m"], dtype=float)
-        numbers = _figures(measured, model)
-        rms_mm = numbers["rms_error_m"] * 1e3
+        run = resimulate(trace, params, str(path))
+        numbers = _figures(run.measured_m, run.model_m)
         figures[str(path)] = numbers
         png = plot_shift_validation(
-            trace.time_s,
-            trace["force_N"],
-            measured,
-            model,
+            run.time_s,
+            run.force_N,
+            run.measured_m,
+            run.model_m,
             folder / f"shift-{i + 1}.png",
             f"{Path(path).name}: measured vs the model driven by the measured force",
         )
+        rms_mm = numbers["rms_error_m"] * 1e3
         sections.append(
             report.Section(
                 f"Trace {i + 1}: {path}",
-                [f"position rms error {rms_mm:.3g} mm, r2 {numbers['r2']:.4f}"],
+                [
+                    f"{run.engagements} engagement(s); position rms error {rms_mm:.3g} mm, "
+                    f"r2 {numbers['r2']:.4f}. The model is driven by the recorded force and "
+                    "restarted at each arrival at the synchro ring.",
+                ],
                 figures=[png],
             )
         )
@@ -100,7 +91,8 @@ def fit_shift_traces(
         to_toml(out.stem, "\n".join(lines), {"gearbox": params.gearbox, "driver": params.driver})
     )
     result: dict[str, Any] = {
-        "rms_error_m": fit.figures.get("rms_error_m"),
+        "rms_error": fit.figures.get("rms_error_m"),
+        "rms_error_unit": "m",
         "r2": fit.figures.get("r2"),
         "figures": fit.figures,
         "engagements": [_fields(e) for e in fit.engagements],

@@ -86,7 +86,8 @@ class SteeringFit:
         return {
             "parameters": {e.name: {"value": e.value, "sigma": e.sigma} for e in self.estimates},
             "torque_offset_Nm": self.torque_offset_Nm,
-            "rms_error_Nm": self.rms_error_Nm,
+            "rms_error": self.rms_error_Nm,
+            "rms_error_unit": "N m",
             "r2": self.r2,
             "per_log": self.per_log,
             "warnings": list(self.warnings),

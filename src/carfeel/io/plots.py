@@ -374,20 +374,28 @@ def plot_shift_validation(
     path: str | Path,
     title: str,
 ) -> Path:
-    """A measured engagement trace and the model driven by its force: position vs time, force
-    vs position (as the paper's Fig. 5/6 and 9)."""
+    """A measured engagement trace and the model driven by its force: position vs time with the
+    residual (model - measured) below it, force vs position (as the paper's Fig. 5/6 and 9)."""
     plt = _pyplot()
-    fig, (ax_t, ax_l) = plt.subplots(1, 2, figsize=(13, 4.8), layout="constrained")
+    fig = plt.figure(figsize=(13, 6.0), layout="constrained")
+    grid = fig.add_gridspec(2, 2, height_ratios=(3, 1))
+    ax_t = fig.add_subplot(grid[0, 0])
+    ax_r = fig.add_subplot(grid[1, 0], sharex=ax_t)
+    ax_l = fig.add_subplot(grid[:, 1])
     fig.suptitle(title)
     ax_t.plot(time_s, measured_m * 1e3, color="#999999", lw=1.0, label="measured position")
     ax_t.plot(time_s, model_m * 1e3, color="#d62728", lw=1.0, label="model position")
-    ax_t.set_xlabel("time [s]")
     ax_t.set_ylabel("knob position [mm]")
     ax_f = ax_t.twinx()
     ax_f.plot(time_s, force_N, color="#1f77b4", lw=0.6, alpha=0.6)
     ax_f.set_ylabel("force at the knob [N]", color="#1f77b4")
     ax_t.legend(fontsize=8, loc="upper left")
     ax_t.grid(alpha=0.3)
+    ax_r.plot(time_s, (model_m - measured_m) * 1e3, color="#d62728", lw=0.8)
+    ax_r.axhline(0.0, color="black", lw=0.5)
+    ax_r.set_xlabel("time [s]")
+    ax_r.set_ylabel("residual [mm]")
+    ax_r.grid(alpha=0.3)
     ax_l.plot(measured_m * 1e3, force_N, color="#999999", lw=0.8, label="measured")
     ax_l.plot(model_m * 1e3, force_N, color="#d62728", lw=0.8, label="model")
     ax_l.set_xlabel("knob position [mm]")
