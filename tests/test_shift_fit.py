@@ -377,3 +377,65 @@ def test_malformed_shift_traces_exit_2_from_the_command_line(tmp_path, capsys):
     assert main(["validate", "--preset", "paper-first-gear", str(garbled),
                  "--report", str(tmp_path / "r")]) == 2  # fmt: skip
     assert "garbled.csv" in capsys.readouterr().err
+
+
+def test_the_plain_summary_and_strict_json(tmp_path, capsys):
+    import json
+
+    from carfeel.cli import main
+
+    trace = tmp_path / "one.csv"
+    # One engagement, cut 50 ms after the stop: the stop fit has nothing to settle on.
+    result = clean(SEEDS[0], duration_s=1.0, repeat=False)
+    measured(result, SEEDS[0]).to_csv(trace)
+    out = tmp_path / "one.toml"
+    assert main(["fit", "shift", str(trace), "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "fitted 1 engagement(s)" in text and f"wrote {out}" in text
+    assert main(["fit", "shift", str(trace), "--out", str(out), "--json"]) == 0
+    printed = capsys.readouterr().out
+    # Strict JSON: no NaN or Infinity tokens, which json.loads would otherwise accept.
+    fitted = json.loads(printed, parse_constant=lambda token: pytest.fail(f"{token} in JSON"))
+    assert set(fitted["parameters"]) >= {"gearbox.synchronization_position_m"}
+    assert not any(k.startswith("gearbox.") for k in fitted["figures"])
+
+
+def test_a_report_path_that_is_a_file_stops_before_anything_is_written(tmp_path, capsys):
+    from carfeel.cli import main
+
+    trace = tmp_path / "t.csv"
+    measured(clean(SEEDS[0]), SEEDS[0]).to_csv(trace)
+    blocker = tmp_path / "report"
+    blocker.write_text("not a folder")
+    out = tmp_path / "p.toml"
+    assert main(["fit", "shift", str(trace), "--out", str(out), "--report", str(blocker)]) == 2
+    assert "exists and is not a folder" in capsys.readouterr().err
+    assert not out.exists()
+    missing = tmp_path / "nowhere" / "p.toml"
+    assert main(["fit", "shift", str(trace), "--out", str(missing)]) == 2
+    assert f"folder {missing.parent} does not exist" in capsys.readouterr().err
+
+
+def test_positions_in_mm_and_exactly_200_hz():
+    result = measured(clean(SEEDS[0]), SEEDS[0])
+    with pytest.raises(InputError, match="if it is in mm, divide it by 1000"):
+        fit_shift([{"time_s": result.time_s, "position_m": result["position_m"] * 1e3,
+                    "force_N": result["force_N"]}])  # fmt: skip
+    # Resampled to exactly 200 Hz, the slowest the docstring accepts (steps of 0.005000...01 s).
+    t = np.arange(result.time_s[0], result.time_s[-1], 1.0 / 200.0)
+    slow = {"time_s": t, "position_m": np.interp(t, result.time_s, result["position_m"]),
+            "force_N": np.interp(t, result.time_s, result["force_N"])}  # fmt: skip
+    assert len(fit_shift([slow]).engagements) == ENGAGEMENTS_PER_TRACE
+
+
+def test_a_fit_carfeel_would_refuse_is_not_written(tmp_path):
+    from carfeel.identification.workflows import write_checked_preset
+    from carfeel.io.presets import to_toml
+
+    params = load_shift().params
+    bad = dataclasses.replace(params.gearbox, synchronization_position_m=0.5)
+    text = to_toml("bad", "a fit gone wrong", {"gearbox": bad, "driver": params.driver})
+    out = tmp_path / "bad.toml"
+    with pytest.raises(InputError, match=r"so .*bad\.toml is not written"):
+        write_checked_preset("shift", out, text)
+    assert not out.exists()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 import re
 
 import numpy as np
@@ -211,3 +212,72 @@ def test_malformed_logs_exit_2_from_the_command_line(tmp_path, capsys):
     assert main(["validate", "--preset", "b-segment", str(tmp_path / "none.csv"),
                  "--report", str(tmp_path / "r")]) == 2  # fmt: skip
     assert "no such file" in capsys.readouterr().err
+    european = tmp_path / "semicolons.csv"
+    european.write_text("time_s;speed_m_s;steering_angle_rad;steering_torque_Nm\n0;1,5;0;0\n")
+    assert main(["fit", "steering", str(european), "--out", str(tmp_path / "p.toml")]) == 2
+    assert "carfeel reads comma-separated CSV" in capsys.readouterr().err
+    paths = write_logs(tmp_path, logs_from=("weave", "iso4138-left"))
+    assert main(["fit", "steering", *paths, "--out", str(tmp_path / "p.toml")]) == 0
+    summary = capsys.readouterr().out
+    assert "fitted 10 parameters" in summary and "k1_Nm_s2_m" in summary  # K1..K9 + offset
+
+
+def weave_signals(degrees=False, km_h=False, flip_torque=False):
+    """The true car's weave as a log with measured Ay, optionally in the wrong units/sign."""
+    _, r = next(run for run in clean_runs() if run[0].startswith("weave"))
+    angle = r["steering_angle_rad"]
+    return r.time_s, {
+        "speed_m_s": r["speed_m_s"] * (3.6 if km_h else 1.0),
+        "steering_angle_rad": np.degrees(angle) if degrees else angle,
+        "steering_torque_Nm": r["torque_Nm"] * (-1.0 if flip_torque else 1.0),
+        "lateral_accel_m_s2": r["lateral_accel_m_s2"],
+    }
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        # The weave's 12 degrees are a plausible angle in radians too: only Ay gives it away.
+        ({"degrees": True}, "looks like degrees"),
+        ({"flip_torque": True}, "flip the sign of steering_torque_Nm"),
+    ],
+)
+def test_units_and_signs_that_fit_well_but_wrongly_are_refused(kwargs, message):
+    base, _ = car()
+    time, signals = weave_signals(**kwargs)
+    log = read_log(Result(time, signals), "weave.csv")
+    with pytest.raises(InputError, match=re.escape(message)):
+        fit_steering([log], base)
+
+
+def test_km_h_read_as_m_s_is_warned_about():
+    # At 100 km/h understeer makes the measured Ay 0.53x the steady state from a speed read 3.6x
+    # too high: within what another car could give, so a warning, not a refusal.
+    base, _ = car()
+    time, signals = weave_signals(km_h=True)
+    fit = fit_steering([read_log(Result(time, signals), "weave.csv")], base)
+    assert any("if it is in km/h, divide it by 3.6" in w for w in fit.warnings)
+    assert any("the measured Ay is 0.527 times" in w for w in fit.warnings)
+
+
+def test_time_in_milliseconds_is_named():
+    time, signals = weave_signals()
+    with pytest.raises(InputError, match="If time_s is in milliseconds, divide it by 1000"):
+        read_log(Result(time * 1000.0, signals), "log.csv")
+
+
+def test_carfeels_own_torque_column_is_accepted():
+    time, signals = weave_signals()
+    signals["torque_Nm"] = signals.pop("steering_torque_Nm")
+    log = read_log(Result(time, signals), "weave.csv")
+    assert np.array_equal(log.torque_Nm, signals["torque_Nm"])
+
+
+def test_a_parameter_the_data_cannot_see_gets_an_infinite_sigma_and_a_warning():
+    base, _ = car()
+    time, signals = weave_signals()
+    # No lateral acceleration at all: K1..K3 multiply zero, nothing in the data moves them.
+    signals["lateral_accel_m_s2"] = np.zeros_like(time)
+    fit = fit_steering([read_log(Result(time, signals), "no-ay.csv")], base)
+    assert math.isinf(by_name(fit)["k1_Nm_s2_m"].sigma)
+    assert any(w.startswith("k1_Nm_s2_m = ") for w in fit.warnings)

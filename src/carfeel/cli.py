@@ -508,15 +508,31 @@ def _run(args: argparse.Namespace) -> int:
 
         recording = Result.from_csv(record, drop_partial_last_line=True)
         plot_recording(recording, Path(args.plot), f"{args.model} on {result.device}, {args.mode}")
-    print(json.dumps(result.as_dict()) if args.json else result.text())
+    print(_json(result.as_dict()) if args.json else result.text())
     return 0
+
+
+def _finite(value: object) -> object:
+    """NaN and infinities as null (JSON has no NaN), through dicts, lists and tuples."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite(v) for v in value]
+    return value
+
+
+def _json(value: object) -> str:
+    """Strict JSON (RFC 8259) of a result: what a script reading `--json` can parse."""
+    return json.dumps(_finite(value), allow_nan=False)
 
 
 def _fit(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.suffix.lower() != ".toml":
-        raise InputError(f"{out}: expected a .toml file name for the preset")
-    _check_writable(out.with_suffix(".csv"), ".csv")  # the folder exists and is writable
+        raise InputError(f"--out {out}: expected a .toml file name for the preset")
+    _check_writable(out, ".toml")
     report_dir = Path(args.report) if args.report else None
     if args.kind == "steering":
         from carfeel.identification.workflows import fit_steering_logs, fit_summary
@@ -526,7 +542,7 @@ def _fit(args: argparse.Namespace) -> int:
             report_dir=report_dir, show_progress=not args.json,
         )  # fmt: skip
         if args.json:
-            print(json.dumps(fit.as_dict()))
+            print(_json(fit.as_dict()))
         else:
             print(fit_summary(fit))
             print(f"wrote {out}" + (f" and {report_dir / 'index.html'}" if report_dir else ""))
@@ -534,9 +550,13 @@ def _fit(args: argparse.Namespace) -> int:
     from carfeel.identification import shift_workflows
 
     result = shift_workflows.fit_shift_traces(
-        [Path(p) for p in args.traces], out, base=args.base, report_dir=report_dir
+        [Path(p) for p in args.traces],
+        out,
+        base=args.base,
+        report_dir=report_dir,
+        show_progress=not args.json,
     )
-    print(json.dumps(result) if args.json else shift_workflows.summary_text(result, out))
+    print(_json(result) if args.json else shift_workflows.summary_text(result, out))
     return 0
 
 
@@ -545,7 +565,7 @@ def _validate(args: argparse.Namespace) -> int:
 
     figures = validate(args.preset, [Path(p) for p in args.logs], Path(args.report))
     if args.json:
-        print(json.dumps(figures))
+        print(_json(figures))
     else:
         for name, values in figures.items():
             print(f"{name}: " + ", ".join(f"{k} {v:.4g}" for k, v in values.items()))
@@ -557,7 +577,7 @@ def _devices(args: argparse.Namespace) -> int:
     from carfeel.realtime.devices.listing import describe_backends, list_devices
 
     if args.json:
-        print(json.dumps(describe_backends()))
+        print(_json(describe_backends()))
     else:
         print("\n".join(list_devices()))
     return 0
@@ -569,7 +589,7 @@ def _metrics_steering(args: argparse.Namespace) -> int:
     feel = steering_metrics(Path(args.csv), args.preset)
     if args.json:
         values = {k: (None if math.isnan(v) else v) for k, v in feel.as_dict().items()}
-        print(json.dumps({**values, "notes": list(feel.notes)}))
+        print(_json({**values, "notes": list(feel.notes)}))
     else:
         print(f"steering feel of {args.csv}:")
         print("\n".join(feel_lines(feel)))
@@ -590,7 +610,7 @@ def _presets(args: argparse.Namespace) -> int:
 
     listing = {kind: available(kind) for kind in PRESET_KINDS}
     if args.json:
-        print(json.dumps(listing))
+        print(_json(listing))
     else:
         for kind, names in listing.items():
             print(f"{kind}: {', '.join(names)}")

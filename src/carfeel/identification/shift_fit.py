@@ -87,6 +87,8 @@ REQUIRED = ("time_s", "position_m", "force_N")
 
 MIN_SAMPLES = 50
 MAX_SAMPLE_PERIOD_S = 5e-3
+MAX_TRAVEL_M = 0.2
+"""A knob further than this from neutral is not a gear lever: the trace is in other units."""
 """Sampled slower than 200 Hz, the start of a plateau and a tooth's impact are not resolved."""
 NOISE_BAND = 3.0
 """Half-width of the plateau band, in sigmas of the position noise."""
@@ -186,7 +188,13 @@ class _Found:
     """End of the stop fit's window."""
 
 
-def fit_shift(traces: Sequence[Trace], base: ShiftParams | None = None) -> ShiftFit:
+Progress = Callable[[int, float], None]
+"""Called with the count of model evaluations and the current rms residual (m)."""
+
+
+def fit_shift(
+    traces: Sequence[Trace], base: ShiftParams | None = None, progress: Progress | None = None
+) -> ShiftFit:
     """Fit the engagement model and the driver's push force to measured knob traces.
 
     `traces`: Results (or mappings of arrays) with time_s (s), position_m (m) and force_N (N).
@@ -208,7 +216,14 @@ def fit_shift(traces: Sequence[Trace], base: ShiftParams | None = None) -> Shift
     push = float(np.median([e.features.plateau_force_N for e in found]))
     settled = float(np.median([e.features.settled_position_m for e in found]))
 
-    teeth, teeth_end, found, passage_rms = _fit_passage(found, gb, x_sync, settled, warnings)
+    count = [0]
+
+    def tick(residual: FloatArray) -> None:
+        count[0] += 1
+        if progress is not None:
+            progress(count[0], float(np.sqrt(np.mean(residual * residual))))
+
+    teeth, teeth_end, found, passage_rms = _fit_passage(found, gb, x_sync, settled, warnings, tick)
     times = [e.features.synchronization_time_s for e in found]
     times = [t for t in times if math.isfinite(t)]
     if times:
@@ -229,7 +244,7 @@ def fit_shift(traces: Sequence[Trace], base: ShiftParams | None = None) -> Shift
             gb.engagement, sliding_friction_N=sliding, static_friction_N=sliding + margin
         ),
     )
-    gearbox, stop_rms = _fit_stop(found, gearbox, settled, warnings)
+    gearbox, stop_rms = _fit_stop(found, gearbox, settled, warnings, tick)
     # The driver lets go as far before the gear as in the base.
     early = gb.in_gear_position_m - base.driver.release_position_m
     driver = dataclasses.replace(
@@ -329,8 +344,14 @@ def _check(label: str, t: FloatArray, x: FloatArray, f: FloatArray) -> None:
             f"{label}: time_s does not increase at sample {i} ({t[i - 1]:g} s, then {t[i]:g} s); "
             "sort the samples by time and drop duplicates"
         )
+    span = float(np.max(np.abs(x)))
+    if span > MAX_TRAVEL_M:
+        raise InputError(
+            f"{label}: position_m reaches {span:.4g}, beyond any gear lever's travel "
+            f"({MAX_TRAVEL_M:g} m): if it is in mm, divide it by 1000"
+        )
     dt = float(np.median(np.diff(t)))
-    if dt > MAX_SAMPLE_PERIOD_S:
+    if dt > MAX_SAMPLE_PERIOD_S * (1.0 + 1e-6):  # 200 Hz itself, as a float step, passes
         raise InputError(
             f"{label}: sampled every {dt * 1e3:.3g} ms; the segmentation needs at least "
             f"{1.0 / MAX_SAMPLE_PERIOD_S:.0f} Hz (a sample every {MAX_SAMPLE_PERIOD_S * 1e3:g} ms)"
@@ -601,6 +622,7 @@ def _solve(
     upper: FloatArray,
     groups: Sequence[Sequence[int]],
     rows_of: Sequence[slice | None],
+    tick: Callable[[FloatArray], None],
 ) -> Any:
     """Bounded robust least squares from 0 over unknowns scaled to order 1.
 
@@ -619,6 +641,7 @@ def _solve(
         if key not in last:
             last.clear()
             last[key] = residuals(z)
+            tick(last[key])
         return last[key]
 
     def jac(z: FloatArray) -> FloatArray:
@@ -650,6 +673,7 @@ def _fit_passage(
     x_sync: float,
     settled: float,
     warnings: list[str],
+    tick: Callable[[FloatArray], None],
 ) -> tuple[float, float, list[_Found], float]:
     """Teeth positions (m), the engagements with their synchronization time and teeth
     resistance filled in, and the fit's rms (m)."""
@@ -729,7 +753,7 @@ def _fit_passage(
         spans.append(slice(row, row + len(idx)))
         row += len(idx)
     groups = [[0], [1], list(range(2, 2 + n)), list(range(2 + n, 2 + 2 * n))]
-    solution = _solve(residuals, lower, upper, groups, [None, None, *spans, *spans])
+    solution = _solve(residuals, lower, upper, groups, [None, None, *spans, *spans], tick)
     if not solution.success:
         warnings.append(f"the teeth fit did not converge ({solution.message}); check the result")
     teeth, teeth_end, opened, rs = unpack(solution.x)
@@ -779,7 +803,11 @@ def _tooth_law(
 
 
 def _fit_stop(
-    found: Sequence[_Found], gb: EngagementParams, settled: float, warnings: list[str]
+    found: Sequence[_Found],
+    gb: EngagementParams,
+    settled: float,
+    warnings: list[str],
+    tick: Callable[[FloatArray], None],
 ) -> tuple[EngagementParams, float]:
     """Stop stiffness, damping and x_gear, simulating from the free travel through the stop."""
     cases = []
@@ -828,7 +856,7 @@ def _fit_stop(
             parts.append((sim - tr.position_m[idx]) / sigma)
         return np.concatenate(parts)
 
-    solution = _solve(residuals, lower, upper, [[0], [1], [2]], [None] * 3)
+    solution = _solve(residuals, lower, upper, [[0], [1], [2]], [None] * 3, tick)
     if not solution.success:
         warnings.append(f"the stop fit did not converge ({solution.message}); check the result")
     rms = float(np.sqrt(np.mean(solution.fun**2))) * sigma

@@ -10,6 +10,7 @@ import numpy as np
 
 from carfeel import __version__
 from carfeel.identification.shift_fit import checked_columns, fit_shift, resimulate
+from carfeel.identification.workflows import Progress, write_checked_preset
 from carfeel.io import report
 from carfeel.io.presets import load_shift, to_toml
 from carfeel.simulation.result import Result
@@ -74,11 +75,13 @@ def fit_shift_traces(
     *,
     base: str = "paper-first-gear",
     report_dir: Path | None = None,
+    show_progress: bool = True,
 ) -> dict[str, Any]:
     """Fit the engagement to the traces; write the preset (and the report); the fit as data."""
     preset = load_shift(base)
     traces = read_traces(paths)
-    fit = fit_shift(traces, preset.params)
+    folder = report.prepare(report_dir) if report_dir is not None else None
+    fit = fit_shift(traces, preset.params, progress=Progress("fitting the shift", show_progress))
     params = fit.params
     lines = [
         f"Fitted by carfeel {__version__} to {', '.join(Path(p).name for p in paths)}, from "
@@ -87,24 +90,25 @@ def fit_shift_traces(
         f"{fit.figures.get('r2', float('nan')):.4f}.",
         *(f"warning: {w}" for w in fit.warnings),
     ]
-    out.write_text(
-        to_toml(out.stem, "\n".join(lines), {"gearbox": params.gearbox, "driver": params.driver})
-    )
+    text = to_toml(out.stem, "\n".join(lines), {"gearbox": params.gearbox, "driver": params.driver})
+    write_checked_preset("shift", out, text)
     result: dict[str, Any] = {
         "rms_error": fit.figures.get("rms_error_m"),
         "rms_error_unit": "m",
         "r2": fit.figures.get("r2"),
-        "figures": fit.figures,
+        "parameters": {
+            k: v for k, v in fit.figures.items() if k.startswith(("gearbox.", "driver."))
+        },
+        "figures": {
+            k: v for k, v in fit.figures.items() if not k.startswith(("gearbox.", "driver."))
+        },
         "engagements": [_fields(e) for e in fit.engagements],
         "warnings": list(fit.warnings),
         "preset": str(out),
     }
-    if report_dir is not None:
-        folder = report.prepare(report_dir)
+    if folder is not None:
         table = [["parameter", "value"]] + [
-            [k, report.number(v, 6)]
-            for k, v in fit.figures.items()
-            if k.startswith(("gearbox.", "driver."))
+            [k, report.number(v, 6)] for k, v in result["parameters"].items()
         ]
         summary = report.Section("Fit", [*lines], table)
         sections, _ = _sections(params, traces, paths, folder)
@@ -118,8 +122,9 @@ def _fields(item: Any) -> dict[str, Any]:
     return {f.name: getattr(item, f.name) for f in dataclasses.fields(item)}
 
 
-def validate_traces(params: ShiftParams, paths: Sequence[Path], folder: Path) -> dict[str, Any]:
+def validate_traces(params: ShiftParams, paths: Sequence[Path], report_dir: Path) -> dict[str, Any]:
     traces = read_traces(paths)
+    folder = report.prepare(report_dir)
     sections, figures = _sections(params, traces, paths, folder)
     report.write(folder, "Validation of a shift preset", sections)
     return figures
@@ -128,13 +133,9 @@ def validate_traces(params: ShiftParams, paths: Sequence[Path], folder: Path) ->
 def summary_text(result: dict[str, Any], out: Path) -> str:
     lines = [
         f"fitted {len(result['engagements'])} engagement(s): position rms error "
-        f"{(result['rms_error_m'] or float('nan')) * 1e3:.3g} mm, r2 {result['r2']:.4f}",
+        f"{(result['rms_error'] or float('nan')) * 1e3:.3g} mm, r2 {result['r2']:.4f}",
     ]
-    lines += [
-        f"  {k:44s} {v:.5g}"
-        for k, v in result["figures"].items()
-        if k.startswith(("gearbox.", "driver."))
-    ]
+    lines += [f"  {k:44s} {v:.5g}" for k, v in result["parameters"].items()]
     lines += [f"warning: {w}" for w in result["warnings"]]
     lines.append(f"wrote {out}")
     return "\n".join(lines)

@@ -15,7 +15,11 @@ friction level from the rest, the tyre-spin scale from parking (V < 2 m/s) if th
 Uncertainties are one standard deviation from the Jacobian at the solution (the Gauss-Newton
 covariance scaled by the residual variance). A parameter the data cannot pin down gets a
 warning: the tyre-spin terms K4..K6 without parking manoeuvres, the saturation K2, K3 without
-lateral accelerations beyond 3 m/s^2, any parameter whose uncertainty exceeds half its value.
+lateral accelerations beyond 3 m/s^2, any parameter whose uncertainty exceeds half its value
+(infinite where the data leave a direction unconstrained) or that stops at a bound. Before the
+fit, logs whose units or signs would fit well but wrongly are refused or warned about
+(`_check_units`: Ay against the car's steady state, torque rising with Ay, speeds above
+250 km/h); after it, r2 under 0.5 is warned about.
 With `fit_vehicle` (and no measured Ay) the understeer gradient is fitted too (the speed steps of
 a steady-state test separate it from K1), and the preset's rear cornering stiffness is set to give
 it. The steering ratio is not fitted: in the linear range K1 * Ay ~ K1 / SR, so the two trade
@@ -47,6 +51,8 @@ LOWER = (1e-3, 0.0, 0.3, 1e-2, 0.0, 1e-2, 0.0, 1e-3, 0.0)
 UPPER = (50.0, 10.0, 3.0, 100.0, 100.0, 10.0, 20.0, 5.0, 5.0)
 SAVGOL_WINDOW_S = 0.081
 PARKING_SPEED_M_S = 2.0
+MAX_SAMPLE_PERIOD_S = 0.05
+"""20 Hz: slower logs cannot show the friction and damping terms (and ms read as s land here)."""
 
 
 @dataclass(frozen=True)
@@ -114,7 +120,17 @@ def savgol_rate(time_s: FloatArray, angle_rad: FloatArray) -> FloatArray:
 
 
 def read_log(result: Result, name: str) -> SteeringLog:
-    """Check a log's columns, units and samples; derive what is missing."""
+    """Check a log's columns, units and samples; derive what is missing. `torque_Nm` (what
+    `carfeel simulate steering` writes) stands for steering_torque_Nm when that is absent."""
+    if "steering_torque_Nm" not in result.names and "torque_Nm" in result.names:
+        result = Result(
+            result.time_s,
+            {
+                ("steering_torque_Nm" if k == "torque_Nm" else k): v
+                for k, v in result.signals.items()
+            },
+            result.metadata,
+        )
     missing = [c for c in REQUIRED if c not in result.names]
     if missing:
         raise InputError(
@@ -135,6 +151,12 @@ def read_log(result: Result, name: str) -> SteeringLog:
     if np.any(np.diff(time) <= 0):
         row = int(np.flatnonzero(np.diff(time) <= 0)[0]) + 3
         raise InputError(f"{name}, line {row}: time_s does not increase")
+    period = float(np.median(np.diff(time)))
+    if period > MAX_SAMPLE_PERIOD_S:
+        raise InputError(
+            f"{name}: a sample every {period:.3g} s; the fit needs at least "
+            f"{1 / MAX_SAMPLE_PERIOD_S:.0f} Hz. If time_s is in milliseconds, divide it by 1000"
+        )
     keep = np.ones(len(time), dtype=bool)
     for column in columns:
         keep &= np.isfinite(result[column])
@@ -219,12 +241,13 @@ def fit_steering(
         k_us = x[10] if fit_vehicle else k_us0
         return _steady_ay(speed, angle, ratio0, k_us, wheelbase)
 
+    unit_warnings = _check_units(logs, vehicle, speed, angle, rate, torque, ay_given)
     start = _start(speed, rate, torque, lateral(np.array([0.0] * 10 + [k_us0])))
     lower = [*LOWER, -5.0]
     upper = [*UPPER, 5.0]
     if fit_vehicle:
         start = np.concatenate([start, [k_us0]])
-        lower += [-0.01]
+        lower += [0.0]  # neutral steer; carfeel's presets refuse an oversteering car
         upper += [0.05]
     start = np.clip(start, np.array(lower) + 1e-9, np.array(upper) - 1e-9)
     evaluations = [0]
@@ -250,25 +273,27 @@ def fit_steering(
     r = residual(x)
     n, p = len(r), len(x)
     jac = np.asarray(solution.jac)
-    try:
-        covariance = np.linalg.pinv(jac.T @ jac) * float(np.sum(r * r)) / max(n - p, 1)
-        sigma = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
-    except np.linalg.LinAlgError:
-        sigma = np.full(p, math.inf)
+    sigma = _sigmas(jac, float(np.sum(r * r)) / max(n - p, 1))
     names = [*K_NAMES, "torque_offset_Nm"] + (
         ["understeer_gradient_rad_s2_m"] if fit_vehicle else []
     )
     estimates = tuple(
         Estimate(nm, float(v), float(s)) for nm, v, s in zip(names, x, sigma, strict=True)
     )
-    warnings = _identifiability(estimates, speed, rate, lateral(x))
-    ss_tot = float(np.sum((torque - torque.mean()) ** 2)) or 1.0
+    warnings = unit_warnings + _identifiability(estimates, speed, rate, lateral(x))
+    for e, active, lo, hi in zip(estimates, solution.active_mask, lower, upper, strict=True):
+        if active != 0 and e.name.startswith("k"):
+            warnings.append(
+                f"{e.name} stopped at its bound {lo if active < 0 else hi:g}: the data cannot "
+                "place it inside the physical range"
+            )
+    ss_tot = float(np.sum((torque - torque.mean()) ** 2)) or math.nan
     per_log: dict[str, dict[str, float]] = {}
     offset = 0
     for log in logs:
         part = r[offset : offset + len(log.time_s)]
         measured = torque[offset : offset + len(log.time_s)]
-        total = float(np.sum((measured - measured.mean()) ** 2)) or 1.0
+        total = float(np.sum((measured - measured.mean()) ** 2)) or math.nan
         per_log[log.name] = {
             "rms_error_Nm": float(np.sqrt(np.mean(part**2))),
             "r2": 1.0 - float(np.sum(part**2)) / total,
@@ -276,13 +301,101 @@ def fit_steering(
             "samples": float(len(part)),
         }
         offset += len(log.time_s)
+    r2 = 1.0 - float(np.sum(r**2)) / ss_tot
+    if not r2 > 0.5:
+        warnings.append(
+            f"r2 {r2:.3g}: the law explains little of the torque; check the logs' units, signs "
+            "and columns before using this preset"
+        )
     car = dataclasses.replace(base, torque=_law(x))
     if fit_vehicle:
         car = dataclasses.replace(car, vehicle=vehicle_with(vehicle, ratio0, float(x[10])))
     return SteeringFit(
-        car, estimates, float(x[9]), float(np.sqrt(np.mean(r**2))),
-        1.0 - float(np.sum(r**2)) / ss_tot, per_log, tuple(warnings), int(solution.nfev),
+        car, estimates, float(x[9]), float(np.sqrt(np.mean(r**2))), r2, per_log,
+        tuple(warnings), int(solution.nfev),
     )  # fmt: skip
+
+
+def _sigmas(jac: FloatArray, variance: float) -> FloatArray:
+    """One standard deviation per parameter from the Gauss-Newton covariance, infinite for a
+    parameter in a direction the data do not constrain (a singular value under 1e-8 of the
+    largest, after scaling each column to unit norm), not the zero a pseudo-inverse gives."""
+    norms = np.linalg.norm(jac, axis=0)
+    sigma = np.full(jac.shape[1], math.inf)
+    live = norms > 0.0
+    if not live.any():
+        return sigma
+    _, s, vt = np.linalg.svd(jac[:, live] / norms[live], full_matrices=False)
+    weak = s < 1e-8 * s[0]
+    covariance = (vt[~weak].T / s[~weak] ** 2) @ vt[~weak] * variance
+    free = np.sqrt(np.clip(np.diag(covariance), 0.0, None)) / norms[live]
+    if weak.any():
+        free[np.any(np.abs(vt[weak]) > 0.1, axis=0)] = math.inf
+    sigma[live] = free
+    return sigma
+
+
+def _check_units(
+    logs: Sequence[SteeringLog],
+    vehicle: VehicleParams,
+    speed: FloatArray,
+    angle: FloatArray,
+    rate: FloatArray,
+    torque: FloatArray,
+    ay_given: FloatArray | None,
+) -> list[str]:
+    """Catch a log in the wrong units or sign, which would fit to a good r2 and a wrong preset;
+    return warnings for what only looks suspicious.
+
+    On quasi-steady samples (V > 5 m/s, |rate| < 0.2 rad/s, 1 < |Ay| < 6 m/s^2): a measured Ay
+    must agree with the base car's steady state within a factor of 4 (a car's SR and K_us do not
+    stray further; degrees make it 1/57), with a warning beyond a factor of 1.6; and torque must
+    rise with Ay (the aligning torque the driver holds, + with + Ay). km/h read as m/s cannot be
+    told from Ay at speed (understeer flattens Ay(V): at 100 km/h it makes 0.53x), so speeds
+    beyond 250 km/h get a warning too."""
+    names = ", ".join(log.name for log in logs)
+    warnings = []
+    top = float(np.max(speed))
+    if top > 70.0:
+        warnings.append(
+            f"speed_m_s reaches {top:.0f} m/s ({top * 3.6:.0f} km/h): if it is in km/h, divide "
+            "it by 3.6 and fit again"
+        )
+    ay_model = _steady_ay(speed, angle, vehicle.steering_ratio,
+                          vehicle.understeer_gradient_rad_s2_m, vehicle.wheelbase_m)  # fmt: skip
+    ay = ay_given if ay_given is not None else ay_model
+    steady = (speed > 5.0) & (np.abs(rate) < 0.2) & (np.abs(ay) > 1.0) & (np.abs(ay) < 6.0)
+    if steady.sum() < 50:
+        return warnings
+    if ay_given is not None:
+        usable = steady & (np.abs(ay_model) > 0.1)
+        if usable.sum() >= 50:
+            factor = float(np.median(ay_given[usable] / ay_model[usable]))
+            if not 0.25 < factor < 4.0:
+                hint = (
+                    "steering_angle_rad looks like degrees (convert to radians)"
+                    if 1 / 90 < factor < 1 / 35
+                    else "check the units of steering_angle_rad (rad at the wheel), speed_m_s "
+                    "(m/s, not km/h) and lateral_accel_m_s2 (m/s^2, not g), and the sign of Ay"
+                )
+                raise InputError(
+                    f"{names}: the measured lateral_accel_m_s2 is {factor:.3g} times the "
+                    f"base car's steady-state Ay from speed and angle (expected about 1): {hint}"
+                )
+            if not 1 / 1.6 < factor < 1.6:
+                warnings.append(
+                    f"the measured Ay is {factor:.3g} times the base car's steady state from "
+                    "speed and angle: check the units of speed_m_s and steering_angle_rad, or "
+                    "start from a base preset with this car's steering ratio and understeer"
+                )
+    slope = float(np.polyfit(ay[steady], torque[steady], 1)[0])
+    if slope < 0.0:
+        raise InputError(
+            f"{names}: steering_torque_Nm falls as Ay rises ({slope:.3g} Nm per m/s^2); carfeel's "
+            "convention is + torque with + Ay (the driver holds the aligning torque): flip the "
+            "sign of steering_torque_Nm (or of the angle and Ay)"
+        )
+    return warnings
 
 
 def vehicle_with(vehicle: VehicleParams, ratio: float, k_us: float) -> VehicleParams:

@@ -51,6 +51,22 @@ class Progress:
             print(file=sys.stderr)
 
 
+def write_checked_preset(kind: str, out: Path, text: str) -> None:
+    """Write a fitted preset only if carfeel's own loader accepts it (ranges, cross-checks);
+    else InputError: a fit that leaves the physical ranges means the data, not the preset."""
+    from carfeel.io.presets import from_toml
+
+    try:
+        from_toml(kind, str(out), text)
+    except PresetError as exc:
+        raise InputError(
+            f"the fit gives a {kind} preset that carfeel would refuse, so {out} is not written:"
+            f"\n{exc}\ncheck the logs' units and sign conventions (README, 'From your own car's "
+            "logs') and that they hold the manoeuvres the fit needs"
+        ) from None
+    out.write_text(text)
+
+
 def load_logs(paths: Sequence[Path]) -> list[SteeringLog]:
     logs = []
     for path in paths:
@@ -127,6 +143,7 @@ def fit_steering_logs(
     """Fit the torque law to the logs; write the preset (and the report)."""
     preset = load_steering(base)
     logs = load_logs(paths)
+    folder = report.prepare(report_dir) if report_dir is not None else None
     progress = Progress("fitting K1..K9", show_progress)
     fit = fit_steering(logs, preset.params, fit_vehicle=fit_vehicle, progress=progress)
     progress.done()
@@ -138,10 +155,10 @@ def fit_steering_logs(
         *(f"warning: {w}" for w in fit.warnings),
     ]
     car = fit.car
-    out.write_text(to_toml(out.stem, "\n".join(lines), {
-        "vehicle": car.vehicle, "torque": car.torque, "driver": car.driver}))  # fmt: skip
-    if report_dir is not None:
-        folder = report.prepare(report_dir)
+    tables = {"vehicle": car.vehicle, "torque": car.torque, "driver": car.driver}
+    text = to_toml(out.stem, "\n".join(lines), tables)
+    write_checked_preset("steering", out, text)
+    if folder is not None:
         table = [["parameter", "value", "1 sigma"]] + [
             [e.name, report.number(e.value, 6), report.number(e.sigma, 2)] for e in fit.estimates
         ]
@@ -158,12 +175,12 @@ def fit_steering_logs(
 
 def validate(preset: str, paths: Sequence[Path], report_dir: Path) -> dict[str, Any]:
     """Run a preset's model against logs; write the report; return the figures."""
-    folder = report.prepare(report_dir)
     try:
         car = load_steering(preset).params
     except PresetError as steering_error:
-        return _validate_shift(preset, paths, folder, steering_error)
+        return _validate_shift(preset, paths, report_dir, steering_error)
     logs = load_logs(paths)
+    folder = report.prepare(report_dir)
     sections = steering_sections(car, logs, folder)
     figures: dict[str, Any] = {}
     for log in logs:
@@ -177,7 +194,7 @@ def validate(preset: str, paths: Sequence[Path], report_dir: Path) -> dict[str, 
 
 
 def _validate_shift(
-    preset: str, paths: Sequence[Path], folder: Path, why: Exception
+    preset: str, paths: Sequence[Path], report_dir: Path, why: Exception
 ) -> dict[str, Any]:
     from carfeel.io.presets import load_shift
 
@@ -189,7 +206,7 @@ def _validate_shift(
         ) from None
     from carfeel.identification import shift_workflows
 
-    figures: dict[str, Any] = shift_workflows.validate_traces(params, paths, folder)
+    figures: dict[str, Any] = shift_workflows.validate_traces(params, paths, report_dir)
     return figures
 
 

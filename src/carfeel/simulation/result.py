@@ -120,6 +120,13 @@ class Result:
         if doubled:
             raise InputError(f"{source}: column(s) {', '.join(doubled)} appear more than once")
         if "time_s" not in header:
+            separator = next((s for s in (";", "\t") if len(header) == 1 and s in header[0]), None)
+            if separator is not None:
+                raise InputError(
+                    f"{source}: the header is one field holding {separator!r}: carfeel reads "
+                    "comma-separated CSV; save the file with ',' between fields and '.' as the "
+                    "decimal point"
+                )
             raise InputError(f"{source}: no time_s column (columns: {', '.join(header)})")
         for line_no, row in enumerate(body, start=2):
             if len(row) != len(header):
