@@ -51,9 +51,15 @@ def test_demo_writes_into_the_folder_it_names(tmp_path, capsys):
     assert str(folder.resolve()) in printed
     for name in ("shift.csv", "shift.png", "hpattern.png", "hpattern-reverse.png",
                  "realtime-hpattern.csv", "realtime-hpattern.png", "steering-iso3888.png",
-                 "steering-weave.png"):  # fmt: skip
+                 "steering-weave.png", "fit-report/index.html"):  # fmt: skip
         assert (folder / name).is_file(), name
     assert "gears engaged: 1 2 3 4 5 4 3 2 1" in printed
+    # The demo's fitted preset loads, and is the preset its noisy logs came from: K1 within
+    # 5 % (the logs' 0.05 m/s^2 of Ay noise and the derived rate's error; 2.34 vs 2.4 today).
+    from carfeel.io.presets import load_steering
+
+    fitted = load_steering(str(folder / "fitted-b-segment.toml")).params.torque
+    assert fitted.k1_Nm_s2_m == pytest.approx(load_steering().params.torque.k1_Nm_s2_m, rel=0.05)
 
 
 @pytest.mark.parametrize(

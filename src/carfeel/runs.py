@@ -619,3 +619,51 @@ def demo(folder: Path, clock: str = "wall") -> Iterator[str]:
         SteeringRun("weave"), folder / "steering-weave.csv", folder / "steering-weave.png"
     )
     yield weave.text()
+    yield ""
+    yield from _demo_identification(folder)
+
+
+def as_logged(run: Result, seed: int, rate_hz: float = 200.0) -> Result:
+    """A simulated steering run as a test rig would log it: `rate_hz`, white noise of 0.05 Nm,
+    0.02 deg, 0.05 m/s^2 and 0.05 m/s, and no rate column (the fit derives it)."""
+    rng = np.random.default_rng(seed)
+    idx = np.arange(
+        0, len(run.time_s), max(1, round(1.0 / (rate_hz * np.median(np.diff(run.time_s)))))
+    )
+    n = idx.size
+    noise = {"speed_m_s": 0.05, "steering_angle_rad": math.radians(0.02),
+             "lateral_accel_m_s2": 0.05, "torque_Nm": 0.05}  # fmt: skip
+    signals = {name: run[name][idx] + rng.normal(0.0, sigma, n) for name, sigma in noise.items()}
+    signals["steering_torque_Nm"] = signals.pop("torque_Nm")
+    return Result(run.time_s[idx], signals)
+
+
+def _demo_identification(folder: Path) -> Iterator[str]:
+    from carfeel.identification.workflows import fit_steering_logs, fit_summary
+
+    yield (
+        "identification: K1..K9 fitted back from the weave, the lane change and a parking steer "
+        "cycle, logged with noise:"
+    )
+    car = load_steering().params
+    runs = {
+        "weave": Result.from_csv(folder / "steering-weave.csv"),
+        "iso3888": Result.from_csv(folder / "steering-iso3888.csv"),
+        "steer-cycle": simulate_steering(car, manoeuvres.build("steer-cycle", car.vehicle)),
+    }
+    paths = []
+    for seed, (name, run) in enumerate(runs.items()):
+        path = folder / f"logged-{name}.csv"
+        as_logged(run, seed).to_csv(path)
+        paths.append(path)
+    fit = fit_steering_logs(
+        paths, folder / "fitted-b-segment.toml", report_dir=folder / "fit-report",
+        show_progress=False,
+    )  # fmt: skip
+    yield fit_summary(fit)
+    true = car.torque
+    yield (
+        f"  (the b-segment preset the logs came from: K1 {true.k1_Nm_s2_m:g}, K4 {true.k4_1_Nm:g}, "
+        f"K7 {true.k7_Nm:g}, K9 {true.k9_Nm_s_rad:g})"
+    )
+    yield f"wrote {folder / 'fitted-b-segment.toml'} and {folder / 'fit-report' / 'index.html'}"

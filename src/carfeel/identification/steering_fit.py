@@ -13,13 +13,14 @@ K1..K9 and reported, not kept. Starting values come from the data: K1 from the s
 on Ay while the wheel barely turns, K9 from the slope on the rate while it turns fast, the
 friction level from the rest, the tyre-spin scale from parking (V < 2 m/s) if there is any.
 Uncertainties are one standard deviation from the Jacobian at the solution (the Gauss-Newton
-covariance scaled by the residual variance). A parameter the data cannot pin down gets a
-warning: the tyre-spin terms K4..K6 without parking manoeuvres, the saturation K2, K3 without
+covariance scaled by the residual variance): statistical only, so a systematic error (a derived
+rate's lag, a model the car does not follow) can exceed them. A parameter the data cannot pin down
+gets a warning: the tyre-spin terms K4..K6 without parking manoeuvres, the saturation K2, K3 without
 lateral accelerations beyond 3 m/s^2, any parameter whose uncertainty exceeds half its value
-(infinite where the data leave a direction unconstrained) or that stops at a bound. Before the
-fit, logs whose units or signs would fit well but wrongly are refused or warned about
-(`_check_units`: Ay against the car's steady state, torque rising with Ay, speeds above
-250 km/h); after it, r2 under 0.5 is warned about.
+(infinite where the data leave a direction unconstrained) or that stops at a bound. Before the fit,
+logs whose units or signs would fit well but wrongly are refused or warned about (`_check_units`: Ay
+against the car's steady state, torque rising with Ay, speeds above 250 km/h); after it, r2 under
+0.5 is warned about.
 With `fit_vehicle` (and no measured Ay) the understeer gradient is fitted too (the speed steps of
 a steady-state test separate it from K1), and the preset's rear cornering stiffness is set to give
 it. The steering ratio is not fitted: in the linear range K1 * Ay ~ K1 / SR, so the two trade
