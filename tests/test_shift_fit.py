@@ -439,3 +439,21 @@ def test_a_fit_carfeel_would_refuse_is_not_written(tmp_path):
     with pytest.raises(InputError, match=r"so .*bad\.toml is not written"):
         write_checked_preset("shift", out, text)
     assert not out.exists()
+
+
+def test_a_trace_without_an_engagement_is_still_validated(tmp_path, capsys):
+    """A pull-out only (the knob starts in gear): nothing to restart at, one piece from the
+    first sample."""
+    from carfeel.cli import main
+    from carfeel.identification.shift_fit import resimulate
+
+    pulled = clean(SEEDS[0], repeat=False)  # one push in, held, pulled out, nothing after
+    keep = pulled.time_s > arrivals(pulled)[0] + 0.6  # after the engagement's stop
+    late = Result(pulled.time_s[keep], {k: v[keep] for k, v in pulled.signals.items()})
+    assert late["position_m"][0] > truth().gearbox.teeth_end_position_m  # starts in gear
+    path = tmp_path / "pull-only.csv"
+    measured(late, SEEDS[0]).to_csv(path)
+    assert resimulate(Result.from_csv(path), truth()).engagements == 0
+    assert main(["validate", "--preset", "paper-first-gear", str(path),
+                 "--report", str(tmp_path / "r")]) == 0  # fmt: skip
+    assert "rms_error_m" in capsys.readouterr().out

@@ -281,3 +281,44 @@ def test_a_parameter_the_data_cannot_see_gets_an_infinite_sigma_and_a_warning():
     fit = fit_steering([read_log(Result(time, signals), "no-ay.csv")], base)
     assert math.isinf(by_name(fit)["k1_Nm_s2_m"].sigma)
     assert any(w.startswith("k1_Nm_s2_m = ") for w in fit.warnings)
+
+
+def test_one_log_in_degrees_among_good_ones_is_refused_by_name():
+    base, _ = car()
+    time, signals = weave_signals(degrees=True)
+    logs = [*measured(clean_runs()), read_log(Result(time, signals), "weave-in-degrees.csv")]
+    with pytest.raises(InputError, match=r"weave-in-degrees\.csv: .*looks like degrees"):
+        fit_steering(logs, base)
+
+
+def test_a_steady_circle_one_way_is_not_taken_for_a_flipped_sign():
+    """A log at nearly constant Ay: a slope of torque on Ay would be noise there (and refused
+    4 seeds in 20); the sign test sees +4 Nm with +3 m/s^2 on every seed."""
+    from carfeel.identification.steering_fit import _check_units
+
+    base, _ = car()
+    name, r = next(run for run in clean_runs() if run[0] == "iso4138-left")
+    keep = (r.time_s > 26.6) & (r.time_s < 30.4)
+    circle = ((name, Result(r.time_s[keep], {k: v[keep] for k, v in r.signals.items()})),)
+    for seed in range(20):
+        for with_ay in (True, False):
+            _check_units(measured(circle, seed=seed, with_ay=with_ay), base.vehicle)
+    flipped = measured(circle, seed=0)[0]
+    flipped = dataclasses.replace(flipped, torque_Nm=-flipped.torque_Nm)
+    with pytest.raises(InputError, match="flip the sign"):
+        _check_units([flipped], base.vehicle)
+
+
+def test_json_has_null_for_an_infinite_sigma(tmp_path, capsys):
+    import json
+
+    from carfeel.cli import main
+
+    time, signals = weave_signals()
+    signals["lateral_accel_m_s2"] = np.zeros_like(time)  # K1..K3 multiply zero: sigma inf
+    path = tmp_path / "no-ay.csv"
+    Result(time, signals).to_csv(path)
+    assert main(["fit", "steering", str(path), "--out", str(tmp_path / "p.toml"), "--json"]) == 0
+    printed = capsys.readouterr().out
+    fitted = json.loads(printed, parse_constant=lambda token: pytest.fail(f"{token} in JSON"))
+    assert fitted["parameters"]["k1_Nm_s2_m"]["sigma"] is None

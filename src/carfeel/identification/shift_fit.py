@@ -87,9 +87,9 @@ REQUIRED = ("time_s", "position_m", "force_N")
 
 MIN_SAMPLES = 50
 MAX_SAMPLE_PERIOD_S = 5e-3
+"""Sampled slower than 200 Hz, the start of a plateau and a tooth's impact are not resolved."""
 MAX_TRAVEL_M = 0.2
 """A knob further than this from neutral is not a gear lever: the trace is in other units."""
-"""Sampled slower than 200 Hz, the start of a plateau and a tooth's impact are not resolved."""
 NOISE_BAND = 3.0
 """Half-width of the plateau band, in sigmas of the position noise."""
 BAND_FLOOR_M = 2e-6
@@ -189,7 +189,7 @@ class _Found:
 
 
 Progress = Callable[[int, float], None]
-"""Called with the count of model evaluations and the current rms residual (m)."""
+"""Called with the count of model evaluations and the current rms of the scaled residuals."""
 
 
 def fit_shift(
@@ -994,7 +994,10 @@ def resimulate(trace: Trace, params: ShiftParams, label: str = "trace") -> Resim
     a fit, naming `label`."""
     warnings: list[str] = []
     tr = _prepare(trace, 0, warnings, label)
-    found = _segment(tr, warnings)
+    try:
+        found = _segment(tr, warnings)
+    except InputError:  # no engagement (a pull-out, neutral only): one piece from the start
+        found = []
     gb = params.gearbox
     typical = gb.engagement.sliding_friction_N + 0.5 * gb.tooth_force_spread_N
     idx = np.flatnonzero(tr.keep)

@@ -81,7 +81,9 @@ def fit_shift_traces(
     preset = load_shift(base)
     traces = read_traces(paths)
     folder = report.prepare(report_dir) if report_dir is not None else None
-    fit = fit_shift(traces, preset.params, progress=Progress("fitting the shift", show_progress))
+    progress = Progress("fitting the shift", show_progress)
+    fit = fit_shift(traces, preset.params, progress=progress)
+    progress.done()
     params = fit.params
     lines = [
         f"Fitted by carfeel {__version__} to {', '.join(Path(p).name for p in paths)}, from "

@@ -242,7 +242,7 @@ def fit_steering(
         k_us = x[10] if fit_vehicle else k_us0
         return _steady_ay(speed, angle, ratio0, k_us, wheelbase)
 
-    unit_warnings = _check_units(logs, vehicle, speed, angle, rate, torque, ay_given)
+    unit_warnings = _check_units(logs, vehicle)
     start = _start(speed, rate, torque, lateral(np.array([0.0] * 10 + [k_us0])))
     lower = [*LOWER, -5.0]
     upper = [*UPPER, 5.0]
@@ -336,66 +336,66 @@ def _sigmas(jac: FloatArray, variance: float) -> FloatArray:
     return sigma
 
 
-def _check_units(
-    logs: Sequence[SteeringLog],
-    vehicle: VehicleParams,
-    speed: FloatArray,
-    angle: FloatArray,
-    rate: FloatArray,
-    torque: FloatArray,
-    ay_given: FloatArray | None,
-) -> list[str]:
+def _check_units(logs: Sequence[SteeringLog], vehicle: VehicleParams) -> list[str]:
     """Catch a log in the wrong units or sign, which would fit to a good r2 and a wrong preset;
-    return warnings for what only looks suspicious.
+    return warnings for what only looks suspicious. Each log is judged alone (one bad log among
+    good ones would otherwise pass) and named.
 
     On quasi-steady samples (V > 5 m/s, |rate| < 0.2 rad/s, 1 < |Ay| < 6 m/s^2): a measured Ay
     must agree with the base car's steady state within a factor of 4 (a car's SR and K_us do not
-    stray further; degrees make it 1/57), with a warning beyond a factor of 1.6; and torque must
-    rise with Ay (the aligning torque the driver holds, + with + Ay). km/h read as m/s cannot be
-    told from Ay at speed (understeer flattens Ay(V): at 100 km/h it makes 0.53x), so speeds
-    beyond 250 km/h get a warning too."""
-    names = ", ".join(log.name for log in logs)
+    stray further; degrees make it 1/57), with a warning beyond a factor of 1.6; and the torque
+    must mostly share Ay's sign (the aligning torque the driver holds, + with + Ay: a sign test,
+    which a log turning one way at constant Ay still passes). km/h read as m/s cannot be told
+    from Ay at speed (understeer flattens Ay(V): at 100 km/h it makes 0.53x), so speeds beyond
+    250 km/h get a warning too."""
     warnings = []
-    top = float(np.max(speed))
-    if top > 70.0:
-        warnings.append(
-            f"speed_m_s reaches {top:.0f} m/s ({top * 3.6:.0f} km/h): if it is in km/h, divide "
-            "it by 3.6 and fit again"
-        )
-    ay_model = _steady_ay(speed, angle, vehicle.steering_ratio,
-                          vehicle.understeer_gradient_rad_s2_m, vehicle.wheelbase_m)  # fmt: skip
-    ay = ay_given if ay_given is not None else ay_model
-    steady = (speed > 5.0) & (np.abs(rate) < 0.2) & (np.abs(ay) > 1.0) & (np.abs(ay) < 6.0)
-    if steady.sum() < 50:
-        return warnings
-    if ay_given is not None:
+    for log in logs:
+        name, speed, angle, torque = log.name, log.speed_m_s, log.angle_rad, log.torque_Nm
+        top = float(np.max(speed))
+        if top > 70.0:
+            warnings.append(
+                f"{name}: speed_m_s reaches {top:.0f} m/s ({top * 3.6:.0f} km/h): if it is in "
+                "km/h, divide it by 3.6 and fit again"
+            )
+        ay_model = _steady_ay(
+            speed, angle, vehicle.steering_ratio, vehicle.understeer_gradient_rad_s2_m,
+            vehicle.wheelbase_m,
+        )  # fmt: skip
+        measured = log.lateral_accel_m_s2
+        ay = measured if measured is not None else ay_model
+        steady = (speed > 5.0) & (np.abs(log.rate_rad_s) < 0.2) & (np.abs(ay) > 1.0)
+        steady &= np.abs(ay) < 6.0
+        if steady.sum() < 50:
+            continue
         usable = steady & (np.abs(ay_model) > 0.1)
-        if usable.sum() >= 50:
-            factor = float(np.median(ay_given[usable] / ay_model[usable]))
+        if measured is not None and usable.sum() >= 50:
+            factor = float(np.median(measured[usable] / ay_model[usable]))
             if not 0.25 < factor < 4.0:
                 hint = (
                     "steering_angle_rad looks like degrees (convert to radians)"
                     if 1 / 90 < factor < 1 / 35
                     else "check the units of steering_angle_rad (rad at the wheel), speed_m_s "
-                    "(m/s, not km/h) and lateral_accel_m_s2 (m/s^2, not g), and the sign of Ay"
+                    "(m/s, not km/h) and lateral_accel_m_s2 (m/s^2, not g), and the sign of Ay; "
+                    "for a car far from the base preset, give --base a preset with its "
+                    "steering ratio, wheelbase and understeer"
                 )
                 raise InputError(
-                    f"{names}: the measured lateral_accel_m_s2 is {factor:.3g} times the "
-                    f"base car's steady-state Ay from speed and angle (expected about 1): {hint}"
+                    f"{name}: the measured lateral_accel_m_s2 is {factor:.3g} times the base "
+                    f"car's steady-state Ay from speed and angle (expected about 1): {hint}"
                 )
             if not 1 / 1.6 < factor < 1.6:
                 warnings.append(
-                    f"the measured Ay is {factor:.3g} times the base car's steady state from "
-                    "speed and angle: check the units of speed_m_s and steering_angle_rad, or "
-                    "start from a base preset with this car's steering ratio and understeer"
+                    f"{name}: the measured Ay is {factor:.3g} times the base car's steady state "
+                    "from speed and angle: check the units of speed_m_s and steering_angle_rad, "
+                    "or start from a base preset with this car's steering ratio and understeer"
                 )
-    slope = float(np.polyfit(ay[steady], torque[steady], 1)[0])
-    if slope < 0.0:
-        raise InputError(
-            f"{names}: steering_torque_Nm falls as Ay rises ({slope:.3g} Nm per m/s^2); carfeel's "
-            "convention is + torque with + Ay (the driver holds the aligning torque): flip the "
-            "sign of steering_torque_Nm (or of the angle and Ay)"
-        )
+        agree = float(np.mean(np.sign(torque[steady]) == np.sign(ay[steady])))
+        if agree < 0.2:
+            raise InputError(
+                f"{name}: steering_torque_Nm has the opposite sign of Ay in {1 - agree:.0%} of the "
+                "steady cornering; carfeel's convention is + torque with + Ay (the driver holds "
+                "the aligning torque): flip the sign of steering_torque_Nm (or of the angle and Ay)"
+            )
     return warnings
 
 
