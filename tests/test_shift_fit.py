@@ -385,13 +385,15 @@ def test_the_plain_summary_and_strict_json(tmp_path, capsys):
     from carfeel.cli import main
 
     trace = tmp_path / "one.csv"
-    # One engagement, cut 50 ms after the stop: the stop fit has nothing to settle on.
+    # One engagement: the spread is kept from the base, with a warning, and the JSON must still
+    # be strict (a NaN figure would print as the token NaN, which JSON does not have).
     result = clean(SEEDS[0], duration_s=1.0, repeat=False)
     measured(result, SEEDS[0]).to_csv(trace)
     out = tmp_path / "one.toml"
     assert main(["fit", "shift", str(trace), "--out", str(out)]) == 0
     text = capsys.readouterr().out
     assert "fitted 1 engagement(s)" in text and f"wrote {out}" in text
+    assert "warning: one engagement: the spread of the tooth force is not identifiable" in text
     assert main(["fit", "shift", str(trace), "--out", str(out), "--json"]) == 0
     printed = capsys.readouterr().out
     # Strict JSON: no NaN or Infinity tokens, which json.loads would otherwise accept.

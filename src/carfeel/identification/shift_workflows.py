@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from carfeel import __version__
+from carfeel.identification import rms_r2
 from carfeel.identification.shift_fit import checked_columns, fit_shift, resimulate
 from carfeel.identification.workflows import Progress, write_checked_preset
 from carfeel.io import report
@@ -27,15 +27,6 @@ def read_traces(paths: Sequence[Path]) -> list[Result]:
     return traces
 
 
-def _figures(measured: np.ndarray, model: np.ndarray) -> dict[str, float]:
-    residual = model - measured
-    total = float(np.sum((measured - measured.mean()) ** 2)) or 1.0
-    return {
-        "rms_error_m": float(np.sqrt(np.mean(residual**2))),
-        "r2": 1.0 - float(np.sum(residual**2)) / total,
-    }
-
-
 def _sections(
     params: ShiftParams, traces: Sequence[Result], paths: Sequence[Path], folder: Path
 ) -> tuple[list[report.Section], dict[str, Any]]:
@@ -44,8 +35,8 @@ def _sections(
     sections, figures = [], {}
     for i, (trace, path) in enumerate(zip(traces, paths, strict=True)):
         run = resimulate(trace, params, str(path))
-        numbers = _figures(run.measured_m, run.model_m)
-        figures[str(path)] = numbers
+        rms, r2 = rms_r2(run.measured_m, run.model_m)
+        figures[str(path)] = {"rms_error_m": rms, "r2": r2}
         png = plot_shift_validation(
             run.time_s,
             run.force_N,
@@ -54,14 +45,14 @@ def _sections(
             folder / f"shift-{i + 1}.png",
             f"{Path(path).name}: measured vs the model driven by the measured force",
         )
-        rms_mm = numbers["rms_error_m"] * 1e3
         sections.append(
             report.Section(
                 f"Trace {i + 1}: {path}",
                 [
-                    f"{run.engagements} engagement(s); position rms error {rms_mm:.3g} mm, "
-                    f"r2 {numbers['r2']:.4f}. The model is driven by the recorded force and "
-                    "restarted at each arrival at the synchro ring.",
+                    f"{run.engagements} engagement(s); position rms error {rms * 1e3:.3g} mm, "
+                    f"r2 {r2:.4f}. The model is driven by the recorded force, "
+                    "restarted at each arrival at the synchro ring, the teeth resisting with the "
+                    "preset's mean (sliding friction + spread / 2).",
                 ],
                 figures=[png],
             )
@@ -104,7 +95,7 @@ def fit_shift_traces(
         "figures": {
             k: v for k, v in fit.figures.items() if not k.startswith(("gearbox.", "driver."))
         },
-        "engagements": [_fields(e) for e in fit.engagements],
+        "engagements": [dataclasses.asdict(e) for e in fit.engagements],
         "warnings": list(fit.warnings),
         "preset": str(out),
     }
@@ -116,12 +107,6 @@ def fit_shift_traces(
         sections, _ = _sections(params, traces, paths, folder)
         report.write(folder, f"Shift fit: {out.name}", [summary, *sections])
     return result
-
-
-def _fields(item: Any) -> dict[str, Any]:
-    import dataclasses
-
-    return {f.name: getattr(item, f.name) for f in dataclasses.fields(item)}
 
 
 def validate_traces(params: ShiftParams, paths: Sequence[Path], report_dir: Path) -> dict[str, Any]:

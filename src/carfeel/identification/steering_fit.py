@@ -39,6 +39,7 @@ import numpy as np
 import numpy.typing as npt
 
 from carfeel.errors import InputError
+from carfeel.identification import rms_r2
 from carfeel.models.steering.torque import SteeringTorqueParams, torque_terms
 from carfeel.models.vehicle.single_track import VehicleParams
 from carfeel.simulation.result import Result
@@ -191,9 +192,11 @@ def read_log(result: Result, name: str) -> SteeringLog:
     return SteeringLog(name, t, speed, angle, rate, torque, ay)
 
 
-def _steady_ay(
+def steady_ay(
     speed: FloatArray, angle: FloatArray, ratio: float, k_us: float, wheelbase: float
 ) -> FloatArray:
+    """Steady-state lateral acceleration (m/s^2) of a car at `speed` (m/s) with the steering
+    wheel at `angle` (rad, + left): V^2 * (angle / SR) / (L * (1 + K_us / L * V^2))."""
     v2 = speed * speed
     return np.asarray(v2 * (angle / ratio) / (wheelbase * (1.0 + k_us / wheelbase * v2)))
 
@@ -240,7 +243,7 @@ def fit_steering(
         if ay_given is not None:
             return ay_given
         k_us = x[10] if fit_vehicle else k_us0
-        return _steady_ay(speed, angle, ratio0, k_us, wheelbase)
+        return steady_ay(speed, angle, ratio0, k_us, wheelbase)
 
     unit_warnings = _check_units(logs, vehicle)
     start = _start(speed, rate, torque, lateral(np.array([0.0] * 10 + [k_us0])))
@@ -288,21 +291,20 @@ def fit_steering(
                 f"{e.name} stopped at its bound {lo if active < 0 else hi:g}: the data cannot "
                 "place it inside the physical range"
             )
-    ss_tot = float(np.sum((torque - torque.mean()) ** 2)) or math.nan
+    # r is model - measured with the offset: model + offset = measured + r.
     per_log: dict[str, dict[str, float]] = {}
     offset = 0
     for log in logs:
-        part = r[offset : offset + len(log.time_s)]
-        measured = torque[offset : offset + len(log.time_s)]
-        total = float(np.sum((measured - measured.mean()) ** 2)) or math.nan
+        part = slice(offset, offset + len(log.time_s))
+        log_rms, log_r2 = rms_r2(torque[part], torque[part] + r[part])
         per_log[log.name] = {
-            "rms_error_Nm": float(np.sqrt(np.mean(part**2))),
-            "r2": 1.0 - float(np.sum(part**2)) / total,
-            "mean_residual_Nm": float(np.mean(part)),
-            "samples": float(len(part)),
+            "rms_error_Nm": log_rms,
+            "r2": log_r2,
+            "mean_residual_Nm": float(np.mean(r[part])),
+            "samples": float(len(log.time_s)),
         }
         offset += len(log.time_s)
-    r2 = 1.0 - float(np.sum(r**2)) / ss_tot
+    rms, r2 = rms_r2(torque, torque + r)
     if not r2 > 0.5:
         warnings.append(
             f"r2 {r2:.3g}: the law explains little of the torque; check the logs' units, signs "
@@ -312,7 +314,7 @@ def fit_steering(
     if fit_vehicle:
         car = dataclasses.replace(car, vehicle=vehicle_with(vehicle, ratio0, float(x[10])))
     return SteeringFit(
-        car, estimates, float(x[9]), float(np.sqrt(np.mean(r**2))), r2, per_log,
+        car, estimates, float(x[9]), rms, r2, per_log,
         tuple(warnings), int(solution.nfev),
     )  # fmt: skip
 
@@ -357,7 +359,7 @@ def _check_units(logs: Sequence[SteeringLog], vehicle: VehicleParams) -> list[st
                 f"{name}: speed_m_s reaches {top:.0f} m/s ({top * 3.6:.0f} km/h): if it is in "
                 "km/h, divide it by 3.6 and fit again"
             )
-        ay_model = _steady_ay(
+        ay_model = steady_ay(
             speed, angle, vehicle.steering_ratio, vehicle.understeer_gradient_rad_s2_m,
             vehicle.wheelbase_m,
         )  # fmt: skip

@@ -12,13 +12,15 @@ from typing import Any
 import numpy as np
 
 from carfeel import __version__
-from carfeel.analysis.steering_feel import SteeringFeel, steering_feel
+from carfeel.analysis.steering_feel import steering_feel
 from carfeel.errors import InputError, PresetError
+from carfeel.identification import rms_r2
 from carfeel.identification.steering_fit import (
     SteeringFit,
     SteeringLog,
     fit_steering,
     read_log,
+    steady_ay,
 )
 from carfeel.io import report
 from carfeel.io.presets import load_steering, to_toml
@@ -76,59 +78,51 @@ def load_logs(paths: Sequence[Path]) -> list[SteeringLog]:
 
 def model_torque(car: SteeringCar, log: SteeringLog) -> tuple[np.ndarray, np.ndarray]:
     """(Ay, model torque) for a log: its measured Ay, else the car's steady state."""
-    if log.lateral_accel_m_s2 is not None:
-        ay = log.lateral_accel_m_s2
-    else:
-        v = car.vehicle
-        v2 = log.speed_m_s**2
-        ay = (
-            v2
-            * (log.angle_rad / v.steering_ratio)
-            / (v.wheelbase_m * (1.0 + v.understeer_gradient_rad_s2_m / v.wheelbase_m * v2))
-        )
+    v = car.vehicle
+    ay = (
+        log.lateral_accel_m_s2
+        if log.lateral_accel_m_s2 is not None
+        else steady_ay(log.speed_m_s, log.angle_rad, v.steering_ratio,
+                       v.understeer_gradient_rad_s2_m, v.wheelbase_m)
+    )  # fmt: skip
     torque = torque_terms(log.speed_m_s, log.rate_rad_s, ay, car.torque, atan=np.arctan)[0]
     return np.asarray(ay), np.asarray(torque)
 
 
-def feel_pair(car: SteeringCar, log: SteeringLog) -> tuple[SteeringFeel, SteeringFeel]:
-    ay, model = model_torque(car, log)
-    ratio, base = car.vehicle.steering_ratio, car.vehicle.wheelbase_m
-    measured = steering_feel(log.time_s, log.speed_m_s, log.angle_rad, ay, log.torque_Nm,
-                             steering_ratio=ratio, wheelbase_m=base)  # fmt: skip
-    simulated = steering_feel(log.time_s, log.speed_m_s, log.angle_rad, ay, model,
-                              steering_ratio=ratio, wheelbase_m=base)  # fmt: skip
-    return measured, simulated
-
-
 def steering_sections(
     car: SteeringCar, logs: Sequence[SteeringLog], folder: Path
-) -> list[report.Section]:
-    """Per log: overlays, residuals and the feel metrics measured vs model."""
+) -> tuple[list[report.Section], dict[str, dict[str, float]]]:
+    """Per log: overlays, residuals and the feel metrics measured vs model; and the figures
+    (rms_error_Nm, r2) by log name."""
     from carfeel.io.plots import plot_torque_validation
 
-    sections = []
+    sections, figures = [], {}
+    ratio, base = car.vehicle.steering_ratio, car.vehicle.wheelbase_m
     for i, log in enumerate(logs):
         ay, model = model_torque(car, log)
-        residual = model - log.torque_Nm
+        rms, r2 = rms_r2(log.torque_Nm, model)
+        figures[log.name] = {"rms_error_Nm": rms, "r2": r2}
         figure = plot_torque_validation(
             log.time_s, ay, log.torque_Nm, model, folder / f"steering-{i + 1}.png",
             f"{Path(log.name).name}: measured vs model",
         )  # fmt: skip
-        measured, simulated = feel_pair(car, log)
+        measured, simulated = (
+            steering_feel(log.time_s, log.speed_m_s, log.angle_rad, ay, torque,
+                          steering_ratio=ratio, wheelbase_m=base)
+            for torque in (log.torque_Nm, model)
+        )  # fmt: skip
         table = [["metric", "measured", "model"]] + [
             [key, report.number(getattr(measured, key)), report.number(getattr(simulated, key))]
             for key in FEEL_KEYS
         ]
-        ss = float(np.sum((log.torque_Nm - log.torque_Nm.mean()) ** 2)) or 1.0
         source = "measured" if log.lateral_accel_m_s2 is not None else "from the car model"
         sections.append(report.Section(
             f"Log {i + 1}: {log.name}",
-            [f"rms error {np.sqrt(np.mean(residual**2)):.4g} Nm, mean residual "
-             f"{np.mean(residual):.3g} Nm, r2 {1 - float(np.sum(residual**2)) / ss:.4f}, "
-             f"{len(log.time_s)} samples, Ay {source}"],
+            [f"rms error {rms:.4g} Nm, mean residual {np.mean(model - log.torque_Nm):.3g} Nm, "
+             f"r2 {r2:.4f}, {len(log.time_s)} samples, Ay {source}"],
             table, [figure],
         ))  # fmt: skip
-    return sections
+    return sections, figures
 
 
 def fit_steering_logs(
@@ -168,8 +162,8 @@ def fit_steering_logs(
              *(f"Warning: {w}" for w in fit.warnings)],
             table,
         )  # fmt: skip
-        report.write(folder, f"Steering fit: {out.name}",
-                     [summary, *steering_sections(car, logs, folder)])  # fmt: skip
+        sections, _ = steering_sections(car, logs, folder)
+        report.write(folder, f"Steering fit: {out.name}", [summary, *sections])
     return fit
 
 
@@ -181,14 +175,7 @@ def validate(preset: str, paths: Sequence[Path], report_dir: Path) -> dict[str, 
         return _validate_shift(preset, paths, report_dir, steering_error)
     logs = load_logs(paths)
     folder = report.prepare(report_dir)
-    sections = steering_sections(car, logs, folder)
-    figures: dict[str, Any] = {}
-    for log in logs:
-        _, model = model_torque(car, log)
-        residual = model - log.torque_Nm
-        ss = float(np.sum((log.torque_Nm - log.torque_Nm.mean()) ** 2)) or 1.0
-        figures[log.name] = {"rms_error_Nm": float(np.sqrt(np.mean(residual**2))),
-                             "r2": 1.0 - float(np.sum(residual**2)) / ss}  # fmt: skip
+    sections, figures = steering_sections(car, logs, folder)
     report.write(folder, f"Validation of {Path(preset).name}", sections)
     return figures
 
