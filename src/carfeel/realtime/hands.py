@@ -19,10 +19,13 @@ from carfeel.models.drivers.shift import ShiftDriverParams
 
 
 class _ScriptedHand:
-    """What the scripted hands share: a start delay and their own time step."""
+    """What the scripted hands share: the scales, a start delay and their own time step."""
 
-    start_s: float
-    _last: float
+    def __init__(self, force_scale: float, position_scale: float, start_s: float) -> None:
+        self.force_scale = force_scale
+        self.position_scale = position_scale
+        self.start_s = start_s
+        self._last = 0.0
 
     def _tick(self, time_s: float) -> float | None:
         """The time since the last call, or None while the hand waits to start."""
@@ -42,12 +45,9 @@ class ShiftHand(_ScriptedHand):
         position_scale: float,
         start_s: float = 0.0,
     ):
-        self.start_s = start_s
+        super().__init__(force_scale, position_scale, start_s)
         self.params = params
-        self.force_scale = force_scale
-        self.position_scale = position_scale
         self.state = shift_driver.initial_state()
-        self._last = 0.0
 
     def forces(
         self, time_s: float, positions: tuple[float, ...], velocities: tuple[float, ...]
@@ -68,12 +68,9 @@ class HPatternHand(_ScriptedHand):
     def __init__(
         self, script: Script, force_scale: float, position_scale: float, start_s: float = 0.0
     ):
-        self.start_s = start_s
+        super().__init__(force_scale, position_scale, start_s)
         self.script = script
-        self.force_scale = force_scale
-        self.position_scale = position_scale
         self.state = hpattern_driver.initial_state()
-        self._last = 0.0
         self.phase = "pull"
         self.clutch_pedal = script.clutch_pedal
 
