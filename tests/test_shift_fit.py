@@ -303,7 +303,7 @@ def _with(trace: Result, **signals: np.ndarray) -> Result:
         ),
         (
             lambda g: Result(g.time_s[:20], {k: v[:20] for k, v in g.signals.items()}),
-            r"trace 1: 20 samples; a fit needs at least 50",
+            r"trace 1: 20 samples; a fit or a validation needs at least 50",
         ),
     ],
     ids=["missing-column", "nan", "time-backwards", "no-engagement", "slow", "short"],

@@ -212,6 +212,13 @@ def test_malformed_logs_exit_2_from_the_command_line(tmp_path, capsys):
     assert main(["validate", "--preset", "b-segment", str(tmp_path / "none.csv"),
                  "--report", str(tmp_path / "r")]) == 2  # fmt: skip
     assert "no such file" in capsys.readouterr().err
+    broken = tmp_path / "broken.toml"
+    broken.write_text("not toml [")
+    assert (
+        main(["validate", "--preset", str(broken), str(bad), "--report", str(tmp_path / "r")]) == 2
+    )
+    err = capsys.readouterr().err
+    assert err.count("not valid TOML") == 1 and not (tmp_path / "r").exists()
     european = tmp_path / "semicolons.csv"
     european.write_text("time_s;speed_m_s;steering_angle_rad;steering_torque_Nm\n0;1,5;0;0\n")
     assert main(["fit", "steering", str(european), "--out", str(tmp_path / "p.toml")]) == 2

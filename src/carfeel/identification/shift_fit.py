@@ -328,7 +328,9 @@ def checked_columns(trace: Trace, label: str) -> tuple[FloatArray, FloatArray, F
 
 def _check(label: str, t: FloatArray, x: FloatArray, f: FloatArray) -> None:
     if len(t) < MIN_SAMPLES:
-        raise InputError(f"{label}: {len(t)} samples; a fit needs at least {MIN_SAMPLES}")
+        raise InputError(
+            f"{label}: {len(t)} samples; a fit or a validation needs at least {MIN_SAMPLES}"
+        )
     for column, values in zip(REQUIRED, (t, x, f), strict=True):
         bad = np.flatnonzero(~np.isfinite(values))
         if bad.size:

@@ -149,7 +149,7 @@ def read_log(result: Result, name: str) -> SteeringLog:
             raise InputError(f"{name}: column {column} must hold numbers")
     time = result.time_s
     if len(time) < 50:
-        raise InputError(f"{name}: {len(time)} samples; a fit needs a log of at least 50")
+        raise InputError(f"{name}: {len(time)} samples; a fit or a validation needs at least 50")
     if np.any(np.diff(time) <= 0):
         row = int(np.flatnonzero(np.diff(time) <= 0)[0]) + 3
         raise InputError(f"{name}, line {row}: time_s does not increase")
@@ -220,8 +220,10 @@ def fit_steering(
     vehicle = base.vehicle
     measured_ay = all(log.lateral_accel_m_s2 is not None for log in logs)
     if fit_vehicle and measured_ay:
-        raise InputError("--fit-vehicle fits SR and K_us from angle and torque: drop it when the "
-                         "logs measure lateral_accel_m_s2")  # fmt: skip
+        raise InputError(
+            "--fit-vehicle fits the understeer gradient from angle and torque: drop it when the "
+            "logs measure lateral_accel_m_s2"
+        )
     speed = np.concatenate([log.speed_m_s for log in logs])
     angle = np.concatenate([log.angle_rad for log in logs])
     rate = np.concatenate([log.rate_rad_s for log in logs])

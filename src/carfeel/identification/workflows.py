@@ -188,8 +188,9 @@ def _validate_shift(
     try:
         params = load_shift(preset).params
     except PresetError as shift_error:
+        reasons = dict.fromkeys((str(why), str(shift_error)))  # one line if both say the same
         raise InputError(
-            f"{preset} is neither a steering nor a shift preset:\n{why}\n{shift_error}"
+            f"{preset} is neither a steering nor a shift preset:\n" + "\n".join(reasons)
         ) from None
     from carfeel.identification import shift_workflows
 
