@@ -638,3 +638,53 @@ def test_listing_reports_a_device_that_fails_to_answer(monkeypatch, tmp_path):
     text = "\n".join(listing.list_devices(str(tmp_path)))
     assert "cannot open: [Errno 19] No such device" in text
     assert "no usable force-feedback device" in text
+
+
+# ---------------------------------------------------------------- the fakes are as strict as
+# the libraries: a backend that calls out of order fails here as it would on a real device.
+
+
+def test_the_evdev_fake_refuses_a_closed_device_and_drops_unknown_effects(evdev):
+    device = evdev.InputDevice(WHEEL)
+    device.write(E.EV_FF, 5, 1)  # effect 5 was never uploaded: the kernel drops the request
+    assert device.ignored == [(5, 1)] and device.played == []
+    device.close()
+    device.close()  # idempotent, as python-evdev's
+    for call in (lambda: device.write(E.EV_FF, 0, 1), lambda: device.absinfo(E.ABS_X),
+                 lambda: device.capabilities()):  # fmt: skip
+        with pytest.raises(OSError, match="Bad file descriptor"):
+            call()
+
+
+def test_the_sdl_fake_needs_sdl_init_and_open_handles():
+    fake = FakeSDL2([fs.sdl_wheel()])
+    assert fake.SDL_NumJoysticks() == -1
+    assert b"not initialized" in fake.SDL_GetError()
+    fake.SDL_Init(fs.SDL_INIT_JOYSTICK | fs.SDL_INIT_HAPTIC)
+    stick = fake.SDL_JoystickOpen(0)
+    haptic = fake.SDL_HapticOpenFromJoystick(stick)
+    assert fake.SDL_HapticRunEffect(haptic, 7, 1) == -1  # never created
+    fake.SDL_HapticClose(haptic)
+    assert fake.SDL_HapticStopAll(haptic) == -1
+    assert b"Invalid haptic device" in fake.SDL_GetError()
+
+
+def test_the_backends_play_only_what_they_uploaded_and_nothing_after_closing(evdev, sdl):
+    """A whole run's worth of commands through each backend: every play request names an
+    effect in the device's memory, and a command after the device is closed is an error
+    (DeviceLost), not a silent success."""
+    wheel = evdev_wheel()
+    with wheel:
+        handle = wheel._device  # the fake's InputDevice
+        for k in range(200):
+            wheel.command((2.0 * math.sin(k / 20.0),), ms(k))
+    assert handle.ignored == [] and handle.played and handle.closed
+    with pytest.raises(DeviceLost):
+        wheel.command((1.0,), ms(300))
+    stick = sdl_stick()
+    with stick:
+        for k in range(200):
+            stick.command((3.0 * math.sin(k / 20.0), -1.0), ms(k))
+    assert all(spec.running for spec in sdl.joysticks[1:2])
+    with pytest.raises(DeviceLost):
+        stick.command((1.0, 0.0), ms(300))

@@ -22,9 +22,10 @@ from carfeel.realtime.devices.virtual import virtual_joystick
 from carfeel.realtime.filters import butterworth, butterworth_sections
 from carfeel.realtime.hands import ShiftHand
 from carfeel.realtime.loop import LoopConfig, run_loop
-from carfeel.realtime.rendering import ShiftRenderer, default_scaling
+from carfeel.realtime.rendering import Gains, ShiftRenderer, default_scaling, velocity_sections
 from carfeel.realtime.safety import ForceLimiter, SafetyLimits
 from carfeel.realtime.session import RealtimeRun, run_realtime
+from carfeel.realtime.stability import size
 from carfeel.simulation.result import Result
 from tests.test_hpattern import drive, engaged
 
@@ -69,32 +70,75 @@ def test_the_limiter_never_exceeds_the_force_or_the_slew(commands, dt):
         last = out
 
 
+def stages_per_engagement(stages, events) -> list[list[str]]:
+    """The stages the lever went through on its way into each gear, in order, without repeats."""
+    out: list[list[str]] = []
+    path: list[str] = []
+    for stage, event in zip(stages, events, strict=True):
+        if not path or path[-1] != stage:
+            path.append(stage)
+        if str(event).startswith("engage"):
+            out.append([s for s in path if s != "neutral"][-5:])
+            path = []
+    return out
+
+
 @pytest.mark.parametrize("mode", ["admittance", "impedance"])
-def test_the_hpattern_on_the_virtual_device_matches_the_offline_run(mode):
-    """Same sequence, same gears, every engagement through its synchronization."""
+def test_the_hpattern_on_the_virtual_device_matches_the_offline_run(mode, tmp_path):
+    """Same sequence, same gears, and each engagement through the same stages in the same
+    order as offline (synchronization, the gate opening, the teeth, the stop), with the hand
+    holding the device through a 2 ms each-way delay."""
     sequence = ("N", "1", "2", "3", "2", "N")
     offline = drive(sequence, speed_kmh=30.0)
+    record = tmp_path / "online.csv"
     online = run_realtime(
-        RealtimeRun(model="hpattern", mode=mode, clock="simulated", sequence=sequence)
-    )
+        RealtimeRun(model="hpattern", mode=mode, clock="simulated", sequence=sequence,
+                    record=record)
+    )  # fmt: skip
     assert online.summary.gears == engaged(offline) == ["1", "2", "3", "2"]
     assert online.summary.faults == []
+    rec = Result.from_csv(record)
+    live = np.isfinite(np.asarray(rec["force_x_N"], dtype=float))
+    ours = stages_per_engagement(rec["stage"][live], rec["event"][live])
+    theirs = stages_per_engagement(offline["stage"], offline["event"])
+    assert ours == theirs
+    assert all("synchronization" in path for path in ours)
+
+
+@pytest.mark.parametrize("mode", ["admittance", "impedance"])
+def test_the_6r_lockout_the_physics_synchronizer_and_pulling_out_on_a_device(mode):
+    """The cases the defaults never reach: the six-speed layout with reverse behind its lockout,
+    the cone physics deciding when the gate opens, and the lever pulled out of each gear back
+    to neutral, on the virtual shifter at the default delay."""
+    sequence = ("N", "5", "6", "N", "R", "N")
+    offline = drive(sequence, layout="6r", physics=True, speed_kmh=0.0)
+    online = run_realtime(
+        RealtimeRun(model="hpattern", mode=mode, clock="simulated", sequence=sequence,
+                    preset="6r", synchronizer="physics", speed_kmh=0.0,
+                    device="virtual:shifter")
+    )  # fmt: skip
+    assert online.summary.faults == []
+    assert online.summary.gears == engaged(offline) == ["5", "6", "R"]
 
 
 def test_the_plateau_and_the_filtered_force_as_the_paper_measured(tmp_path):
-    """Admittance as the paper: the hand's force comes from the servo's effort; through the
-    20 Hz low-pass the synchronization plateau reads the driver's F_max (within 10 %: the
-    virtual potentiometer's noise and the servo's own dynamics)."""
-    record = tmp_path / "adm.csv"
-    run_realtime(RealtimeRun(model="shift", mode="admittance", clock="simulated", record=record))
-    result = Result.from_csv(record)
-    sync = result["stage"] == "synchronization"
-    assert sync.sum() > 250
-    plateau = np.median(result["force_filtered_N"][sync])
-    assert plateau == pytest.approx(load_shift().params.driver.push_force_N, rel=0.1)
-    # The filtered force is smoother than the raw estimate (the reason the paper filtered it):
-    # the potentiometer's noise through the servo's stiffness makes sample-to-sample jumps of
-    # about 1 N; the 20 Hz low-pass takes away more than half of them.
+    """Admittance as the paper: the hand's force comes from the servo's effort. The paper's DSP
+    rendered with no transport delay: on the joystick with none, the synchronization plateau
+    read through the 20 Hz low-pass settles on the driver's F_max (the last third of it within
+    5 %: the potentiometer's noise and the servo's own dynamics). With 2 ms each way the servo
+    must be softer (stability), the handle sinks further while the hand's push builds, and the
+    plateau reaches F_max only toward its end (within 10 %)."""
+    push = load_shift().params.driver.push_force_N
+    for delay_ms, tolerance in ((0.0, 0.05), (2.0, 0.10)):
+        record = tmp_path / f"adm{delay_ms:g}.csv"
+        run_realtime(RealtimeRun(model="shift", mode="admittance", clock="simulated",
+                                 record=record, device_delay_ms=delay_ms))  # fmt: skip
+        result = Result.from_csv(record)
+        sync = np.flatnonzero(result["stage"] == "synchronization")
+        assert len(sync) > 250
+        late = sync[2 * len(sync) // 3 :]
+        assert np.median(result["force_filtered_N"][late]) == pytest.approx(push, rel=tolerance)
+    # The filtered force is smoother than the raw estimate (the reason the paper filtered it).
     raw, smooth = result["force_N"][sync], result["force_filtered_N"][sync]
     assert np.std(np.diff(smooth)) < 0.5 * np.std(np.diff(raw))
 
@@ -119,10 +163,16 @@ def test_the_virtual_coupling_settles_in_gear_without_sustained_oscillation():
     assert energy[last].mean() <= 2.0 * energy[late & ~last].mean() + 1e-12
 
 
-def shift_loop(device, duration_s=1.0, clock=None):
+def sized_renderer(device, rate_hz=1000.0, cls=ShiftRenderer):
+    """The shift on a device, with the coupling sized for it as a session sizes it."""
     gear = load_shift().params
     scaling = default_scaling(100.0, 0.045, device.info)
-    renderer = ShiftRenderer(gear.gearbox, "impedance", scaling, 1000.0)
+    gains = Gains.sized(size(device.info, rate_hz, velocity_sections(rate_hz)), scaling)
+    return cls(gear.gearbox, "impedance", scaling, rate_hz, gains)
+
+
+def shift_loop(device, duration_s=1.0, clock=None):
+    renderer = sized_renderer(device)
     limits = SafetyLimits(max_force=10.0, max_slew_per_s=2000.0, fade_s=0.05)
     with device:
         summary = run_loop(
@@ -176,11 +226,12 @@ def test_a_lost_device_stops_the_run():
     assert summary.periods < 700
 
 
-def test_a_stop_request_zeroes_the_force_first():
+def test_a_stop_request_ramps_the_force_down_within_the_slew():
+    """Stopped while the hand pushes the lever against the ring (several N commanded): the
+    force comes down at the slew limit, tick by tick, before the loop returns; it does not
+    jump to zero (the final zero of the loop's `finally` would hide a jump)."""
     device = virtual_joystick(hand_for(virtual_joystick()))
-    gear = load_shift().params
-    scaling = default_scaling(100.0, 0.045, device.info)
-    renderer = ShiftRenderer(gear.gearbox, "impedance", scaling, 1000.0)
+    renderer = sized_renderer(device)
     ticks = [0]
 
     def stop() -> bool:
@@ -190,9 +241,14 @@ def test_a_stop_request_zeroes_the_force_first():
     with device:
         summary = run_loop(renderer, device, SimulatedClock(), LoopConfig(1000.0, 5.0, False),
                            LIMITS, should_stop=stop)  # fmt: skip
-        last_command = device._queue[-1][1]
     assert summary.stopped == "stopped"
-    assert last_command == (0.0, 0.0)
+    at_stop = device.sent[299][1][0]
+    assert abs(at_stop) > 2.0  # a real force to take away (2 N per tick at this slew)
+    ramp = [f[0] for _, f in device.sent[299:]]
+    step = LIMITS.max_slew_per_s * 1e-3
+    assert all(abs(b - a) <= step * (1 + 1e-9) for a, b in itertools.pairwise(ramp))
+    assert len([f for f in ramp if f != 0.0]) >= 2
+    assert ramp[-1] == 0.0
 
 
 def test_the_recording_is_readable_after_a_kill(tmp_path):
@@ -251,7 +307,10 @@ def test_a_recording_replays_through_the_loop(tmp_path):
     )  # fmt: skip
     assert replayed.summary.faults == []
     first, second = Result.from_csv(record), Result.from_csv(again)
+    # All of it: a replay that stops early is not a replay.
+    assert replayed.summary.periods == 1500
     n = min(len(first), len(second))
+    assert n >= 1500
     # The model sees the same readings at the same ticks: the same forces, to CSV rounding.
     assert np.allclose(first["command_0"][:n], second["command_0"][:n], atol=1e-6)
     assert list(first["stage"][:n]) == list(second["stage"][:n])
@@ -296,7 +355,14 @@ def test_devices_without_the_backend_libraries_says_how_to_get_them(capsys):
     ("args", "message"),
     [
         (["--model", "steering", "--mode", "admittance"], "use --mode impedance"),
-        (["--device", "joystick9"], "expected virtual, evdev:PATH"),
+        (["--device", "joystick9"], "expected virtual[:KIND], evdev:PATH"),
+        (["--device", "virtual:wheel"], "needs one of virtual:joystick, virtual:shifter"),
+        (["--model", "steering", "--device", "virtual:shifter"], "virtual:wheel, virtual:dd"),
+        (["--device", "sdl:0", "--hand", "none"], "needs a virtual device"),
+        (["--device-delay-ms", "100"], "allowed 0 <= value <= 50"),
+        (["--device-report-hz", "20"], "allowed 100 <= value <= 10000"),
+        (["--device-damping", "2"], "describe a real device"),
+        (["--release-angle-deg", "0"], "allowed 0 < value <= 180"),
         (["--device", "replay:/nonexistent.csv"], "no such recording"),
         (["--rate-hz", "50000"], "allowed 250 <= value <= 10000 Hz"),
         (["--rate-hz", "40"], "allowed 250 <= value <= 10000 Hz"),
@@ -312,13 +378,21 @@ def test_bad_run_requests_exit_2(capsys, args, message):
     assert message in capsys.readouterr().err
 
 
-def test_model_substeps_run_inside_each_tick():
-    """1 kHz loop, 10 kHz model: the same gears; and the 10 kHz ceiling is enforced."""
-    result = run_realtime(
-        RealtimeRun(model="hpattern", mode="impedance", clock="simulated", substeps=10,
-                    sequence=("N", "1", "2", "N"))
-    )  # fmt: skip
-    assert result.summary.gears == ["1", "2"]
+def test_model_substeps_run_inside_each_tick(tmp_path):
+    """1 kHz loop, 10 kHz model: the same gears, but not the same run (a renderer that ignored
+    its sub-steps would give the 1 kHz run bit for bit); and the 10 kHz ceiling is enforced."""
+    runs = []
+    for substeps in (1, 10):
+        record = tmp_path / f"sub{substeps}.csv"
+        result = run_realtime(
+            RealtimeRun(model="hpattern", mode="impedance", clock="simulated",
+                        substeps=substeps, sequence=("N", "1", "2", "N"), record=record)
+        )  # fmt: skip
+        assert result.summary.gears == ["1", "2"]
+        runs.append(Result.from_csv(record))
+    one, ten = runs
+    n = min(len(one), len(ten))
+    assert not np.array_equal(one["x_m"][:n], ten["x_m"][:n])
     assert main(["run", "--substeps", "20"]) == 2
 
 
@@ -345,9 +419,7 @@ class InvertedMotor:
 def test_calibration_finds_an_inverted_motor_and_the_run_works():
     device = virtual_joystick(hand_for(virtual_joystick()))
     wrong = InvertedMotor(device)
-    gear = load_shift().params
-    scaling = default_scaling(100.0, 0.045, device.info)
-    renderer = ShiftRenderer(gear.gearbox, "impedance", scaling, 1000.0)
+    renderer = sized_renderer(device)
     # The hand waits out the calibration and the ramp-in, as in a real session.
     device.hand.start_s = 1.3  # type: ignore[union-attr]
     with wrong:
@@ -360,9 +432,7 @@ def test_calibration_finds_an_inverted_motor_and_the_run_works():
 
 def test_calibration_pulses_respect_the_limiter():
     device = virtual_joystick()
-    gear = load_shift().params
-    renderer = ShiftRenderer(gear.gearbox, "impedance", default_scaling(100.0, 0.045,
-                             device.info), 10_000.0)  # fmt: skip
+    renderer = sized_renderer(device, 10_000.0)
     limits = SafetyLimits(max_force=10.0, max_slew_per_s=2000.0)
     with device:
         run_loop(renderer, device, SimulatedClock(), LoopConfig(10_000.0, 0.01, True), limits)
@@ -385,9 +455,7 @@ def test_a_nan_force_from_the_model_is_a_fault():
             return ((math.nan, commands[1]) if sample.time_s > 0.5 else commands), row
 
     device = virtual_joystick(hand_for(virtual_joystick()))
-    gear = load_shift().params
-    renderer = Broken(gear.gearbox, "impedance", default_scaling(100.0, 0.045, device.info),
-                      1000.0)  # fmt: skip
+    renderer = sized_renderer(device, cls=Broken)
     with device:
         summary = run_loop(renderer, device, SimulatedClock(), LoopConfig(1000.0, 2.0, False),
                            LIMITS)  # fmt: skip

@@ -1,4 +1,8 @@
-"""carfeel's command line: parse, call one function, print. Bad input exits with code 2."""
+"""carfeel's command line: parse, call one function, print.
+
+Exit codes: 0 done; 2 bad input (nothing run, nothing written over); 3 a real-time run stopped
+by a safety fault (the force was faded to zero; the summary says which).
+"""
 
 from __future__ import annotations
 
@@ -33,6 +37,10 @@ examples:
   carfeel metrics steering dlc.csv --json        steering feel figures of a run or a log
   carfeel presets                                list the shipped presets
 """
+
+
+EXIT_FAULT = 3
+"""A run stopped by a safety fault (stall, lost device, NaN, limit cycle)."""
 
 
 def _positive_float(text: str) -> float:
@@ -305,6 +313,30 @@ def build_parser() -> argparse.ArgumentParser:
                      help="a real device's force (N) or torque (Nm) limit")  # fmt: skip
     run.add_argument("--device-travel", type=_positive_float, default=None, metavar="X",
                      help="a real device's half travel, m or rad")  # fmt: skip
+    run.add_argument("--hand", choices=("script", "none", "release"), default="script",
+                     help="virtual devices: the simulated driver holds the device (script), "
+                     "nobody touches it (none), or the script runs, then lets go "
+                     "(release)")  # fmt: skip
+    run.add_argument("--release-angle-deg", type=float, default=30.0, metavar="DEG",
+                     help="--hand release, steering: rim angle held for 1 s before letting "
+                     "go")  # fmt: skip
+    run.add_argument("--device-delay-ms", type=float, default=None, metavar="MS",
+                     help="transport delay each way (commands and readings): sets a virtual "
+                     "device's (default 2), declares a real one's (default 2)")  # fmt: skip
+    run.add_argument("--device-report-hz", type=float, default=None, metavar="HZ",
+                     help="position reports per second: a virtual device's (default 1000), "
+                     "a real one's (default 500)")  # fmt: skip
+    run.add_argument("--device-damping", type=_positive_float, default=None, metavar="B",
+                     help="a real device's own damping, N*s/m (or Nm*s/rad): the rendering is "
+                     "sized on it")  # fmt: skip
+    run.add_argument("--device-mass", type=_positive_float, default=None, metavar="M",
+                     help="a real device's moving mass at the handle, kg (or kg m^2)")  # fmt: skip
+    run.add_argument("--aligning", choices=("front-axle", "steady-state"), default="front-axle",
+                     help="--model steering: the aligning torque from the front axle's force "
+                     "(default) or from the paper's steady-state Ay")  # fmt: skip
+    run.add_argument("--synchronizer", choices=("fixed", "physics"), default=None,
+                     help="--model hpattern: the paper's synchronization time, or cone torque "
+                     "against the speed difference (default: the preset's)")  # fmt: skip
     run.add_argument("--record", metavar="FILE.csv", help="record every sample (+ FILE.json)")
     run.add_argument("--plot", metavar="FILE.png", help="plot the recording (needs --record)")
     run.add_argument("--json", action="store_true", help="print the summary as one JSON object")
@@ -497,6 +529,14 @@ def _run(args: argparse.Namespace) -> int:
         calibrate=not args.no_calibration,
         device_max_force=args.device_max_force,
         device_travel=args.device_travel,
+        hand=args.hand,
+        release_angle_deg=args.release_angle_deg,
+        device_delay_ms=args.device_delay_ms,
+        device_report_hz=args.device_report_hz,
+        device_damping=args.device_damping,
+        device_mass=args.device_mass,
+        aligning=args.aligning,
+        synchronizer=args.synchronizer,
     )
     if not args.json:
         print(f"carfeel run: {args.model} on {args.device}, {args.mode}, {args.rate_hz:g} Hz "
@@ -509,7 +549,7 @@ def _run(args: argparse.Namespace) -> int:
         recording = Result.from_csv(record, drop_partial_last_line=True)
         plot_recording(recording, Path(args.plot), f"{args.model} on {result.device}, {args.mode}")
     print(_json(result.as_dict()) if args.json else result.text())
-    return 0
+    return EXIT_FAULT if result.summary.stopped == "fault" else 0
 
 
 def _finite(value: object) -> object:

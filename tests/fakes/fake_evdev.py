@@ -216,9 +216,15 @@ class FakeInputDevice:
         self.gain: int | None = None
         self.autocenter: int | None = None
         self.closed = False
+        self.ignored: list[tuple[int, int]] = []
+        """Play requests for effect ids not in the device's memory: the kernel's ff-core drops
+        them without an error (check_effect_access fails), so a backend never learns; the
+        tests check this stays empty."""
 
     def _call(self, name: str, *args: Any) -> None:
         self._module._record(name, args, can_fail=True)
+        if self.closed:  # python-evdev on a closed descriptor: the kernel answers EBADF
+            raise OSError(errno.EBADF, "Bad file descriptor")
 
     def capabilities(self, verbose: bool = False, absinfo: bool = True) -> dict[int, list[Any]]:
         self._call("capabilities", verbose, absinfo)
@@ -251,7 +257,10 @@ class FakeInputDevice:
         elif etype == E.EV_FF and code == E.FF_AUTOCENTER:
             self.autocenter = value
         elif etype == E.EV_FF:
-            self.played.append((code, value))
+            if code in self.effects:
+                self.played.append((code, value))
+            else:
+                self.ignored.append((code, value))
 
     def upload_effect(self, effect: Effect, writeback_id: bool = True) -> int:
         snapshot = Uploaded(
@@ -289,6 +298,10 @@ class FakeInputDevice:
 
     def close(self) -> None:
         self._module._record("close", (), can_fail=False)
+        # python-evdev's close is idempotent (it checks fd > -1); the effects the process
+        # uploaded are erased by the kernel when its descriptor closes.
+        if not self.closed:
+            self.effects.clear()
         self.closed = True
         self.fd = -1
 

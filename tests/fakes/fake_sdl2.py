@@ -159,6 +159,8 @@ class FakeSDL2(types.ModuleType):
         self.calls: list[tuple[str, tuple[Any, ...]]] = []
         self.initialised = 0
         """SDL_Init calls not yet matched by SDL_Quit."""
+        self.subsystems = 0
+        """The SDL_INIT_* flags initialised (SDL refuses joystick and haptic calls without)."""
         self.open_joysticks: set[int] = set()
         self.open_haptics: set[int] = set()
         self.error = b""
@@ -195,16 +197,34 @@ class FakeSDL2(types.ModuleType):
         self.error = message.encode()
         return -1
 
+    def _refused(self, subsystem: int, handle: Handle | None = None) -> bool:
+        """SDL's own checks: the subsystem initialised, the handle open (SDL's messages)."""
+        if not self.subsystems & subsystem:
+            name = "Joystick" if subsystem == SDL_INIT_JOYSTICK else "Haptic"
+            self._set_error(f"{name} subsystem not initialized")
+            return True
+        if handle is None:
+            return False
+        if handle.kind == "joystick" and handle.index not in self.open_joysticks:
+            self._set_error("Joystick hasn't been opened yet")
+            return True
+        if handle.kind == "haptic" and handle.index not in self.open_haptics:
+            self._set_error("Haptic: Invalid haptic device identifier")
+            return True
+        return False
+
     # SDL_Init / error
     def SDL_Init(self, flags: int) -> int:
         if self._failing("SDL_Init", (flags,)):
             return -1
         self.initialised += 1
+        self.subsystems |= flags
         return 0
 
     def SDL_Quit(self) -> None:
         self._void("SDL_Quit", ())
         self.initialised = 0
+        self.subsystems = 0
         self.open_joysticks.clear()
         self.open_haptics.clear()
 
@@ -216,10 +236,14 @@ class FakeSDL2(types.ModuleType):
     def SDL_NumJoysticks(self) -> int:
         if self._failing("SDL_NumJoysticks", ()):
             return -1
+        if self._refused(SDL_INIT_JOYSTICK, None):
+            return -1
         return len(self.joysticks)
 
     def SDL_JoystickNameForIndex(self, device_index: int) -> bytes | None:
         if self._failing("SDL_JoystickNameForIndex", (device_index,)):
+            return None
+        if self._refused(SDL_INIT_JOYSTICK, None):
             return None
         if not 0 <= device_index < len(self.joysticks):
             self._set_error(f"There are {len(self.joysticks)} joysticks available")
@@ -228,6 +252,8 @@ class FakeSDL2(types.ModuleType):
 
     def SDL_JoystickOpen(self, device_index: int) -> Handle:
         if self._failing("SDL_JoystickOpen", (device_index,)):
+            return NULL
+        if self._refused(SDL_INIT_JOYSTICK, None):
             return NULL
         if not 0 <= device_index < len(self.joysticks):
             self._set_error(f"There are {len(self.joysticks)} joysticks available")
@@ -242,6 +268,8 @@ class FakeSDL2(types.ModuleType):
     def SDL_JoystickNumAxes(self, joystick: Handle) -> int:
         if self._failing("SDL_JoystickNumAxes", (joystick,)):
             return -1
+        if self._refused(SDL_INIT_JOYSTICK, joystick):
+            return -1
         return len(self.joysticks[joystick.index].axes)
 
     def SDL_JoystickUpdate(self) -> None:
@@ -250,21 +278,29 @@ class FakeSDL2(types.ModuleType):
     def SDL_JoystickGetAttached(self, joystick: Handle) -> int:
         if self._failing("SDL_JoystickGetAttached", (joystick,)):
             return SDL_FALSE
+        if self._refused(SDL_INIT_JOYSTICK, joystick):
+            return SDL_FALSE
         return SDL_TRUE if self.joysticks[joystick.index].attached else SDL_FALSE
 
     def SDL_JoystickGetAxis(self, joystick: Handle, axis: int) -> int:
         if self._failing("SDL_JoystickGetAxis", (joystick, axis)):
+            return 0
+        if self._refused(SDL_INIT_JOYSTICK, joystick):
             return 0
         return self.joysticks[joystick.index].axes[axis]
 
     def SDL_JoystickIsHaptic(self, joystick: Handle) -> int:
         if self._failing("SDL_JoystickIsHaptic", (joystick,)):
             return -1
+        if self._refused(SDL_INIT_HAPTIC, joystick):
+            return -1
         return SDL_TRUE if self.joysticks[joystick.index].features else SDL_FALSE
 
     # Haptics
     def SDL_HapticOpenFromJoystick(self, joystick: Handle) -> Handle:
         if self._failing("SDL_HapticOpenFromJoystick", (joystick,)):
+            return NULL
+        if self._refused(SDL_INIT_HAPTIC, joystick):
             return NULL
         if not self.joysticks[joystick.index].features:
             self._set_error("Haptic: Joystick isn't a haptic device.")
@@ -279,15 +315,21 @@ class FakeSDL2(types.ModuleType):
     def SDL_HapticQuery(self, haptic: Handle) -> int:
         if self._failing("SDL_HapticQuery", (haptic,)):
             return 0
+        if self._refused(SDL_INIT_HAPTIC, haptic):
+            return 0
         return self.joysticks[haptic.index].features
 
     def SDL_HapticNumAxes(self, haptic: Handle) -> int:
         if self._failing("SDL_HapticNumAxes", (haptic,)):
             return -1
+        if self._refused(SDL_INIT_HAPTIC, haptic):
+            return -1
         return self.joysticks[haptic.index].haptic_axes
 
     def SDL_HapticSetGain(self, haptic: Handle, gain: int) -> int:
         if self._failing("SDL_HapticSetGain", (haptic, gain)):
+            return -1
+        if self._refused(SDL_INIT_HAPTIC, haptic):
             return -1
         spec = self.joysticks[haptic.index]
         if not spec.features & SDL_HAPTIC_GAIN:
@@ -298,6 +340,8 @@ class FakeSDL2(types.ModuleType):
     def SDL_HapticSetAutocenter(self, haptic: Handle, autocenter: int) -> int:
         if self._failing("SDL_HapticSetAutocenter", (haptic, autocenter)):
             return -1
+        if self._refused(SDL_INIT_HAPTIC, haptic):
+            return -1
         spec = self.joysticks[haptic.index]
         if not spec.features & SDL_HAPTIC_AUTOCENTER:
             return self._set_error("Haptic: Device does not support setting autocenter.")
@@ -307,6 +351,8 @@ class FakeSDL2(types.ModuleType):
     def SDL_HapticNewEffect(self, haptic: Handle, effect: Any) -> int:
         snapshot = _snapshot(effect)
         if self._failing("SDL_HapticNewEffect", (haptic, snapshot)):
+            return -1
+        if self._refused(SDL_INIT_HAPTIC, haptic):
             return -1
         spec = self.joysticks[haptic.index]
         if not spec.features & snapshot.type:
@@ -322,6 +368,8 @@ class FakeSDL2(types.ModuleType):
         snapshot = _snapshot(data)
         if self._failing("SDL_HapticUpdateEffect", (haptic, effect, snapshot)):
             return -1
+        if self._refused(SDL_INIT_HAPTIC, haptic):
+            return -1
         spec = self.joysticks[haptic.index]
         if effect not in spec.effects:
             return self._set_error("Haptic: Invalid effect identifier.")
@@ -333,6 +381,8 @@ class FakeSDL2(types.ModuleType):
     def SDL_HapticRunEffect(self, haptic: Handle, effect: int, iterations: int) -> int:
         if self._failing("SDL_HapticRunEffect", (haptic, effect, iterations)):
             return -1
+        if self._refused(SDL_INIT_HAPTIC, haptic):
+            return -1
         spec = self.joysticks[haptic.index]
         if effect not in spec.effects:
             return self._set_error("Haptic: Invalid effect identifier.")
@@ -341,6 +391,8 @@ class FakeSDL2(types.ModuleType):
 
     def SDL_HapticStopAll(self, haptic: Handle) -> int:
         if self._failing("SDL_HapticStopAll", (haptic,)):
+            return -1
+        if self._refused(SDL_INIT_HAPTIC, haptic):
             return -1
         return 0
 

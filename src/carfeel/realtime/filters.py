@@ -45,5 +45,17 @@ class SosFilter:
         return x
 
 
+def bandpass(low_hz: float, high_hz: float, rate_hz: float) -> SosFilter:
+    """A second-order Butterworth band-pass (two biquads) from low_hz to high_hz."""
+    from scipy.signal import butter
+
+    if not 0.0 < low_hz < high_hz < rate_hz / 2:
+        raise ValueError(f"band {low_hz}..{high_hz} Hz must lie between 0 and {rate_hz / 2} Hz")
+    sos = butter(2, [low_hz, high_hz], btype="bandpass", fs=rate_hz, output="sos")
+    return SosFilter(
+        tuple((float(s[0]), float(s[1]), float(s[2]), float(s[4]), float(s[5])) for s in sos)
+    )
+
+
 def butterworth(cutoff_hz: float, rate_hz: float, order: int = 2) -> SosFilter:
     return SosFilter(butterworth_sections(cutoff_hz, rate_hz, order))

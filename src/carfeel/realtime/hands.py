@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from typing import Any
 
 from carfeel.models.drivers import hpattern as hpattern_driver
 from carfeel.models.drivers import shift as shift_driver
@@ -95,7 +96,8 @@ class HPatternHand(_ScriptedHand):
 
 
 class WheelHand:
-    """Hands on the rim that steer a wheel angle against its torque: a stiff, damped grip."""
+    """Hands on the rim that steer a wheel angle against its torque: a stiff, damped grip.
+    Before `start_s` they wait off the rim (the loop calibrates the device)."""
 
     def __init__(
         self,
@@ -104,7 +106,9 @@ class WheelHand:
         damping_Nm_s_rad: float = 1.0,
         max_torque_Nm: float = 15.0,
         position_scale: float = 1.0,
+        start_s: float = 0.0,
     ):
+        self.start_s = start_s
         self.target = target
         self.stiffness = stiffness_Nm_rad
         self.damping = damping_Nm_s_rad
@@ -114,11 +118,56 @@ class WheelHand:
     def forces(
         self, time_s: float, positions: tuple[float, ...], velocities: tuple[float, ...]
     ) -> tuple[float, ...]:
+        if time_s < self.start_s:
+            return (0.0,)
         aim = self.target(time_s) * self.position_scale
         torque = self.stiffness * (aim - positions[0]) - self.damping * velocities[0]
         return (max(-self.max_torque, min(self.max_torque, torque)),)
 
 
-def weave_target(amplitude_rad: float, frequency_hz: float) -> Callable[[float], float]:
-    """A steering wheel angle sine, for the wheel hand."""
-    return lambda t: amplitude_rad * math.sin(2.0 * math.pi * frequency_hz * t)
+def weave_target(
+    amplitude_rad: float, frequency_hz: float, start_s: float = 0.0, cycles: float = math.inf
+) -> Callable[[float], float]:
+    """A steering wheel angle sine from `start_s` for `cycles` cycles, then centre, rad."""
+    end_s = start_s + cycles / frequency_hz
+
+    def target(t: float) -> float:
+        if t < start_s or t >= end_s:
+            return 0.0
+        return amplitude_rad * math.sin(2.0 * math.pi * frequency_hz * (t - start_s))
+
+    return target
+
+
+HANDS = ("script", "none", "release")
+"""--hand: the scripted driver holds the device throughout; nobody touches it; or the script
+runs, then the hand lets go."""
+
+
+class ReleasingHand:
+    """A hand that works until `let_go()` says so, then leaves the device for good (no force,
+    no contact): what a released device does is then the rendering's alone."""
+
+    def __init__(self, hand: Any, let_go: Callable[[float], bool]) -> None:
+        self.hand = hand
+        self.let_go = let_go
+        self.released_at_s: float | None = None
+
+    def __getattr__(self, name: str) -> Any:  # the clutch pedal and the like, from the hand
+        return getattr(self.hand, name)
+
+    def forces(
+        self, time_s: float, positions: tuple[float, ...], velocities: tuple[float, ...]
+    ) -> tuple[float, ...]:
+        if self.released_at_s is None and self.let_go(time_s):
+            self.released_at_s = time_s
+        if self.released_at_s is not None:
+            return (0.0,) * len(positions)
+        forces: tuple[float, ...] = self.hand.forces(time_s, positions, velocities)
+        return forces
+
+
+def holding_wheel(angle_rad: float, start_s: float, hold_s: float) -> ReleasingHand:
+    """Hands that take the rim to `angle_rad` from `start_s`, hold it for `hold_s`, then let go."""
+    hand = WheelHand(lambda t: angle_rad, 300.0, 5.0, 30.0, start_s=start_s)
+    return ReleasingHand(hand, lambda t: t >= start_s + hold_s)

@@ -19,12 +19,21 @@ from carfeel.realtime.clock import Clock
 from carfeel.realtime.devices.base import Device, DeviceLost
 from carfeel.realtime.recording import Recorder
 from carfeel.realtime.rendering import Renderer
-from carfeel.realtime.safety import ForceLimiter, SafetyLimits, Watchdog
+from carfeel.realtime.safety import (
+    ForceLimiter,
+    OscillationGuard,
+    PassivityController,
+    SafetyLimits,
+    Watchdog,
+)
 
 OVERRUN_FACTOR = 1.5
 CALIBRATION_PULSE_S = 0.01
 CALIBRATION_SETTLE_S = 0.1
 CALIBRATION_FRACTION = 0.2
+DAMPING_CREDIT = 0.5
+"""The share of the device's declared damping the passivity observer credits: half, so that a
+declared value twice too large still leaves the controller working."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -32,6 +41,10 @@ class LoopConfig:
     rate_hz: float = 1000.0
     duration_s: float = 10.0
     calibrate: bool = True
+    passivity: bool = True
+    """The passivity controller (off only to show, in tests, what it does)."""
+    guard: bool = True
+    """The oscillation guard (off only to show, in tests, what it prevents)."""
 
 
 @dataclass
@@ -46,6 +59,12 @@ class LoopSummary:
     gears: list[str]
     notes: list[str] = field(default_factory=list)
     stopped: str = "duration"
+    time_at_limit_s: float = 0.0
+    """Time any axis was commanded at its force limit."""
+    oscillation_rms: float = 0.0
+    """Largest 10-100 Hz rms of the command the oscillation guard saw (device units)."""
+    passivity_acted_s: float = 0.0
+    """Time the passivity controller added damping."""
 
     def as_dict(self) -> dict[str, object]:
         return asdict(self)
@@ -122,6 +141,27 @@ def run_loop(
     axes = device.info.axes
     limiter = ForceLimiter(limits, axes)
     watchdog = Watchdog(limits, device.info.travel)
+    info = device.info
+    guard = (
+        OscillationGuard(axes, limits.max_force, info.travel, config.rate_hz)
+        if config.guard
+        else None
+    )
+    passivity = (
+        PassivityController(
+            axes,
+            DAMPING_CREDIT * info.damping,
+            deadband=1e-3 * limits.max_force * info.travel,
+            ceiling=0.05 * limits.max_force * info.travel,
+            round_trip_ticks=math.ceil(
+                (info.command_delay_s + info.reading_delay_s) * config.rate_hz - 1e-6
+            ),
+        )
+        if config.passivity
+        else None
+    )
+    at_limit = 0
+    top = 0.999 * limits.max_force
     notes: list[str] = []
     errors: list[float] = []
     overruns = 0
@@ -175,6 +215,8 @@ def run_loop(
                 envelope = 1.0
                 if not all(math.isfinite(c) for c in commands):
                     watchdog.fault(f"the model gave a non-finite force at t = {t:.3f} s")
+                elif passivity is not None:
+                    commands = passivity.apply(commands, positions, dt)
             ramp = limits.start_fraction + (1.0 - limits.start_fraction) * min(
                 1.0, (now - start) / 1e9 / limits.ramp_s
             )
@@ -188,6 +230,15 @@ def run_loop(
                 stopped = "fault"
                 break
             max_force = max(max_force, *(abs(f) for f in safe))
+            at_limit += any(abs(f) >= top for f in safe)
+            if passivity is not None:
+                passivity.applied(safe)
+            if guard is not None and not watchdog.faulted:
+                effect = renderer.effect
+                heard = (safe[0] - effect, *safe[1:]) if effect else safe
+                trouble = guard.check(heard, positions, dt)
+                if trouble is not None:
+                    watchdog.fault(f"{trouble} at t = {t:.3f} s")
             if recorder is not None:
                 recorder.append((t, int(overrun), *safe, int(watchdog.faulted), *row))
             if watchdog.finished:
@@ -198,19 +249,27 @@ def run_loop(
                 break
         if stopped != "fault":
             # A normal end, or a stop request: take the force away within the slew limit.
+            # The ramp is recorded, so the fade can be checked from the file.
             deadline = clock.now_ns()
+            blank = (math.nan,) * len(renderer.columns)
             while any(f != 0.0 for f in limiter.last):
                 deadline += period_ns
                 clock.sleep_until(deadline)
                 t = (clock.now_ns() - origin) / 1e9
                 safe = limiter.limit((0.0,) * axes, dt)
                 device.command(tuple(f * s for f, s in zip(safe, polarity, strict=True)), t)
+                if recorder is not None:
+                    recorder.append((t, 0, *safe, int(watchdog.faulted), *blank))
     finally:
         if frozen:
             gc.unfreeze()
         with contextlib.suppress(DeviceLost):  # a lost device renders nothing anyway
             device.command((0.0,) * axes, (clock.now_ns() - origin) / 1e9)
-    return _summary(errors, overruns, max_force, watchdog, renderer, notes, stopped)
+    summary = _summary(errors, overruns, max_force, watchdog, renderer, notes, stopped)
+    summary.time_at_limit_s = at_limit * dt
+    summary.oscillation_rms = guard.worst_rms if guard is not None else math.nan
+    summary.passivity_acted_s = passivity.acted_s if passivity is not None else 0.0
+    return summary
 
 
 def _summary(

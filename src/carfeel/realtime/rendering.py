@@ -11,14 +11,10 @@ and damper join the handle to the model's lever; the model feels the coupling fo
 driver's, the device renders its reaction:
     F_c = K_c * (x_device / ps - x_model) + B_c * (v_device / ps - v_model)   (model units)
     command = -F_c * fs
-Passivity (Colgate & Schenkel, sampled at T): the coupling, seen at the handle, is a spring
-K_c * fs / ps with damping B_c * fs / ps; K*T/2 + B must stay below the damping that dissipates
-(the device's own and the lever's). With the virtual joystick's 3 N*s/m and the defaults
-(K_c = 30 kN/m, B_c = 5 N*s/m on the lever, fs = 0.09, ps = 0.89) the handle sees K*T/2 + B =
-2.0 N*s/m; `coupling_bound` computes it. The admittance servo (1 kN/m, 1.5 N*s/m at the handle:
-K*T/2 + B = 2.0 N*s/m) is soft on purpose: a stiffer servo lets a handle nobody holds ring (an
-admittance display is unstable against a free handle), and its effort is the force estimate,
-so its stiffness only sets how far the handle lags the lever under force (7 mm at 7 N).
+Sizing: the coupling, the servo and the hold of an unused axis are sized from the device (its
+rate, delays both ways, report rate, mass, damping and noise: `stability.size`), never fixed:
+a coupling that is stiff enough on one device limit-cycles on another with a few ms of USB
+delay. At the handle the coupling is K_c * fs / ps, and that is what the sizing bounds.
 Scaling: fs (device force per model force) and ps (device travel per model travel) default to
 the largest that fit the device: the paper's joystick gave about 10 N against a 100 N lever,
 fs = 0.1.
@@ -26,18 +22,19 @@ fs = 0.1.
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 from carfeel.models.gearshift import engagement, hpattern
 from carfeel.models.gearshift.engagement import EngagementParams
 from carfeel.models.gearshift.hpattern import HPatternInputs, HPatternParams
-from carfeel.models.steering.torque import torque_terms
 from carfeel.models.vehicle import single_track
 from carfeel.models.vehicle.single_track import VehicleInputs
 from carfeel.realtime.devices.base import DeviceInfo, DeviceSample
-from carfeel.realtime.filters import SosFilter, butterworth
+from carfeel.realtime.filters import SosFilter, butterworth, butterworth_sections
+from carfeel.realtime.stability import Sizing
 from carfeel.simulation.steering import SteeringCar
 
 MODES = ("admittance", "impedance")
@@ -57,13 +54,21 @@ class Scaling:
 class Gains:
     """Servo (admittance, device units) and coupling (impedance, model units) gains."""
 
-    servo_stiffness: float = 1000.0
-    servo_damping: float = 1.5
-    coupling_stiffness: float = 30000.0
-    coupling_damping: float = 5.0
-    hold_stiffness: float = 1000.0
+    servo_stiffness: float
+    servo_damping: float
+    coupling_stiffness: float
+    coupling_damping: float
+    hold_stiffness: float
     """Device units: holds an axis the model does not use (the paper held y at zero)."""
-    hold_damping: float = 0.5
+    hold_damping: float
+
+    @classmethod
+    def sized(cls, sizing: Sizing, scaling: Scaling) -> Gains:
+        """The stiffest coupling, servo and hold the device renders hands-off (at the handle,
+        device units: K and B of `sizing`; the coupling in model units through the scales)."""
+        to_model = scaling.position_scale / scaling.force_scale
+        k, b = sizing.stiffness, sizing.damping
+        return cls(k, b, k * to_model, b * to_model, k, b)
 
 
 def default_scaling(model_force: float, model_travel: float, info: DeviceInfo) -> Scaling:
@@ -71,10 +76,9 @@ def default_scaling(model_force: float, model_travel: float, info: DeviceInfo) -
     return Scaling(0.9 * info.max_force / model_force, info.travel / model_travel)
 
 
-def coupling_bound(gains: Gains, scaling: Scaling, rate_hz: float) -> float:
-    """K*T/2 + B of the coupling seen at the handle, device units (compare to its damping)."""
-    ratio = scaling.force_scale / scaling.position_scale
-    return gains.coupling_stiffness * ratio / (2.0 * rate_hz) + gains.coupling_damping * ratio
+def velocity_sections(rate_hz: float) -> tuple[tuple[float, float, float, float, float], ...]:
+    """The velocity filter every renderer uses (for the sizing, which must see its lag)."""
+    return butterworth_sections(min(VELOCITY_CUTOFF_HZ, 0.4 * rate_hz), rate_hz)
 
 
 class Reading:
@@ -85,7 +89,7 @@ class Reading:
     __slots__ = ("_last", "_velocity")
 
     def __init__(self, rate_hz: float) -> None:
-        self._velocity: SosFilter = butterworth(min(VELOCITY_CUTOFF_HZ, 0.4 * rate_hz), rate_hz)
+        self._velocity: SosFilter = SosFilter(velocity_sections(rate_hz))
         self._last: float | None = None
 
     def step(self, raw: float, dt: float) -> tuple[float, float]:
@@ -99,6 +103,8 @@ class Renderer(Protocol):
     columns: tuple[str, ...]
     gears: list[str]
     substeps: int
+    effect: float
+    """A vibration the model adds on purpose (device units, first axis) to this tick's command."""
 
     def tick(
         self, sample: DeviceSample, dt_s: float
@@ -122,11 +128,12 @@ class ShiftRenderer:
         mode: str,
         scaling: Scaling,
         rate_hz: float,
-        gains: Gains | None = None,
+        gains: Gains,
         seed: int = 0,
     ) -> None:
         self.gearbox, self.mode, self.scaling = gearbox, mode, scaling
-        self.g = gains or Gains()
+        self.g = gains
+        self.effect = 0.0
         self.state = engagement.initial_state(seed)
         self.display = butterworth(DISPLAY_CUTOFF_HZ, rate_hz)
         self.rx, self.ry = Reading(rate_hz), Reading(rate_hz)
@@ -194,14 +201,17 @@ class HPatternRenderer:
         mode: str,
         scaling: Scaling,
         rate_hz: float,
-        gains: Gains | None = None,
+        gains: Gains,
         seed: int = 0,
         vehicle_speed_m_s: float = 0.0,
         engine_speed_rad_s: float = 0.0,
         clutch: object = None,
     ) -> None:
         self.pattern, self.mode, self.scaling = pattern, mode, scaling
-        self.g = gains or Gains()
+        self.g = gains
+        self.effect = 0.0
+        """The vibrations (click, grinding) added to this tick's command on the first axis:
+        the oscillation guard looks past them."""
         self.state = hpattern.initial_state(pattern, seed, engine_speed_rad_s)
         self.display = butterworth(DISPLAY_CUTOFF_HZ, rate_hz)
         self.rx, self.ry = Reading(rate_hz), Reading(rate_hz)
@@ -272,7 +282,8 @@ class HPatternRenderer:
                 )
                 commands.append(-coupling * fs)
         # The click and the grinding are rendered on top, as the gearbox's vibrations.
-        commands[0] += (out.click_N + out.grind_N) * math.copysign(1.0, out.x_m or 1.0) * fs
+        self.effect = (out.click_N + out.grind_N) * math.copysign(1.0, out.x_m or 1.0) * fs
+        commands[0] += self.effect
         row = (
             devices[0], devices[1], out.x_m, out.y_m, hands[0], hands[1],
             self.display.step(hands[0]), out.region, out.gear, event, out.stage,
@@ -280,44 +291,245 @@ class HPatternRenderer:
         return (commands[0], commands[1]), row
 
 
+ALIGNING = ("front-axle", "steady-state")
+"""Where the aligning torque's Ay comes from: the front axle's force (default), or the paper's
+steady-state Ay of the wheel angle."""
+
+
+@dataclass(frozen=True, slots=True)
+class SteeringRendering:
+    """How the steering law is put on a wheel (choices of rendering, not of the car)."""
+
+    aligning: str = "front-axle"
+    """"front-axle": tau0 from F_f * L / (m * b), which leads Ay as the tyres' moment does;
+    "steady-state": the paper's Ay (a pure spring in the wheel angle). The transient Ay of the
+    car lags the angle and turns tau0 into negative damping: it is not offered."""
+    stick_angle_rad: float = 0.01
+    """Rim angle over which the friction builds up to its level (the Dahl element's spring)."""
+    zeta_released: float = 0.3
+    """Damping ratio the speed-scheduled damping gives the released wheel, delay included."""
+    friction_share: float = 0.3
+    """Share of the device's stiffness budget the friction's stick spring may take."""
+    tire_spin_share: float = 0.3
+    """Share of the device's velocity-gain cap the tire-spin term's slope may take."""
+
+
 class SteeringRenderer:
-    """The steering wheel torque on a force-feedback wheel (direct torque, impedance)."""
+    """The steering wheel torque on a force-feedback wheel (direct torque, impedance).
+
+    The paper's terms, made renderable on a device with delay (device units unless said):
+      tau0  K1*Ay'/(1 + K2|Ay'|^K3), Ay' the front axle's (or the paper's steady-state) Ay;
+      tau1  the tire-spin term with its slope at zero rate capped (a share of the velocity cap);
+      tau2  friction of level K7*pi/2 as a position-based stick element (elasto-plastic, after
+            Dahl and Hayward & Armstrong 2000): a spring of bounded stiffness to an anchor that
+            slides once the spring holds the friction level. No velocity in it, so it neither
+            buzzes on a noisy, delayed velocity nor gains energy (each slip dissipates);
+      tau3  K9*rate, plus speed-scheduled damping (as EPS damping is) sized so the released
+            wheel on this device, with its delays, keeps zeta_released;
+      stop  a passive wall at the car's lock (inside the device's own travel).
+    Every velocity gain stays under the device's cap and every spring within its budget
+    (`stability.size`).
+    """
 
     axes: int = 1
     columns: tuple[str, ...] = (
         "angle_device_rad", "steering_angle_rad", "steering_rate_rad_s", "lateral_accel_m_s2",
-        "torque_Nm", "torque_filtered_Nm",
+        "torque_Nm", "torque_filtered_Nm", "torque_aligning_Nm", "torque_tire_spin_Nm",
+        "torque_friction_Nm", "torque_damping_Nm", "torque_stop_Nm",
     )  # fmt: skip
 
     def __init__(
-        self, car: SteeringCar, speed_m_s: float, scaling: Scaling, rate_hz: float
+        self,
+        car: SteeringCar,
+        speed_m_s: float,
+        scaling: Scaling,
+        rate_hz: float,
+        sizing: Sizing,
+        info: DeviceInfo,
+        rendering: SteeringRendering | None = None,
     ) -> None:
         self.car, self.speed, self.scaling = car, speed_m_s, scaling
+        self.rendering = r = rendering or SteeringRendering()
+        if r.aligning not in ALIGNING:
+            raise ValueError(f"aligning {r.aligning!r}: choose one of {', '.join(ALIGNING)}")
+        self.sizing = sizing
         self.vehicle = single_track.initial_state()
         self.reading = Reading(rate_hz)
         self.display = butterworth(DISPLAY_CUTOFF_HZ, rate_hz)
         self.gears: list[str] = []
         self.substeps = 1
         """Model steps per tick (the loop at 1 kHz, the model up to 10 kHz)."""
+        self.effect = 0.0
+        fs, ps = scaling.force_scale, scaling.position_scale
+        k = car.torque
+        friction_level = fs * k.k7_Nm * math.pi / 2.0
+        self.friction_stiffness = min(
+            friction_level / (r.stick_angle_rad * ps), r.friction_share * sizing.stiffness
+        )
+        """Device units (Nm/rad): the stick element's spring."""
+        self.friction_slip = friction_level / self.friction_stiffness if friction_level else 0.0
+        self._anchor: float | None = None
+        self.stop_angle = min(car.vehicle.steering_lock_rad * ps, 0.95 * info.travel)
+        """Device rad: where the rendered lock starts."""
+        self.stop_stiffness = sizing.stiffness
+        self.stop_damping = sizing.damping
+        self.schedule = damping_schedule(
+            car, scaling, rate_hz, sizing, info, r, self.tire_spin_rate, self.friction_stiffness
+        )
+        """(speed m/s, added damping at the device Nm*s/rad), rising speeds."""
+
+    def tire_spin_rate(self, speed_m_s: float) -> float:
+        """K6, raised where needed so the tire spin's slope at zero rate fits its cap, rad/s."""
+        k = self.car.torque
+        amplitude = self.scaling.force_scale / (k.k4_1_Nm + k.k5_s_m_Nm * abs(speed_m_s))
+        cap = self.rendering.tire_spin_share * self.sizing.damping_cap
+        return max(k.k6_rad_s, amplitude / cap / self.scaling.position_scale)
+
+    def added_damping(self, speed_m_s: float) -> float:
+        """The speed-scheduled damping at the device, Nm*s/rad (linear between the table's)."""
+        table = self.schedule
+        if speed_m_s <= table[0][0]:
+            return table[0][1]
+        for (v0, b0), (v1, b1) in itertools.pairwise(table):
+            if speed_m_s <= v1:
+                return b0 + (b1 - b0) * (speed_m_s - v0) / (v1 - v0)
+        return table[-1][1]
 
     def tick(
         self, sample: DeviceSample, dt_s: float
     ) -> tuple[tuple[float, ...], tuple[object, ...]]:
         ps, fs = self.scaling.position_scale, self.scaling.force_scale
+        k = self.car.torque
+        vehicle = self.car.vehicle
+        speed = self.speed
         position, velocity = self.reading.step(sample.positions[0], dt_s)
         angle, rate = position / ps, velocity / ps
         for _ in range(self.substeps):
             self.vehicle, out = single_track.step(
-                self.vehicle, VehicleInputs(self.speed, angle), self.car.vehicle,
-                dt_s / self.substeps,
-            )  # fmt: skip
-        torque = torque_terms(self.speed, rate, out.lateral_accel_m_s2, self.car.torque)[0]
-        row = (
-            sample.positions[0],
-            angle,
-            rate,
-            out.lateral_accel_m_s2,
-            torque,
-            self.display.step(torque),
+                self.vehicle, VehicleInputs(speed, angle), vehicle, dt_s / self.substeps
+            )
+        if self.rendering.aligning == "front-axle":
+            ay = single_track.aligning_lateral_accel(self.vehicle, speed, vehicle)
+        else:
+            ay = single_track.steady_state_lateral_accel(speed, angle, vehicle)
+        aligning = k.k1_Nm_s2_m * ay / (1.0 + k.k2 * abs(ay) ** k.k3)
+        tire_spin = math.atan(rate / self.tire_spin_rate(speed)) / (
+            k.k4_1_Nm + k.k5_s_m_Nm * abs(speed)
         )
+        # Friction: the anchor slides when the stick spring holds the friction level.
+        anchor = position if self._anchor is None else self._anchor
+        if position - anchor > self.friction_slip:
+            anchor = position - self.friction_slip
+        elif anchor - position > self.friction_slip:
+            anchor = position + self.friction_slip
+        self._anchor = anchor
+        friction = self.friction_stiffness * (position - anchor) / fs
+        damping = k.k9_Nm_s_rad * rate + self.added_damping(speed) * velocity / fs
+        over = abs(position) - self.stop_angle
+        stop = 0.0
+        if over > 0.0:
+            outward = max(0.0, math.copysign(1.0, position) * velocity)
+            stop = (
+                math.copysign(self.stop_stiffness * over + self.stop_damping * outward, position)
+                / fs
+            )
+        torque = aligning + tire_spin + friction + damping + stop
+        row = (
+            sample.positions[0], angle, rate, out.lateral_accel_m_s2, torque,
+            self.display.step(torque), aligning, tire_spin, friction, damping, stop,
+        )  # fmt: skip
         return (-torque * fs,), row
+
+
+SCHEDULE_SPEEDS_M_S = tuple(5.0 * i for i in range(15))
+"""0 .. 70 m/s (252 km/h): where the steering's added damping is sized."""
+
+
+def damping_schedule(
+    car: SteeringCar,
+    scaling: Scaling,
+    rate_hz: float,
+    sizing: Sizing,
+    info: DeviceInfo,
+    rendering: SteeringRendering,
+    tire_spin_rate: Any,
+    friction_stiffness: float,
+) -> tuple[tuple[float, float], ...]:
+    """Per speed, the least added damping (device units, within the velocity cap less what the
+    law's own terms take) that gives the released wheel zeta_released, or the cap. Small
+    swings stay inside the friction's stick spring, so it counts as a spring here."""
+    from carfeel.realtime import stability
+
+    axis = stability.AxisLoop.of(info, rate_hz, velocity_sections(rate_hz))
+    table = []
+    for speed in SCHEDULE_SPEEDS_M_S:
+        law = steering_environment(
+            car, scaling, speed, rendering, 1.0 / rate_hz, tire_spin_rate(speed)
+        )
+        size = 3 if law.stateful else 0
+        own = law(None, 0.0, 1.0)[1]  # the law's own velocity gain, device units (negative)
+        room = max(0.0, sizing.damping_cap + own)
+
+        def ok(b: float, law: SteeringEnvironment = law, size: int = size) -> bool:
+            def environment(state: object, y: float, v: float) -> tuple[object, float]:
+                state, u = law(state, y, v)
+                return state, u - b * v - friction_stiffness * y
+
+            matrix = stability.closed_loop(axis, environment, size)
+            return stability.least_damping_ratio(matrix, rate_hz) >= rendering.zeta_released
+
+        if ok(0.0):
+            added = 0.0
+        elif not ok(room):
+            added = room
+        else:
+            low, high = 0.0, room
+            for _ in range(30):
+                middle = 0.5 * (low + high)
+                low, high = (low, middle) if ok(middle) else (middle, high)
+            added = high
+        table.append((speed, added))
+    return tuple(table)
+
+
+class SteeringEnvironment:
+    """A linear environment (see `steering_environment`) and whether it has the car's state."""
+
+    def __init__(self, function: Any, stateful: bool) -> None:
+        self.function, self.stateful = function, stateful
+
+    def __call__(self, state: Any, y: float, v: float) -> tuple[Any, float]:
+        result: tuple[Any, float] = self.function(state, y, v)
+        return result
+
+
+def steering_environment(
+    car: SteeringCar,
+    scaling: Scaling,
+    speed_m_s: float,
+    rendering: SteeringRendering,
+    period_s: float,
+    tire_spin_rate_rad_s: float,
+) -> SteeringEnvironment:
+    """The steering law linearized on centre, as the sizing's environment: (state, y, v) ->
+    (state, command), device units; the car's (sideslip, yaw rate, last wheel angle) its state.
+    The friction element is left out (it only dissipates once it slips)."""
+    fs, ps = scaling.force_scale, scaling.position_scale
+    k, vehicle = car.torque, car.vehicle
+    spin = (1.0 / (k.k4_1_Nm + k.k5_s_m_Nm * speed_m_s)) / tire_spin_rate_rad_s
+    gain = k.k9_Nm_s_rad + spin
+    transient = speed_m_s >= vehicle.kinematic_speed_m_s and rendering.aligning == "front-axle"
+
+    def environment(state: Any, y: float, v: float) -> tuple[Any, float]:
+        angle, rate = y / ps, v / ps
+        if transient:
+            beta, r, last = (0.0, 0.0, 0.0) if state is None else state
+            now = single_track.VehicleState(beta, r, 0.0, 0.0, 0.0, 0.0, last)
+            after, _ = single_track.step(now, VehicleInputs(speed_m_s, angle), vehicle, period_s)
+            ay = single_track.aligning_lateral_accel(after, speed_m_s, vehicle)
+            state = (after.sideslip_rad, after.yaw_rate_rad_s, after.front_wheel_angle_rad)
+        else:
+            ay = single_track.steady_state_lateral_accel(speed_m_s, angle, vehicle)
+        return state, -fs * (k.k1_Nm_s2_m * ay + gain * rate)
+
+    return SteeringEnvironment(environment, transient)

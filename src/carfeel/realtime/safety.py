@@ -9,12 +9,22 @@
   covers it, and on the next tick the watchdog fades from there.
 - Ramp-in: after the start-up calibration the largest force rises from `start_fraction` of the
   limit to all of it over `ramp_s`.
+- `PassivityController` (after Hannaford & Ryu 2002), per axis, the second line of defence
+  behind the sizing (`stability.py`): it counts the work the device's force does on the handle;
+  when the rendering has put out more energy than it took in (and the device burnt), it lowers
+  the force until the books balance again.
+- `OscillationGuard`: a sustained limit cycle (the command's energy in the 10-100 Hz band, where
+  no hand moves on purpose, above a fraction of the force limit while the handle barely moves)
+  is a fault like any other: the force fades to zero and the run reports it.
 """
 
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
+
+from carfeel.realtime.filters import SosFilter, bandpass
 
 
 @dataclass(frozen=True, slots=True)
@@ -111,3 +121,140 @@ class Watchdog:
     def finished(self) -> bool:
         """The fade is over: the force is zero and the run should stop."""
         return self._fade_left is not None and self._fade_left <= 0.0
+
+
+class PassivityController:
+    """Passivity observer and controller per axis (after Hannaford & Ryu, IEEE T-RO 2002).
+
+    Observer: the energy the rendering has taken from the handle, device units (J):
+        E += -u_{k-1-n} * (x_k - x_{k-1}) + b * (x_k - x_{k-1})^2 / T
+    the work the handle did on the rendering over the tick the reading describes (a reading is
+    the handle as it was n ticks of round trip ago, and the force acting on it then is the one
+    commanded n ticks before this one: the delayed form of Ryu, Artigas & Preusche 2010), plus
+    what the device's own damping b dissipated (the plant is passive; the rendering may spend
+    what it burns). A rendering that is passive with the device keeps E >= 0.
+    Controller: with a few ms of round trip a damper comes too late to dissipate at a limit
+    cycle's frequency (its phase turns it into a spring or worse), so the controller scales the
+    force down instead, from 1 at E = -deadband to 0 at E = -(deadband + band): the energy a
+    rendering can put out is bounded. E is capped above at `ceiling` so that energy stored long
+    ago cannot hide new generation.
+    """
+
+    __slots__ = ("_commands", "_energy", "_last_position", "acted_s", "band", "ceiling",
+                 "damping", "deadband", "least_scale")  # fmt: skip
+
+    def __init__(
+        self,
+        axes: int,
+        damping: float,
+        deadband: float,
+        ceiling: float,
+        round_trip_ticks: int = 0,
+    ) -> None:
+        self.damping = damping
+        self.deadband = deadband
+        self.band = 4.0 * deadband
+        self.ceiling = ceiling
+        self._energy = [0.0] * axes
+        self._commands = [deque([0.0] * (round_trip_ticks + 1)) for _ in range(axes)]
+        """Per axis, the commands of the last round trip, oldest first."""
+        self._last_position: list[float | None] = [None] * axes
+        self.acted_s = 0.0
+        """Time during which the controller lowered the force, s."""
+        self.least_scale = 1.0
+
+    @property
+    def energy(self) -> tuple[float, ...]:
+        return tuple(self._energy)
+
+    def apply(
+        self, commands: tuple[float, ...], positions: tuple[float, ...], dt_s: float
+    ) -> tuple[float, ...]:
+        out = []
+        acted = False
+        for i, (u, x) in enumerate(zip(commands, positions, strict=True)):
+            last = self._last_position[i]
+            moved = 0.0 if last is None or not math.isfinite(x) else x - last
+            self._last_position[i] = x if math.isfinite(x) else last
+            gained = -self._commands[i][0] * moved + self.damping * moved * moved / dt_s
+            energy = min(self.ceiling, self._energy[i] + gained)
+            self._energy[i] = energy
+            if energy < -self.deadband:
+                scale = max(0.0, 1.0 - (-energy - self.deadband) / self.band)
+                self.least_scale = min(self.least_scale, scale)
+                u *= scale
+                acted = True
+            out.append(u)
+        if acted:
+            self.acted_s += dt_s
+        return tuple(out)
+
+    def applied(self, commands: tuple[float, ...]) -> None:
+        """What the device was really commanded this tick (after the limiter): the observer's
+        u. Call once per tick, after `apply`."""
+        for i, u in enumerate(commands):
+            past = self._commands[i]
+            past.popleft()
+            past.append(u)
+
+
+class OscillationGuard:
+    """A fault for a sustained limit cycle on any axis.
+
+    Per axis, the command (less the vibrations the model renders on purpose) and the reading
+    go through a 10-100 Hz band-pass; their mean squares are smoothed over `window_s`. When the
+    command's band rms exceeds `force_fraction` of the force limit while the reading's band rms
+    stays below `motion_fraction` of the travel, for longer than `hold_s`, it is a limit cycle.
+    """
+
+    BAND_HZ = (10.0, 100.0)
+
+    def __init__(
+        self,
+        axes: int,
+        max_force: float,
+        travel: float,
+        rate_hz: float,
+        force_fraction: float = 0.1,
+        motion_fraction: float = 0.1,
+        hold_s: float = 0.5,
+        window_s: float = 0.1,
+    ) -> None:
+        low, high = self.BAND_HZ
+        high = min(high, 0.45 * rate_hz)
+        self._force: list[SosFilter] = [bandpass(low, high, rate_hz) for _ in range(axes)]
+        self._motion: list[SosFilter] = [bandpass(low, high, rate_hz) for _ in range(axes)]
+        self._force_ms = [0.0] * axes
+        self._motion_ms = [0.0] * axes
+        self._alpha = min(1.0, 1.0 / (window_s * rate_hz))
+        self.force_limit = (force_fraction * max_force) ** 2
+        self.motion_limit = (motion_fraction * travel) ** 2
+        self.hold_s = hold_s
+        self.force_fraction = force_fraction
+        self._for = 0.0
+        self.worst_rms = 0.0
+        """Largest smoothed band rms of the command seen, device units (for the summary)."""
+
+    def check(
+        self, commands: tuple[float, ...], positions: tuple[float, ...], dt_s: float
+    ) -> str | None:
+        """A fault message once a limit cycle has lasted hold_s, else None."""
+        a = self._alpha
+        cycling = False
+        for i, (u, x) in enumerate(zip(commands, positions, strict=True)):
+            f = self._force[i].step(u if math.isfinite(u) else 0.0)
+            m = self._motion[i].step(x if math.isfinite(x) else 0.0)
+            self._force_ms[i] += a * (f * f - self._force_ms[i])
+            self._motion_ms[i] += a * (m * m - self._motion_ms[i])
+            self.worst_rms = max(self.worst_rms, math.sqrt(self._force_ms[i]))
+            if self._force_ms[i] > self.force_limit and self._motion_ms[i] < self.motion_limit:
+                cycling = True
+        self._for = self._for + dt_s if cycling else 0.0
+        if self._for > self.hold_s:
+            rms = max(math.sqrt(v) for v in self._force_ms)
+            return (
+                f"oscillation: the command's 10-100 Hz content held {rms:.3g} rms (over "
+                f"{self.force_fraction:.0%} of the force limit) for {self._for:.2f} s while the "
+                "handle barely moved: a limit cycle"
+            )
+        return None

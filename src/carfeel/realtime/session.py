@@ -9,14 +9,15 @@ import math
 import signal
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 from carfeel import __version__
 from carfeel.errors import InputError
 from carfeel.realtime.clock import Clock, SimulatedClock, WallClock
-from carfeel.realtime.devices.base import Device, DeviceError
+from carfeel.realtime.devices.base import Device, DeviceError, DeviceInfo
+from carfeel.realtime.hands import HANDS
 from carfeel.realtime.loop import (
     CALIBRATION_PULSE_S,
     CALIBRATION_SETTLE_S,
@@ -26,6 +27,7 @@ from carfeel.realtime.loop import (
 )
 from carfeel.realtime.recording import Recorder
 from carfeel.realtime.rendering import (
+    ALIGNING,
     MODES,
     Gains,
     HPatternRenderer,
@@ -33,16 +35,20 @@ from carfeel.realtime.rendering import (
     Scaling,
     ShiftRenderer,
     SteeringRenderer,
-    coupling_bound,
+    SteeringRendering,
     default_scaling,
+    velocity_sections,
 )
 from carfeel.realtime.safety import SafetyLimits
+from carfeel.realtime.stability import Sizing
 
 MODELS = ("shift", "hpattern", "steering")
 MODEL_FORCE_N = 100.0
 """The lever forces the shift models reach (the paper's 8-10 kgf), scaled onto the device."""
 MODEL_TORQUE_NM = 10.0
 MAX_RATE_HZ = 10_000.0
+WEAVE_CYCLES = 2
+"""The virtual hands' weave on a wheel (0.2 Hz, 15 deg), then they hold it at centre."""
 MIN_RATE_HZ = 250.0
 
 
@@ -67,6 +73,23 @@ class RealtimeRun:
     device_travel: float | None = None
     substeps: int = 1
     """Model steps per loop tick (rate_hz * substeps at most 10 kHz)."""
+    hand: str = "script"
+    """script (the simulated driver holds the device), none, or release (script, then let go);
+    virtual devices only."""
+    release_angle_deg: float = 30.0
+    """--hand release with --model steering: the rim angle held for 1 s before letting go."""
+    device_delay_ms: float | None = None
+    """Transport delay each way, ms: sets a virtual device's, declares a real one's."""
+    device_report_hz: float | None = None
+    device_damping: float | None = None
+    """A real device's own damping, N*s/m or Nm*s/rad (declared; the sizing rests on it)."""
+    device_mass: float | None = None
+    """A real device's moving mass at the handle, kg (or its inertia, kg m^2)."""
+    aligning: str = "front-axle"
+    """--model steering: where tau0's Ay comes from (front-axle, or the paper's steady-state)."""
+    passivity_controller: bool = True
+    synchronizer: str | None = None
+    """--model hpattern: fixed (the paper's timer) or physics; None: the preset's."""
 
 
 @dataclass
@@ -75,6 +98,7 @@ class RealtimeResult:
     scaling: Scaling
     device: str
     record: Path | None
+    stability: dict[str, float] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
         s = self.summary
@@ -93,6 +117,10 @@ class RealtimeResult:
             "force_scale": self.scaling.force_scale,
             "position_scale": self.scaling.position_scale,
             "record": str(self.record) if self.record else None,
+            "time_at_limit_s": s.time_at_limit_s,
+            "oscillation_rms": _json_float(s.oscillation_rms),
+            "passivity_acted_s": s.passivity_acted_s,
+            "stability": self.stability,
         }
 
     def text(self) -> str:
@@ -104,7 +132,17 @@ class RealtimeResult:
             f"peak commanded force {s.max_force_N:.2f} (device units); scales: force "
             f"{self.scaling.force_scale:.3g}, position {self.scaling.position_scale:.3g}",
             f"gears engaged: {' '.join(s.gears) or 'none'}; stopped by {s.stopped}",
+            f"time at the force limit {s.time_at_limit_s:.3f} s; largest 10-100 Hz command "
+            f"{s.oscillation_rms:.3g} rms; passivity controller active {s.passivity_acted_s:.3f} s",
         ]
+        if self.stability:
+            st = self.stability
+            lines.append(
+                f"sized for this device: stiffness {st['stiffness']:.4g}, damping "
+                f"{st['damping']:.3g} (cap {st['damping_cap']:.3g}), hands-off damping ratio "
+                f"{st['zeta_hands_off']:.2f}, round-trip delay {st['latency_s'] * 1e3:.3g} ms, "
+                f"passivity index {st['passivity_index']:.2g} (below 1: passive for any hand)"
+            )
         lines += [f"fault: {f}" for f in s.faults]
         lines += [f"note: {n}" for n in s.notes]
         if self.record:
@@ -133,11 +171,35 @@ def _check(run: RealtimeRun) -> None:
         )
     if not (math.isfinite(run.speed_kmh) and 0.0 <= run.speed_kmh <= 250.0):
         raise InputError(f"--speed-kmh {run.speed_kmh:g}: allowed 0 <= value <= 250 km/h")
-    if run.device == "virtual" and (run.device_max_force or run.device_travel):
+    virtual = run.device.startswith("virtual")
+    declared = (run.device_max_force, run.device_travel, run.device_damping, run.device_mass)
+    if virtual and any(v is not None for v in declared):
         raise InputError(
-            "--device-max-force and --device-travel describe a real device; the virtual ones "
-            "have their own limits (a 10 N joystick, a 4 Nm wheel)"
+            "--device-max-force, --device-travel, --device-damping and --device-mass describe a "
+            "real device; the virtual ones have their own (see --device virtual:KIND)"
         )
+    if run.synchronizer not in (None, "fixed", "physics"):
+        raise InputError(f"--synchronizer {run.synchronizer!r}: choose fixed or physics")
+    if run.hand not in HANDS:
+        raise InputError(f"--hand {run.hand!r}: choose one of {', '.join(HANDS)}")
+    if run.hand != "script" and not virtual:
+        raise InputError("--hand none|release needs a virtual device (a real one has your hand)")
+    if run.aligning not in ALIGNING:
+        raise InputError(f"--aligning {run.aligning!r}: choose one of {', '.join(ALIGNING)}")
+    if run.device_delay_ms is not None and not 0.0 <= run.device_delay_ms <= 50.0:
+        raise InputError(f"--device-delay-ms {run.device_delay_ms:g}: allowed 0 <= value <= 50")
+    if run.device_report_hz is not None and not 100.0 <= run.device_report_hz <= 10_000.0:
+        raise InputError(
+            f"--device-report-hz {run.device_report_hz:g}: allowed 100 <= value <= 10000"
+        )
+    if not (math.isfinite(run.release_angle_deg) and 0.0 < run.release_angle_deg <= 180.0):
+        raise InputError(f"--release-angle-deg {run.release_angle_deg:g}: allowed 0 < value <= 180")
+    for flag, value in (
+        ("--device-damping", run.device_damping),
+        ("--device-mass", run.device_mass),
+    ):
+        if value is not None and not (math.isfinite(value) and value > 0.0):
+            raise InputError(f"{flag} {value:g}: must be a positive number")
     if run.substeps < 1 or run.rate_hz * run.substeps > MAX_RATE_HZ:
         raise InputError(
             f"--substeps {run.substeps}: the model may step at most {MAX_RATE_HZ:g} times a "
@@ -157,6 +219,13 @@ def _check(run: RealtimeRun) -> None:
 DEVICE_DEFAULTS = {"joystick": (10.0, 0.04), "wheel": (2.5, math.radians(450.0))}
 """A real device's force (N or Nm) and travel (m or rad) unless given: a 10 N joystick, a
 2.5 Nm wheel of 900 degrees (a gear-driven wheel of the Logitech kind)."""
+REAL_DYNAMICS = {"joystick": (0.1, 2.0), "wheel": (0.04, 0.03)}
+"""A real device's mass (kg, kg m^2) and damping (N*s/m, Nm*s/rad) unless declared: on the low
+side of consumer devices, so the sizing errs toward soft and stable."""
+REAL_DELAY_S = 0.002
+REAL_REPORT_HZ = 500.0
+"""Unless declared: 2 ms each way, 500 reports a second (what USB force-feedback devices of the
+Logitech kind manage)."""
 
 
 def open_device(
@@ -166,17 +235,24 @@ def open_device(
     kind: str = "joystick",
     max_force: float | None = None,
     travel: float | None = None,
+    delay_s: float | None = None,
+    report_hz: float | None = None,
 ) -> Device:
-    """A device from its command-line name: virtual, evdev:PATH, sdl:INDEX, replay:FILE."""
+    """A device from its command-line name: virtual[:KIND], evdev:PATH, sdl:INDEX, replay:FILE."""
     force_default, travel_default = DEVICE_DEFAULTS[kind]
     force = max_force or force_default
     reach = travel or travel_default
-    if spec == "virtual":
-        from carfeel.realtime.devices.virtual import virtual_joystick, virtual_wheel
-
-        make = virtual_wheel if kind == "wheel" else virtual_joystick
-        return make(hand, seed=seed)
     name, _, argument = spec.partition(":")
+    if name == "virtual":
+        from carfeel.realtime.devices.virtual import PLANTS, virtual_device
+
+        plant = argument or ("wheel" if kind == "wheel" else "joystick")
+        if plant not in PLANTS or PLANTS[plant][2] != kind:
+            fitting = [k for k, (_, _, c) in PLANTS.items() if c == kind]
+            raise InputError(
+                f"--device {spec}: this model needs one of virtual:{', virtual:'.join(fitting)}"
+            )
+        return virtual_device(plant, hand, delay_s, report_hz, seed=seed)
     if name == "replay" and argument:
         from carfeel.realtime.devices.replay import ReplayDevice
 
@@ -195,7 +271,7 @@ def open_device(
             raise InputError(f"--device sdl:{argument}: expected a joystick index, e.g. sdl:0")
         return SDL2Device(int(argument), kind=kind, max_force=force, travel=reach)
     raise InputError(
-        f"--device {spec!r}: expected virtual, evdev:PATH (e.g. evdev:/dev/input/event5), "
+        f"--device {spec!r}: expected virtual[:KIND], evdev:PATH (e.g. evdev:/dev/input/event5), "
         "sdl:INDEX or replay:FILE.csv; `carfeel devices` lists what is attached"
     )
 
@@ -216,40 +292,87 @@ def _stop_on_signals() -> Iterator[list[bool]]:
             signal.signal(s, h)
 
 
+def _declared_info(device: Device, run: RealtimeRun, kind: str) -> DeviceInfo:
+    """A real device's dynamics as declared on the command line, or the defaults; a virtual or
+    replayed device knows its own (a delay or report rate given for it is already in)."""
+    info = device.info
+    if run.device.startswith(("virtual", "replay")):
+        return info
+    mass, damping = REAL_DYNAMICS[kind]
+    delay = REAL_DELAY_S if run.device_delay_ms is None else run.device_delay_ms / 1e3
+    return replace(
+        info,
+        mass=run.device_mass or mass,
+        damping=run.device_damping or damping,
+        command_delay_s=delay,
+        reading_delay_s=delay,
+        report_hz=run.device_report_hz or min(REAL_REPORT_HZ, info.update_hz),
+    )
+
+
+def _refuse_soft(info: DeviceInfo, sizing: Sizing, run: RealtimeRun) -> None:
+    """A coupling softer than the force limit over the whole travel cannot render a gearbox."""
+    need = info.max_force / info.travel
+    if sizing.stiffness < need:
+        raise InputError(
+            f"{info.name} cannot render --model {run.model} stably at {run.rate_hz:g} Hz with "
+            f"{info.command_delay_s * 1e3:g} + {info.reading_delay_s * 1e3:g} ms of delay and "
+            f"{info.report_hz:g} reports a second: hands off, it stays stable only up to "
+            f"{sizing.stiffness:.3g} (device units per m) of coupling, and a gearbox needs at "
+            f"least {need:.3g} (its force limit over its travel). Lower the delay, raise the rate "
+            "or use a device with more damping"
+        )
+
+
 def run_realtime(run: RealtimeRun) -> RealtimeResult:
     """Render a model on a device at a fixed rate; record and summarize."""
     _check(run)
     from carfeel.io.presets import load_hpattern, load_shift, load_steering
     from carfeel.models.drivers.hpattern import Script
-    from carfeel.realtime import hands
+    from carfeel.realtime import hands, stability
 
     wheel = run.model == "steering"
     # The virtual hand waits for the calibration pulses and the ramp-in.
-    ready_s = (
-        2 * (CALIBRATION_PULSE_S + CALIBRATION_SETTLE_S) + SafetyLimits(1.0, 1.0).ramp_s
-        if run.calibrate
-        else 0.0
-    )
+    calibration_s = 2 * (CALIBRATION_PULSE_S + CALIBRATION_SETTLE_S) if run.calibrate else 0.0
+    ready_s = calibration_s + SafetyLimits(1.0, 1.0).ramp_s if run.calibrate else 0.0
     kind = "wheel" if wheel else "joystick"
+    delay = None if run.device_delay_ms is None else run.device_delay_ms / 1e3
     # The device first: the scales come from its limits (its hand, if virtual, comes after).
-    device = open_device(run.device, None, run.seed, kind, run.device_max_force, run.device_travel)
+    device = open_device(
+        run.device, None, run.seed, kind, run.device_max_force, run.device_travel, delay,
+        run.device_report_hz,
+    )  # fmt: skip
     if device.info.kind != kind or device.info.axes < (1 if wheel else 2):
         raise InputError(
             f"--model {run.model} needs a {kind} with {1 if wheel else 2} axes; "
             f"{device.info.name} is a {device.info.kind} with {device.info.axes}"
         )
-    info = device.info
+    info = device.info = _declared_info(device, run, kind)
+    sizing = stability.size(info, run.rate_hz, velocity_sections(run.rate_hz))
     renderer: Renderer
     hand: Any = None
     duration = run.duration_s
-    virtual = run.device == "virtual"
+    virtual = run.device.startswith("virtual")
+    notes: list[str] = []
     if run.model == "shift":
+        _refuse_soft(info, sizing, run)
         shift = load_shift(run.preset or "paper-first-gear").params
         scaling = default_scaling(MODEL_FORCE_N, shift.gearbox.in_gear_position_m + 0.005, info)
         hand = hands.ShiftHand(shift.driver, scaling.force_scale, scaling.position_scale, ready_s)
-        renderer = ShiftRenderer(shift.gearbox, run.mode, scaling, run.rate_hz, seed=run.seed)
+        if run.hand == "release":
+            pushing = hand
+            # Lets go once the driver has pushed the lever home and relaxed its push.
+            hand = hands.ReleasingHand(
+                pushing,
+                lambda t: (
+                    pushing.state.phase.value == "release" and pushing.state.activation < 0.05
+                ),
+            )
+        renderer = ShiftRenderer(shift.gearbox, run.mode, scaling, run.rate_hz,
+                                 Gains.sized(sizing, scaling), seed=run.seed)  # fmt: skip
         duration = duration or 2.0 + ready_s
     elif run.model == "hpattern":
+        _refuse_soft(info, sizing, run)
         preset = load_hpattern(run.preset or "5r")
         layout = preset.setup.layout
         names = {g.name for g in layout.gears} | {"N"}
@@ -262,78 +385,141 @@ def run_realtime(run: RealtimeRun) -> RealtimeResult:
         travel = max(preset.shift.gearbox.in_gear_position_m + 0.005,
                      max(abs(y) for y in layout.planes_y_m) + layout.slot_width_m)  # fmt: skip
         scaling = default_scaling(MODEL_FORCE_N, travel, info)
-        script = Script(run.sequence, layout, preset.shift.driver, preset.setup.driver)
+        gains = Gains.sized(sizing, scaling)
+        # The hand presses the knob against the gate's end for the outer planes, as far as the
+        # coupling's stretch at its full select force (the model's knob lags the handle).
+        reach = layout.slot_width_m + preset.setup.driver.select_force_N / gains.coupling_stiffness
+        script = Script(run.sequence, layout, preset.shift.driver, preset.setup.driver,
+                        outer_push_m=reach)  # fmt: skip
         hand = hands.HPatternHand(script, scaling.force_scale, scaling.position_scale, ready_s)
+        if run.hand == "release":
+            scripted = hand
+            hand = hands.ReleasingHand(scripted, lambda t: scripted.done)
         renderer = HPatternRenderer(
-            preset.pattern(), run.mode, scaling, run.rate_hz, seed=run.seed,
-            vehicle_speed_m_s=run.speed_kmh / 3.6, engine_speed_rad_s=800 * math.pi / 30,
-            clutch=hand if virtual else None,
+            preset.pattern(None if run.synchronizer is None else run.synchronizer == "physics"),
+            run.mode, scaling, run.rate_hz, gains,
+            seed=run.seed, vehicle_speed_m_s=run.speed_kmh / 3.6,
+            engine_speed_rad_s=800 * math.pi / 30, clutch=hand if virtual else None,
         )  # fmt: skip
         duration = duration or 1.2 * len(run.sequence) + 1.0 + ready_s
     else:
         car = load_steering(run.preset or "b-segment").params
-        scaling = Scaling(0.9 * info.max_force / MODEL_TORQUE_NM, 1.0)
-        amplitude = math.radians(15.0)
-        hand = hands.WheelHand(hands.weave_target(amplitude, 0.2))
-        renderer = SteeringRenderer(car, run.speed_kmh / 3.6, scaling, run.rate_hz)
-        duration = duration or 10.0
+        scaling = _steering_scaling(car, run, info, sizing, notes)
+        if run.hand == "release":
+            hand = hands.holding_wheel(
+                math.radians(run.release_angle_deg), calibration_s, 1.0 + ready_s - calibration_s
+            )
+        else:
+            weave = hands.weave_target(math.radians(15.0), 0.2, ready_s, WEAVE_CYCLES)
+            hand = hands.WheelHand(weave, start_s=calibration_s)
+        renderer = SteeringRenderer(car, run.speed_kmh / 3.6, scaling, run.rate_hz, sizing,
+                                    info, SteeringRendering(aligning=run.aligning))  # fmt: skip
+        duration = duration or ready_s + WEAVE_CYCLES / 0.2 + 2.0
     renderer.substeps = run.substeps
-    if virtual:
+    if virtual and run.hand != "none":
         device.hand = hand  # type: ignore[attr-defined]
     if run.device.startswith("replay"):
         recorded = getattr(device, "duration_s", duration)
         duration = min(duration, recorded - (ready_s - SafetyLimits(1.0, 1.0).ramp_s))
     limits = SafetyLimits(
-        max_force=device.info.max_force,
-        max_slew_per_s=max(device.info.max_force / 0.05, 200.0 * device.info.max_force),
+        max_force=info.max_force,
+        max_slew_per_s=max(info.max_force / 0.05, 200.0 * info.max_force),
     )
     clock: Clock = SimulatedClock() if run.clock == "simulated" else WallClock()
+    figure = stability_figure(sizing, info, run.rate_hz)
     metadata = {
         "carfeel_version": __version__,
         "model": run.model,
         "preset": run.preset,
         "mode": run.mode,
-        "device": device.info.name,
+        "device": info.name,
         "device_spec": run.device,
         "rate_hz": run.rate_hz,
         "substeps": run.substeps,
         "duration_s": duration,
         "clock": run.clock,
+        "hand": run.hand,
         "force_scale": scaling.force_scale,
         "position_scale": scaling.position_scale,
         "sequence": ",".join(run.sequence) if run.model == "hpattern" else None,
         "speed_kmh": run.speed_kmh,
         "seed": run.seed,
         "max_force": limits.max_force,
-        "travel": device.info.travel,
-        "coupling_bound": coupling_bound(Gains(), scaling, run.rate_hz),
-        "device_kind": device.info.kind,
+        "travel": info.travel,
+        "device_kind": info.kind,
+        "device_mass": info.mass,
+        "device_damping": info.damping,
+        "command_delay_s": info.command_delay_s,
+        "reading_delay_s": info.reading_delay_s,
+        "report_hz": info.report_hz,
+        "resolution": info.resolution,
+        "noise": info.noise,
         "max_slew_per_s": limits.max_slew_per_s,
+        "stability": figure,
     }
-    axes = device.info.axes
+    if wheel:
+        metadata["aligning"] = run.aligning
+    axes = info.axes
     columns = ("time_s", "overrun", *(f"command_{i}" for i in range(axes)), "fault",
                *renderer.columns)  # fmt: skip
     recorder = Recorder(run.record, columns, metadata) if run.record else None
-    bound = coupling_bound(Gains(), scaling, run.rate_hz)
-    plant = getattr(device, "plant", None)
-    caution = (
-        f"the coupling's K*T/2 + B at the handle, {bound:.2g}, is not below the device's own "
-        f"damping, {plant.damping:.2g}: the rendering may not be passive"
-        if run.mode == "impedance" and plant is not None and bound >= plant.damping
-        else None
-    )
+    config = LoopConfig(
+        run.rate_hz, duration, run.calibrate,
+        passivity=run.passivity_controller,
+    )  # fmt: skip
     summary = None
     try:
         with _stop_on_signals() as stop, device:
             summary = run_loop(
-                renderer, device, clock, LoopConfig(run.rate_hz, duration, run.calibrate), limits,
-                recorder, should_stop=lambda: stop[0],
-            )  # fmt: skip
+                renderer, device, clock, config, limits, recorder, should_stop=lambda: stop[0]
+            )
     except DeviceError:
         raise
     finally:
         if recorder is not None:
             recorder.close(summary.as_dict() if summary else {"stopped": "error"})
-    if caution and summary is not None:
-        summary.notes.append(caution)
-    return RealtimeResult(summary, scaling, device.info.name, run.record)
+    summary.notes.extend(notes)
+    return RealtimeResult(summary, scaling, info.name, run.record, figure)
+
+
+def stability_figure(sizing: Sizing, info: DeviceInfo, rate_hz: float) -> dict[str, float]:
+    """What the rendering was sized to on this device (recorded with every run)."""
+    return {
+        "stiffness": sizing.stiffness,
+        "damping": sizing.damping,
+        "damping_cap": sizing.damping_cap,
+        "zeta_hands_off": sizing.zeta,
+        "latency_s": sizing.latency_s,
+        "passivity_index": sizing.passivity_index,
+        "rate_hz": rate_hz,
+    }
+
+
+def _steering_scaling(
+    car: Any, run: RealtimeRun, info: DeviceInfo, sizing: Sizing, notes: list[str]
+) -> Scaling:
+    """The torque scale: 90 % of the wheel's torque for 10 Nm, lowered where the car's on-centre
+    spring at this speed would not fit the device's stiffness budget (with the friction's share)."""
+    from carfeel.models.vehicle.single_track import steady_state_lateral_accel
+
+    fs = 0.9 * info.max_force / MODEL_TORQUE_NM
+    gradient = car.torque.k1_Nm_s2_m * steady_state_lateral_accel(
+        run.speed_kmh / 3.6, 1.0, car.vehicle
+    )  # Nm per rad of wheel angle, model units
+    room = (1.0 - SteeringRendering().friction_share) * sizing.stiffness
+    if gradient * fs > room:
+        lowered = room / gradient
+        if lowered < 0.25 * fs:
+            raise InputError(
+                f"{info.name} cannot render the steering at {run.speed_kmh:g} km/h stably with "
+                f"{info.latency_s * 1e3:.3g} ms of round-trip delay at {run.rate_hz:g} Hz: "
+                f"the car's on-centre spring ({gradient * fs:.3g} Nm/rad on the device) is "
+                f"beyond the {room:.3g} Nm/rad it can hold hands off, by more than 4 times. "
+                "Lower the delay, raise the rate or the speed's"
+            )
+        notes.append(
+            f"the wheel renders {lowered / fs:.0%} of its torque scale at this speed: the "
+            "car's on-centre spring at full scale would be stiffer than it can hold stably"
+        )
+        fs = lowered
+    return Scaling(fs, 1.0)

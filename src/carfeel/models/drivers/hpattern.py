@@ -61,6 +61,11 @@ class Script:
     clutch_pedal: float = 1.0
     early_clutch_release_shift: int = 0
     wall_push_shift: int = 0
+    outer_push_m: float = 0.0
+    """For a gear on an outermost plane, aim this far beyond the plane: press the knob against
+    the gate's end, as drivers do for reverse. Offline the knob is the hand's and needs none; on
+    a device the model's knob lags the handle by the coupling's stretch, and pressing against
+    the end is how a person makes up for it."""
 
 
 class HPatternDriverState(NamedTuple):
@@ -102,6 +107,16 @@ def _target(script: Script, index: int) -> tuple[str, float, int]:
     return name, layout.planes_y_m[gear.plane], gear.direction
 
 
+def _outward(script: Script, plane_y: float, direction: int) -> float:
+    """+1 or -1 for a gear on the last or first plane (toward the gate's end), else 0."""
+    planes = script.layout.planes_y_m
+    if direction == 0 or len(planes) < 2 or not script.outer_push_m:
+        return 0.0
+    if plane_y == planes[-1]:
+        return 1.0
+    return -1.0 if plane_y == planes[0] else 0.0
+
+
 def _next_phase(
     state: HPatternDriverState, knob: HPatternDriverInputs, script: Script
 ) -> tuple[int, Phase]:
@@ -114,7 +129,11 @@ def _next_phase(
     if phase is Phase.PULL and abs(knob.x_m) <= 0.5 * corridor:
         return index, Phase.SELECT
     if phase is Phase.SELECT:
-        near = abs(knob.y_m - plane_y) <= habits.select_tolerance_m and abs(knob.vy_m_s) < 0.05
+        off = knob.y_m - plane_y
+        outward = _outward(script, plane_y, direction)
+        if outward and off * outward > 0.0:  # pressed against the gate's end counts as there
+            off = max(0.0, abs(off) - script.outer_push_m)
+        near = abs(off) <= habits.select_tolerance_m and abs(knob.vy_m_s) < 0.05
         if near:
             return index, (Phase.RELEASE if direction == 0 else Phase.PUSH)
     if phase is Phase.PUSH:
@@ -182,6 +201,8 @@ def step(
     # Along y: aim at the target plane while selecting and pushing; hands off otherwise.
     if phase is Phase.SELECT or phase is Phase.PUSH or phase is Phase.PULL:
         aim = plane_y if phase is not Phase.PULL else inputs.y_m
+        if phase is not Phase.PULL:
+            aim += _outward(script, plane_y, direction) * script.outer_push_m
         # Eq. (10) across the gate: the aimed force (a spring toward the plane, at most
         # select_force_N) less the damping, so the knob crosses at select_force / damping.
         aimed = habits.select_stiffness_N_m * (aim - inputs.y_m)

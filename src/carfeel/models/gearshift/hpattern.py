@@ -224,6 +224,18 @@ def nearest_plane(layout: Layout, y: float) -> int:
     return best
 
 
+def _facing(layout: Layout, plane: int, y: float) -> bool:
+    """The knob faces the plane's slots: within half a slot of its centre line, or, on an
+    outermost plane, pressed into the gate's end beyond it (a driver finds reverse that way)."""
+    planes = layout.planes_y_m
+    off = y - planes[plane]
+    half = 0.5 * layout.slot_width_m
+    if abs(off) <= half:
+        return True
+    outward = (plane == len(planes) - 1 and off > 0.0) or (plane == 0 and off < 0.0)
+    return outward and abs(off) <= half + WALL_DEPTH_M
+
+
 def _select_springs(
     ahead: float, y: float, layout: Layout, select: SelectParams, walls: WallParams
 ) -> tuple[float, float, float]:
@@ -280,7 +292,7 @@ def step(
     in_slot = state.in_slot and s > half_corridor
     plane = state.plane if in_slot else nearest_plane(layout, y)
     slot = layout.gear_at(plane, direction)
-    aligned = slot is not None and abs(y - layout.planes_y_m[plane]) <= 0.5 * layout.slot_width_m
+    aligned = slot is not None and _facing(layout, plane, y)
 
     # Synchronizer: which gear is selected, is it in mesh, how hard is the ring pressed.
     ratio = slot.ratio if slot is not None and (aligned or in_slot) else None
@@ -384,7 +396,7 @@ def step(
     if s1 > half_corridor:
         region = Region.SLOT if in_slot else Region.OUTSIDE
     else:
-        half = 0.5 * layout.slot_width_m
+        half = 0.5 * layout.slot_width_m + WALL_DEPTH_M
         if y1 > layout.planes_y_m[-1] + half or y1 < layout.planes_y_m[0] - half:
             region = Region.OUTSIDE
         else:

@@ -157,6 +157,34 @@ def steady_state(
     return VehicleState(beta, r, x_m, y_m, course_rad - beta, ay, delta)
 
 
+def front_axle_force_N(state: VehicleState, speed_m_s: float, params: VehicleParams) -> float:
+    """Lateral force of the front axle (both tyres), N, positive to the left: C_f * alpha_f of
+    the state (after a step). Below the kinematic speed, the force that gives the kinematic Ay:
+    m * Ay * b / L."""
+    p = params
+    if speed_m_s < p.kinematic_speed_m_s:
+        return p.mass_kg * state.lateral_accel_m_s2 * p.cg_to_rear_axle_m / p.wheelbase_m
+    return p.front_cornering_stiffness_N_rad * (
+        state.front_wheel_angle_rad
+        - state.sideslip_rad
+        - p.cg_to_front_axle_m * state.yaw_rate_rad_s / speed_m_s
+    )
+
+
+def aligning_lateral_accel(state: VehicleState, speed_m_s: float, params: VehicleParams) -> float:
+    """The Ay the front axle's force stands for, F_f * L / (m * b), m/s^2.
+
+    Equal to Ay in steady state (the front axle carries m * Ay * b / L there), so a torque law
+    written for Ay keeps its gradient; in a transient it leads Ay, as the front tyres' force
+    (and the aligning moment, trail times that force) does: the steering wheel feels the front
+    axle before the car has turned.
+    """
+    p = params
+    return (
+        front_axle_force_N(state, speed_m_s, p) * p.wheelbase_m / (p.mass_kg * p.cg_to_rear_axle_m)
+    )
+
+
 def _derivatives(
     beta: float, r: float, delta: float, v: float, p: VehicleParams
 ) -> tuple[float, float, float]:

@@ -41,6 +41,26 @@ class DeviceInfo:
     """Fastest rate at which the device takes new force commands."""
     measures_force: bool
     """Whether `read` returns a force estimate (the paper's admittance display needs one)."""
+    mass: float = 0.0
+    """Moving mass (kg) or inertia (kg m^2) of each axis at the handle, motor included."""
+    damping: float = 0.0
+    """Physical damping of each axis, N*s/m or Nm*s/rad: what dissipates a rendering's energy."""
+    command_delay_s: float = 0.0
+    """Transport delay of the commands (USB, driver, the device's own filtering)."""
+    reading_delay_s: float = 0.0
+    """Age of a reading when it reaches the loop."""
+    report_hz: float = 1000.0
+    """How often the device reports its position (readings are held in between)."""
+    resolution: float = 0.0
+    """Smallest step of a reading (its quantum), m or rad."""
+    noise: float = 0.0
+    """Standard deviation of a reading's noise, m or rad."""
+
+    @property
+    def latency_s(self) -> float:
+        """Round trip from a movement to the force that answers it: both delays and, on
+        average, half a report period."""
+        return self.command_delay_s + self.reading_delay_s + 0.5 / self.report_hz
 
 
 class DeviceSample(NamedTuple):

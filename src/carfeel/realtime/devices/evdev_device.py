@@ -303,7 +303,12 @@ class EvdevDevice:
         self._effects, self._ids = [], []
         return failure
 
+    def _closed(self) -> DeviceLost:
+        return DeviceLost(f"{self.info.name} is closed: open it (with ...) before using it")
+
     def read(self, time_s: float) -> DeviceSample:
+        if self._device is None:
+            raise self._closed()
         device = self._device
         try:
             raws = [device.absinfo(code).value for code in self._codes]
@@ -313,6 +318,8 @@ class EvdevDevice:
         return DeviceSample(time_s, positions, None)
 
     def command(self, forces: tuple[float, ...], time_s: float) -> None:
+        if self._device is None:
+            raise self._closed()
         top = self.info.max_force
         levels = [force_level(f, top, p) for f, p in zip(forces, self._polarity, strict=True)]
         due = self._schedule.due(levels, time_s)

@@ -41,9 +41,20 @@ class ReplayDevice:
         widest = max((abs(v) for row in self._positions for v in row), default=0.0) or 1.0
         force = max_force or _number(meta, "max_force") or (10.0 if kind == "joystick" else 4.0)
         travel = _number(meta, "travel") or 1.5 * widest
+        # The recorded device's dynamics (for the rendering's sizing), else the virtual one's.
+        from carfeel.realtime.devices.virtual import PLANTS
+
+        plant = PLANTS["joystick" if kind == "joystick" else "wheel"][0]
         self.info = DeviceInfo(
-            f"replay of {path.name}", kind, len(columns), force, travel, 1000.0, False
-        )
+            f"replay of {path.name}", kind, len(columns), force, travel, 1000.0, False,
+            mass=_number(meta, "device_mass") or plant.mass,
+            damping=_number(meta, "device_damping") or plant.damping,
+            command_delay_s=_number(meta, "command_delay_s") or 0.0,
+            reading_delay_s=_number(meta, "reading_delay_s") or 0.0,
+            report_hz=_number(meta, "report_hz") or 1000.0,
+            resolution=_number(meta, "resolution") or 0.0,
+            noise=_number(meta, "noise") or 0.0,
+        )  # fmt: skip
         self.commands: list[tuple[float, tuple[float, ...]]] = []
 
     def __enter__(self) -> ReplayDevice:

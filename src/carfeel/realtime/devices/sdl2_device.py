@@ -216,7 +216,12 @@ class SDL2Device:
         self._effects, self._pointers, self._ids = [], [], []
         return failures[0] if failures else None
 
+    def _closed(self) -> DeviceLost:
+        return DeviceLost(f"{self.info.name} is closed: open it (with ...) before using it")
+
     def read(self, time_s: float) -> DeviceSample:
+        if self._sdl is None:
+            raise self._closed()
         sdl2: Any = self._sdl
         joystick = self._joystick
         sdl2.SDL_JoystickUpdate()
@@ -231,6 +236,8 @@ class SDL2Device:
         return DeviceSample(time_s, positions, None)
 
     def command(self, forces: tuple[float, ...], time_s: float) -> None:
+        if self._sdl is None:
+            raise self._closed()
         top = self.info.max_force
         levels = [force_level(f, top, p) for f, p in zip(forces, self._polarity, strict=True)]
         due = self._schedule.due(levels, time_s)

@@ -4,12 +4,18 @@ They are what CI and a user without hardware run against, and what the tests dri
 time. A simulated hand holds the handle (or the rim) and pushes on it as a person would, so the
 coupled system (hand, device, loop, model) is exercised as a real one.
 
-Joystick, per axis (the paper's Logitech Wingman, driven by a DSP):
-    m * a = F_motor(t - delay) + F_hand - b * v - F_stop(x)
-    m = handle mass + motor inertia * (capstan ratio / lever)^2   (reflected at the knob)
-    the motor saturates at max_force_N; end stops are stiff springs beyond +-travel_m;
-    positions are read through a potentiometer: Gaussian noise, then an ADC of `adc_bits`.
-Wheel: the same for one rotation axis (rim inertia, motor torque limit, encoder counts, delay).
+Per axis (a joystick's or a shifter's knob in m and N, a wheel's rim in rad and Nm):
+    m * a = F_motor(t - delay) + F_hand - b * v - F_coulomb - F_stop(x)
+    m = handle mass + motor inertia * transmission ratio          (reflected at the handle)
+    the motor saturates at max_force; end stops are stiff springs beyond +-travel;
+    Coulomb friction sticks (implicitly, as in the models) below its level;
+    positions are sampled at the report rate, delayed, read with Gaussian noise and an ADC
+    of `adc_bits` over the range: a reading is `delay` old and held between reports.
+The delay acts both ways (commands and readings), as USB, a driver and a device's firmware do.
+
+The catalogue (`PLANTS`, `--device virtual:KIND`): `joystick` (the paper's Wingman-class
+2-DOF joystick), `wheel` (a belt-driven 4 Nm wheel), `dd-wheel` (a direct-drive wheel) and
+`shifter` (an active H-shifter at the knob). Each number says where it comes from.
 
 Commands are held for `hold_s` only: a device not commanded again lets its force go to zero,
 like the finite-length effects of the evdev and SDL2 backends. `fail_at_s` makes the device
@@ -21,7 +27,7 @@ from __future__ import annotations
 import math
 import random
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from types import TracebackType
 from typing import Protocol
 
@@ -60,7 +66,12 @@ class PlantParams:
     adc_bits: int
     """Resolution of the reading over the whole range (-travel .. +travel)."""
     delay_s: float
-    """Transport delay of the commands (USB and driver)."""
+    """Transport delay each way: commands reach the motor, and readings reach the loop, this
+    late (USB, driver, firmware)."""
+    coulomb: float = 0.0
+    """Coulomb friction of the axis (bearings, gears, belt), N or Nm."""
+    report_hz: float = 1000.0
+    """Position reports per second; readings are held in between."""
 
     @property
     def mass(self) -> float:
@@ -69,6 +80,9 @@ class PlantParams:
 
 
 # A 2-DOF joystick like the paper's Wingman Force Feedback: about 10 N at the knob, +-40 mm.
+# Force and travel from the paper (10 N class, a hand-sized throw); mass, damping and friction
+# are assumptions of the right order for a capstan-driven gimbal (not published); a 10-bit
+# potentiometer ADC as in joysticks of its age.
 WINGMAN = PlantParams(
     handle_mass=0.08,
     motor_inertia=2e-6,
@@ -80,9 +94,12 @@ WINGMAN = PlantParams(
     noise=5e-5,
     adc_bits=10,
     delay_s=0.002,
+    coulomb=0.15,
 )
 
-# A belt-driven force-feedback wheel of the sim-racing kind: 4 Nm, +-450 deg.
+# A belt-driven force-feedback wheel of the sim-racing kind (Thrustmaster T300 class): 4 Nm
+# peak, +-450 deg (the makers' figures); rim and pulley inertia, belt damping and friction are
+# assumptions; a 16-bit encoder over the range.
 BELT_WHEEL = PlantParams(
     handle_mass=0.04,
     motor_inertia=1e-5,
@@ -94,7 +111,51 @@ BELT_WHEEL = PlantParams(
     noise=0.0,
     adc_bits=16,
     delay_s=0.002,
+    coulomb=0.03,
 )
+
+# A direct-drive wheel (Simucube 2 Sport / Fanatec DD1 class): 15 Nm (their 8-20 Nm range),
+# a 0.05 kg m^2 rim and rotor (a 300 mm rim of about 1.2 kg plus the rotor), little damping and
+# friction (no gears or belt: assumptions), a 22-bit encoder per turn (the makers' figure),
+# +-900 deg of software travel, a stiff stop.
+DD_WHEEL = PlantParams(
+    handle_mass=0.045,
+    motor_inertia=0.005,
+    transmission_ratio=1.0,
+    damping=0.01,
+    max_force=15.0,
+    travel=math.radians(900.0),
+    stop_stiffness=1000.0,
+    noise=0.0,
+    adc_bits=24,  # 22 bits per turn over +-2.5 turns
+    delay_s=0.002,
+    coulomb=0.005,
+)
+
+# An active H-shifter (the force-feedback shifters sim-racers build or buy): 2 DOF at the knob,
+# 30 N per axis, +-50 mm; knob, lever and two motors reflected at the knob about 0.25 kg; gear
+# and bearing damping and friction assumed; 12-bit position sensing.
+SHIFTER = PlantParams(
+    handle_mass=0.15,
+    motor_inertia=1e-5,
+    transmission_ratio=1e4,
+    damping=6.0,
+    max_force=30.0,
+    travel=0.05,
+    stop_stiffness=20000.0,
+    noise=2e-5,
+    adc_bits=12,
+    delay_s=0.002,
+    coulomb=0.3,
+)
+
+PLANTS: dict[str, tuple[PlantParams, int, str]] = {
+    "joystick": (WINGMAN, 2, "joystick"),
+    "wheel": (BELT_WHEEL, 1, "wheel"),
+    "dd-wheel": (DD_WHEEL, 1, "wheel"),
+    "shifter": (SHIFTER, 2, "joystick"),
+}
+"""--device virtual:KIND -> (plant, axes, device kind)."""
 
 
 class VirtualDevice:
@@ -117,8 +178,11 @@ class VirtualDevice:
         self.plant = plant
         self.hand = hand
         self.info = DeviceInfo(
-            name, kind, axes, plant.max_force, plant.travel, update_hz, measures_force=False
-        )
+            name, kind, axes, plant.max_force, plant.travel, update_hz, measures_force=False,
+            mass=plant.mass, damping=plant.damping, command_delay_s=plant.delay_s,
+            reading_delay_s=plant.delay_s, report_hz=plant.report_hz,
+            resolution=2.0 * plant.travel / (1 << plant.adc_bits), noise=plant.noise,
+        )  # fmt: skip
         self.hold_s = hold_s
         self.fail_at_s = fail_at_s
         self.nan_at_s = nan_at_s
@@ -129,6 +193,8 @@ class VirtualDevice:
         self._queue: deque[tuple[float, tuple[float, ...]]] = deque()
         self._applied: tuple[float, ...] = (0.0,) * axes
         self._applied_at = -math.inf
+        self._reports: deque[tuple[float, tuple[float, ...]]] = deque([(0.0, (0.0,) * axes)])
+        self._next_report = 0.0
         self.open = False
         self.log: list[tuple[float, tuple[float, ...], tuple[float, ...]]] = []
         """(time, true positions, motor forces) of every read, for tests."""
@@ -164,8 +230,16 @@ class VirtualDevice:
     def _advance(self, time_s: float) -> None:
         p = self.plant
         mass = p.mass
+        report_period = 1.0 / p.report_hz
+        # The implicit Coulomb friction's largest velocity change in one sub-step.
+        grip = SUBSTEP_S * p.coulomb / mass / (1.0 + SUBSTEP_S * p.damping / mass)
         while self._time + 0.5 * SUBSTEP_S < time_s:
             now = self._time
+            if now + 0.5 * SUBSTEP_S >= self._next_report:
+                self._reports.append((now, tuple(self._x)))
+                self._next_report += report_period
+                while len(self._reports) > 1 and self._reports[1][0] + p.delay_s <= now:
+                    self._reports.popleft()
             while self._queue and self._queue[0][0] + p.delay_s <= now:
                 sent, forces = self._queue.popleft()
                 self._applied, self._applied_at = forces, sent + p.delay_s
@@ -186,6 +260,8 @@ class VirtualDevice:
                 v = (v + SUBSTEP_S * (motor[i] + hand[i] - stop) / mass) / (
                     1.0 + SUBSTEP_S * p.damping / mass
                 )
+                # Coulomb friction, implicit: it stops the axis within the step, or slows it.
+                v = 0.0 if abs(v) <= grip else v - math.copysign(grip, v)
                 self._v[i] = v
                 self._x[i] = x + SUBSTEP_S * v
             self._time = now + SUBSTEP_S
@@ -197,7 +273,12 @@ class VirtualDevice:
         p = self.plant
         lsb = 2.0 * p.travel / (1 << p.adc_bits)
         readings = []
-        for x in self._x:
+        seen = self._reports[0][1]
+        for when, positions in self._reports:  # the newest report old enough to have arrived
+            if when + p.delay_s > time_s + 1e-9:
+                break
+            seen = positions
+        for x in seen:
             noisy = x + (self._rng.gauss(0.0, p.noise) if p.noise > 0.0 else 0.0)
             readings.append(round(noisy / lsb) * lsb)
         if self.nan_at_s is not None and time_s >= self.nan_at_s:
@@ -212,11 +293,28 @@ class VirtualDevice:
         self.sent.append((time_s, tuple(forces)))
 
 
+def virtual_device(
+    kind: str,
+    hand: Hand | None = None,
+    delay_s: float | None = None,
+    report_hz: float | None = None,
+    **options: object,
+) -> VirtualDevice:
+    """A device of the catalogue, optionally with another delay (each way) or report rate."""
+    plant, axes, device_kind = PLANTS[kind]
+    if delay_s is not None:
+        plant = replace(plant, delay_s=delay_s)
+    if report_hz is not None:
+        plant = replace(plant, report_hz=report_hz)
+    name = f"virtual {kind}"
+    return VirtualDevice(plant, axes, hand, kind=device_kind, name=name, **options)  # type: ignore[arg-type]
+
+
 def virtual_joystick(hand: Hand | None = None, **options: object) -> VirtualDevice:
     """The paper's 2-DOF joystick (about 10 N per axis, +-40 mm at the knob)."""
-    return VirtualDevice(WINGMAN, 2, hand, kind="joystick", name="virtual joystick", **options)  # type: ignore[arg-type]
+    return virtual_device("joystick", hand, **options)  # type: ignore[arg-type]
 
 
 def virtual_wheel(hand: Hand | None = None, **options: object) -> VirtualDevice:
     """A belt-driven force-feedback wheel (4 Nm, +-450 deg)."""
-    return VirtualDevice(BELT_WHEEL, 1, hand, kind="wheel", name="virtual wheel", **options)  # type: ignore[arg-type]
+    return virtual_device("wheel", hand, **options)  # type: ignore[arg-type]
