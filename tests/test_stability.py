@@ -349,3 +349,31 @@ def test_time_at_the_limit_and_the_sizing_are_in_the_summary(tmp_path):
     rec = Result.from_csv(record)
     # The ramp-down after the run is recorded: the last command is zero, reached by the slew.
     assert rec["command_0"][-1] == 0.0
+
+
+@pytest.mark.parametrize(
+    ("model", "plant"),
+    [("hpattern", "joystick"), ("hpattern", "shifter"), ("steering", "wheel"),
+     ("steering", "dd-wheel")],
+)  # fmt: skip
+def test_the_defaults_are_stable_on_every_plant(model, plant, tmp_path):
+    """`carfeel run` as a new user runs it (the whole default script, the default delay), on
+    each plant: no fault, never at the limit, and at the end the command is calm (under 5 % of
+    the limit peak to peak over the last second, the hand holding the knob or the rim)."""
+    record = tmp_path / "d.csv"
+    code = main(["run", "--model", model, "--device", f"virtual:{plant}", "--clock",
+                 "simulated", "--record", str(record)])  # fmt: skip
+    assert code == 0
+    rec = Result.from_csv(record)
+    meta = json.loads(record.with_suffix(".json").read_text())
+    summary = meta["summary"]
+    assert summary["faults"] == [] and summary["time_at_limit_s"] == 0.0
+    live = np.isfinite(np.asarray(rec["fault"], dtype=float)) & np.isfinite(
+        np.asarray(rec["torque_Nm" if model == "steering" else "force_x_N"], dtype=float)
+    )
+    t = rec.time_s[live]
+    command = np.asarray(rec["command_0"], dtype=float)[live]
+    last = t >= t[-1] - 1.0
+    assert np.ptp(command[last]) < 0.05 * meta["max_force"]
+    if model == "hpattern":
+        assert summary["gears"] == ["1", "2", "3", "4", "5", "4", "3", "2", "1"]

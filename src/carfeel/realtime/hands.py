@@ -168,6 +168,16 @@ class ReleasingHand:
 
 
 def holding_wheel(angle_rad: float, start_s: float, hold_s: float) -> ReleasingHand:
-    """Hands that take the rim to `angle_rad` from `start_s`, hold it for `hold_s`, then let go."""
-    hand = WheelHand(lambda t: angle_rad, 300.0, 5.0, 30.0, start_s=start_s)
+    """Hands that turn the rim to `angle_rad` from `start_s` (a smooth half-second turn, as a
+    person's), hold it until `hold_s` after `start_s`, then let go."""
+
+    def target(t: float) -> float:
+        phase = min(1.0, max(0.0, (t - start_s) / TURN_S))
+        return angle_rad * 0.5 * (1.0 - math.cos(math.pi * phase))
+
+    hand = WheelHand(target, 300.0, 5.0, 30.0, start_s=start_s)
     return ReleasingHand(hand, lambda t: t >= start_s + hold_s)
+
+
+TURN_S = 0.5
+"""How long the releasing hands take to turn the rim to its angle."""
