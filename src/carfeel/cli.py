@@ -1,7 +1,8 @@
 """carfeel's command line: parse, call one function, print.
 
 Exit codes: 0 done; 2 bad input (nothing run, nothing written over); 3 a real-time run stopped
-by a safety fault (the force was faded to zero; the summary says which).
+by a safety fault (the force was faded to zero; the summary says which); 130 and 143 a run
+stopped by SIGINT (Ctrl-C) or SIGTERM, after taking the force away (the shell's 128 + signal).
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ examples:
 
 EXIT_FAULT = 3
 """A run stopped by a safety fault (stall, lost device, NaN, limit cycle)."""
+DEFAULT_SEQUENCE = "N,1,2,3,4,5,4,3,2,1,N"
 
 
 def _positive_float(text: str) -> float:
@@ -297,8 +299,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="model steps per tick (up to 10 kHz of model steps)")  # fmt: skip
     run.add_argument("--duration", type=_positive_float, default=None, metavar="S",
                      help="seconds to run (default: long enough for the script)")  # fmt: skip
-    run.add_argument("--sequence", default="N,1,2,3,4,5,4,3,2,1,N", metavar="N,1,2,...",
-                     help="gears for --model hpattern (the virtual hand's script)")  # fmt: skip
+    run.add_argument("--sequence", default=None, metavar="N,1,2,...",
+                     help="gears for --model hpattern (the virtual hand's script; default "
+                     f"{DEFAULT_SEQUENCE})")  # fmt: skip
     run.add_argument("--preset", default=None, metavar="NAME|PATH",
                      help="shift, hpattern (layout) or steering preset for the model")  # fmt: skip
     run.add_argument("--speed-kmh", type=float, default=30.0, metavar="V",
@@ -503,16 +506,23 @@ def _simulate_hpattern(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
+    from carfeel.io.outputs import Outputs
     from carfeel.realtime.session import RealtimeRun, run_realtime
     from carfeel.runs import parse_sequence
 
+    outputs = Outputs()
     record = Path(args.record) if args.record else None
+    staged_record = staged_plot = None
+    if args.plot and record is None:
+        raise InputError("--plot draws the recording: give --record FILE.csv too")
+    if args.sequence is not None and args.model != "hpattern":
+        raise InputError(f"--sequence is the H-pattern's script; --model {args.model} has none")
     if record is not None:
-        _check_writable(record, ".csv")
+        # A killed run leaves NAME.part.csv readable; a finished one replaces NAME.csv.
+        staged_record = outputs.add(record, ".csv", partial=True)
+        outputs.add(record.with_suffix(".json"), ".json", partial=True)
     if args.plot:
-        if record is None:
-            raise InputError("--plot draws the recording: give --record FILE.csv too")
-        _check_writable(Path(args.plot), ".png")
+        staged_plot = outputs.add(Path(args.plot), ".png")
     config = RealtimeRun(
         model=args.model,
         device=args.device,
@@ -520,12 +530,12 @@ def _run(args: argparse.Namespace) -> int:
         rate_hz=args.rate_hz,
         substeps=args.substeps,
         duration_s=args.duration,
-        sequence=parse_sequence(args.sequence),
+        sequence=parse_sequence(args.sequence or DEFAULT_SEQUENCE),
         preset=args.preset,
         speed_kmh=args.speed_kmh,
         seed=args.seed,
         clock=args.clock,
-        record=record,
+        record=staged_record,
         calibrate=not args.no_calibration,
         device_max_force=args.device_max_force,
         device_travel=args.device_travel,
@@ -538,18 +548,29 @@ def _run(args: argparse.Namespace) -> int:
         aligning=args.aligning,
         synchronizer=args.synchronizer,
     )
-    if not args.json:
-        print(f"carfeel run: {args.model} on {args.device}, {args.mode}, {args.rate_hz:g} Hz "
-              f"({args.clock} clock); Ctrl-C stops")  # fmt: skip
-    result = run_realtime(config)
-    if args.plot and record is not None:
-        from carfeel.io.plots import plot_recording
-        from carfeel.simulation.result import Result
 
-        recording = Result.from_csv(record, drop_partial_last_line=True)
-        plot_recording(recording, Path(args.plot), f"{args.model} on {result.device}, {args.mode}")
-    print(_json(result.as_dict()) if args.json else result.text())
-    return EXIT_FAULT if result.summary.stopped == "fault" else 0
+    def announce() -> None:
+        if not args.json:
+            print(f"carfeel run: {args.model} on {args.device}, {args.mode}, {args.rate_hz:g} Hz "
+                  f"({args.clock} clock); Ctrl-C stops", flush=True)  # fmt: skip
+
+    with outputs:
+        result = run_realtime(config, announce)
+        if staged_plot is not None and staged_record is not None:
+            from carfeel.io.plots import plot_recording
+            from carfeel.simulation.result import Result
+
+            recording = Result.from_csv(staged_record, drop_partial_last_line=True)
+            title = f"{args.model} on {result.device}, {args.mode}"
+            plot_recording(recording, staged_plot, title)
+    result.record = record
+    text = result.text()
+    if args.plot:
+        text += f"\nplotted {args.plot}"
+    print(_json(result.as_dict()) if args.json else text)
+    if result.summary.stopped == "fault":
+        return EXIT_FAULT
+    return {"SIGINT": 130, "SIGTERM": 143}.get(result.summary.stopped, 0)
 
 
 def _finite(value: object) -> object:

@@ -54,7 +54,8 @@ class LoopSummary:
     period_error_p50_us: float
     period_error_p99_us: float
     period_error_max_us: float
-    max_force_N: float
+    peak_command: float
+    """Largest command sent, device units (N, or Nm on a wheel)."""
     faults: list[str]
     gears: list[str]
     notes: list[str] = field(default_factory=list)
@@ -288,7 +289,7 @@ def _summary(
         period_error_p50_us=_percentile(ordered, 0.5),
         period_error_p99_us=_percentile(ordered, 0.99),
         period_error_max_us=ordered[-1] if ordered else math.nan,
-        max_force_N=max_force,
+        peak_command=max_force,
         faults=list(watchdog.faults),
         gears=list(renderer.gears),
         notes=notes,

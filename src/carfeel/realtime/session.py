@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import math
 import signal
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -16,7 +16,7 @@ from typing import Any
 from carfeel import __version__
 from carfeel.errors import InputError
 from carfeel.realtime.clock import Clock, SimulatedClock, WallClock
-from carfeel.realtime.devices.base import Device, DeviceError, DeviceInfo
+from carfeel.realtime.devices.base import Device, DeviceInfo
 from carfeel.realtime.hands import HANDS
 from carfeel.realtime.loop import (
     CALIBRATION_PULSE_S,
@@ -43,6 +43,7 @@ from carfeel.realtime.safety import SafetyLimits
 from carfeel.realtime.stability import Sizing
 
 MODELS = ("shift", "hpattern", "steering")
+DEFAULT_PRESETS = {"shift": "paper-first-gear", "hpattern": "5r", "steering": "b-segment"}
 MODEL_FORCE_N = 100.0
 """The lever forces the shift models reach (the paper's 8-10 kgf), scaled onto the device."""
 MODEL_TORQUE_NM = 10.0
@@ -99,6 +100,8 @@ class RealtimeResult:
     device: str
     record: Path | None
     stability: dict[str, float] = field(default_factory=dict)
+    unit: str = "N"
+    """The commands' unit: N on a joystick or shifter, Nm on a wheel."""
 
     def as_dict(self) -> dict[str, Any]:
         s = self.summary
@@ -108,7 +111,8 @@ class RealtimeResult:
             "period_error_p50_us": _json_float(s.period_error_p50_us),
             "period_error_p99_us": _json_float(s.period_error_p99_us),
             "period_error_max_us": _json_float(s.period_error_max_us),
-            "max_force_N": s.max_force_N,
+            "peak_command": s.peak_command,
+            "command_unit": self.unit,
             "faults": s.faults,
             "gears": s.gears,
             "notes": s.notes,
@@ -129,7 +133,7 @@ class RealtimeResult:
             f"{s.periods} periods on {self.device}, {s.overruns} overruns (> 1.5 periods); period "
             f"error p50 {s.period_error_p50_us:.1f} us, p99 {s.period_error_p99_us:.1f} us, max "
             f"{s.period_error_max_us:.1f} us",
-            f"peak commanded force {s.max_force_N:.2f} (device units); scales: force "
+            f"peak command {s.peak_command:.2f} {self.unit}; scales: force "
             f"{self.scaling.force_scale:.3g}, position {self.scaling.position_scale:.3g}",
             f"gears engaged: {' '.join(s.gears) or 'none'}; stopped by {s.stopped}",
             f"time at the force limit {s.time_at_limit_s:.3f} s; largest 10-100 Hz command "
@@ -180,6 +184,21 @@ def _check(run: RealtimeRun) -> None:
         )
     if run.synchronizer not in (None, "fixed", "physics"):
         raise InputError(f"--synchronizer {run.synchronizer!r}: choose fixed or physics")
+    if run.device.startswith("replay") and run.device_max_force is not None:
+        raise InputError(
+            "--device-max-force describes a real device; a replay takes the recorded device's "
+            "limits from the recording's sidecar"
+        )
+    if run.device_max_force is not None and not 0.0 < run.device_max_force <= 200.0:
+        raise InputError(
+            f"--device-max-force {run.device_max_force:g}: allowed 0 < value <= 200 (N at a "
+            "knob, Nm at a rim)"
+        )
+    if run.device_travel is not None and not 0.0 < run.device_travel <= 20.0:
+        raise InputError(
+            f"--device-travel {run.device_travel:g}: allowed 0 < value <= 20 (m at a knob, "
+            "rad at a rim)"
+        )
     if run.hand not in HANDS:
         raise InputError(f"--hand {run.hand!r}: choose one of {', '.join(HANDS)}")
     if run.hand != "script" and not virtual:
@@ -277,12 +296,14 @@ def open_device(
 
 
 @contextmanager
-def _stop_on_signals() -> Iterator[list[bool]]:
-    """Ctrl-C and SIGTERM ask the loop to stop (it zeroes the force first)."""
-    flag = [False]
+def _stop_on_signals() -> Iterator[list[str]]:
+    """Ctrl-C and SIGTERM ask the loop to stop (it zeroes the force first); the list holds the
+    signal's name once one came."""
+    flag: list[str] = []
 
     def handler(signum: int, frame: Any) -> None:
-        flag[0] = True
+        if not flag:
+            flag.append(signal.Signals(signum).name)
 
     previous = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
@@ -324,14 +345,16 @@ def _refuse_soft(info: DeviceInfo, sizing: Sizing, run: RealtimeRun) -> None:
         )
 
 
-def run_realtime(run: RealtimeRun) -> RealtimeResult:
-    """Render a model on a device at a fixed rate; record and summarize."""
+def run_realtime(run: RealtimeRun, announce: Callable[[], None] | None = None) -> RealtimeResult:
+    """Render a model on a device at a fixed rate; record and summarize. `announce` is called
+    once everything is checked and the device is open, just before the loop starts."""
     _check(run)
     from carfeel.io.presets import load_hpattern, load_shift, load_steering
     from carfeel.models.drivers.hpattern import Script
     from carfeel.realtime import hands, stability
 
     wheel = run.model == "steering"
+    preset_name = run.preset or DEFAULT_PRESETS[run.model]
     # The virtual hand waits for the calibration pulses and the ramp-in.
     calibration_s = 2 * (CALIBRATION_PULSE_S + CALIBRATION_SETTLE_S) if run.calibrate else 0.0
     ready_s = calibration_s + SafetyLimits(1.0, 1.0).ramp_s if run.calibrate else 0.0
@@ -356,7 +379,7 @@ def run_realtime(run: RealtimeRun) -> RealtimeResult:
     notes: list[str] = []
     if run.model == "shift":
         _refuse_soft(info, sizing, run)
-        shift = load_shift(run.preset or "paper-first-gear").params
+        shift = load_shift(preset_name).params
         scaling = default_scaling(MODEL_FORCE_N, shift.gearbox.in_gear_position_m + 0.005, info)
         hand = hands.ShiftHand(shift.driver, scaling.force_scale, scaling.position_scale, ready_s)
         if run.hand == "release":
@@ -373,7 +396,7 @@ def run_realtime(run: RealtimeRun) -> RealtimeResult:
         duration = duration or 2.0 + ready_s
     elif run.model == "hpattern":
         _refuse_soft(info, sizing, run)
-        preset = load_hpattern(run.preset or "5r")
+        preset = load_hpattern(preset_name)
         layout = preset.setup.layout
         names = {g.name for g in layout.gears} | {"N"}
         unknown = [g for g in run.sequence if g not in names]
@@ -403,7 +426,7 @@ def run_realtime(run: RealtimeRun) -> RealtimeResult:
         )  # fmt: skip
         duration = duration or 1.2 * len(run.sequence) + 1.0 + ready_s
     else:
-        car = load_steering(run.preset or "b-segment").params
+        car = load_steering(preset_name).params
         scaling = _steering_scaling(car, run, info, sizing, notes)
         if run.hand == "release":
             hand = hands.holding_wheel(
@@ -430,7 +453,7 @@ def run_realtime(run: RealtimeRun) -> RealtimeResult:
     metadata = {
         "carfeel_version": __version__,
         "model": run.model,
-        "preset": run.preset,
+        "preset": preset_name,
         "mode": run.mode,
         "device": info.name,
         "device_spec": run.device,
@@ -462,24 +485,30 @@ def run_realtime(run: RealtimeRun) -> RealtimeResult:
     axes = info.axes
     columns = ("time_s", "overrun", *(f"command_{i}" for i in range(axes)), "fault",
                *renderer.columns)  # fmt: skip
-    recorder = Recorder(run.record, columns, metadata) if run.record else None
     config = LoopConfig(
         run.rate_hz, duration, run.calibrate,
         passivity=run.passivity_controller,
     )  # fmt: skip
     summary = None
-    try:
-        with _stop_on_signals() as stop, device:
+    recorder = None
+    # The device is opened before anything is recorded: a device that cannot be opened leaves
+    # no recording behind.
+    with _stop_on_signals() as stop, device:
+        if announce is not None:
+            announce()
+        recorder = Recorder(run.record, columns, metadata) if run.record else None
+        try:
             summary = run_loop(
-                renderer, device, clock, config, limits, recorder, should_stop=lambda: stop[0]
+                renderer, device, clock, config, limits, recorder, should_stop=lambda: bool(stop)
             )
-    except DeviceError:
-        raise
-    finally:
-        if recorder is not None:
-            recorder.close(summary.as_dict() if summary else {"stopped": "error"})
+            if stop and summary.stopped == "stopped":
+                summary.stopped = stop[0]
+        finally:
+            if recorder is not None:
+                recorder.close(summary.as_dict() if summary else {"stopped": "error"})
     summary.notes.extend(notes)
-    return RealtimeResult(summary, scaling, info.name, run.record, figure)
+    unit = "Nm" if wheel else "N"
+    return RealtimeResult(summary, scaling, info.name, run.record, figure, unit)
 
 
 def stability_figure(sizing: Sizing, info: DeviceInfo, rate_hz: float) -> dict[str, float]:

@@ -35,12 +35,22 @@ class ReplayDevice:
             )
         self._times = [float(t) for t in result.time_s]
         self._positions = [tuple(float(result[c][i]) for c in columns) for i in range(len(result))]
-        # The recorded device's limits, from the sidecar; else a virtual one's force and a
-        # travel half again as wide as the recorded motion.
+        if len(self._times) < 2:
+            raise DeviceError(
+                f"{path}: {len(self._times)} recorded sample(s); a replay needs at least two "
+                "(record a longer run)"
+            )
+        # The recorded device's limits and dynamics come from the sidecar the recording was
+        # written with: without them the scales of the replay would silently differ.
         meta = _sidecar(path)
-        widest = max((abs(v) for row in self._positions for v in row), default=0.0) or 1.0
-        force = max_force or _number(meta, "max_force") or (10.0 if kind == "joystick" else 4.0)
-        travel = _number(meta, "travel") or 1.5 * widest
+        force = max_force or _number(meta, "max_force")
+        travel = _number(meta, "travel")
+        if force is None or travel is None:
+            raise DeviceError(
+                f"{path}: its sidecar {path.with_suffix('.json').name} is missing, unreadable or "
+                "has no max_force and travel; a replay needs the sidecar written with the "
+                "recording (copy it beside the CSV)"
+            )
         # The recorded device's dynamics (for the rendering's sizing), else the virtual one's.
         from carfeel.realtime.devices.virtual import PLANTS
 
