@@ -350,13 +350,6 @@ def test_scales_come_from_a_real_device_s_limits(monkeypatch):
     assert scaling.position_scale == pytest.approx(0.1 / 0.045)
 
 
-def test_devices_without_the_backend_libraries_says_how_to_get_them(capsys):
-    # These machines have neither python-evdev nor pysdl2 installed (they are an extra).
-    assert main(["devices"]) == 0
-    text = capsys.readouterr().out
-    assert text.count("pip install 'carfeel[devices]'") == 2
-
-
 @pytest.mark.parametrize(
     ("args", "message"),
     [
