@@ -12,7 +12,6 @@ from hypothesis import strategies as st
 from carfeel.analysis.shift_features import shift_features
 from carfeel.models.gearshift import engagement
 from carfeel.models.gearshift.engagement import EngagementInputs, Stage
-from carfeel.models.mechanics import stage_energy_J
 from carfeel.simulation.runner import run
 from tests.conftest import default_params, shift_run
 
@@ -155,11 +154,14 @@ def test_one_ms_steps_and_tenth_ms_substeps_agree(params):
     assert _same_stages(coarse["stage"], fine["stage"])
     # Position, sample by sample: the runs drift apart in time by up to 3 ms (see _same_stages)
     # while the knob moves at up to 0.5 m/s, so up to 1.5 mm apart during the fast travel; the
-    # RMS over the run stays under 0.3 mm, and where the knob rests they agree to 0.05 mm.
+    # RMS over the run stays under 0.3 mm, and where the knob rests they agree within the band
+    # the in-gear stage's static friction holds it in (6 N / 30 kN/m = 0.2 mm): with the stop
+    # ringing at its physical damping, each run sticks at its own point of that band.
     diff = coarse["position_m"] - fine["position_m"]
     assert np.max(np.abs(diff)) < 1.5e-3
     assert np.sqrt(np.mean(diff**2)) < 0.3e-3
-    assert abs(diff[-1]) < 0.05e-3
+    g = params.gearbox
+    assert abs(diff[-1]) < g.in_gear.static_friction_N / g.in_gear.stiffness_N_m
     assert fc.synchronization_hold_s == pytest.approx(ff.synchronization_hold_s, abs=1e-3)
     # Peaks are sampled 10x more finely and the hand/lever impact resolves better: within 10 %.
     assert fc.engagement_peak_N == pytest.approx(ff.engagement_peak_N, rel=0.1)
@@ -271,16 +273,18 @@ def test_passive_stage_never_gains_energy_without_driver_force(stage, where, v):
     low, high = stage_region(stage, g)
     low, high = low + 1e-3, high - 1e-3  # 1 mm inside: one 1 ms step moves at most 0.5 mm
     x = low + where * (high - low)
-    state = engagement.EngagementState(stage, x, v, 0.0, 0.0, 7.0, 1)
+    # In the teeth, the chamfers still to turn the gear over the first 2 mm (heavier lever).
+    state = engagement.EngagementState(stage, x, v, 0.0, 0.0, 7.0, 1, low + 1e-3)
     steps_inside = 0
-    mech, rest = engagement.mechanics(g, stage)
-    energy = stage_energy_J(state.position_m, state.velocity_m_s, mech, rest)
+    energy = engagement.energy_J(state, g)
     for _ in range(300):
         new, _ = engagement.step(state, EngagementInputs(0.0), g, 1e-3)
         if new.stage is not stage:
             break
-        new_energy = stage_energy_J(new.position_m, new.velocity_m_s, mech, rest)
-        assert new_energy <= energy * (1 + 1e-12) + 1e-15
+        # Kinetic, the stage's spring and the detents' potential (conservative profiles).
+        new_energy = engagement.energy_J(new, g)
+        # Only rounding may add (the detents' potential is 0 at their seats, so it can be < 0).
+        assert new_energy <= energy + 1e-12 * abs(energy) + 1e-15
         energy, state = new_energy, new
         steps_inside += 1
     assert steps_inside >= 1  # the example exercised the stage, not only its exit

@@ -39,12 +39,17 @@ def drive(
     early_clutch: int = 0,
     wall: int = 0,
     max_s: float = 60.0,
+    blocking_margin: float | None = None,
 ) -> Result:
     p = preset(layout)
     script = Script(
         sequence, p.setup.layout, p.shift.driver, p.setup.driver, clutch, early_clutch, wall
     )
-    run = HPatternRun(p.pattern(physics), script, speed_kmh / 3.6, RPM_800)
+    pattern = p.pattern(physics)
+    if blocking_margin is not None:
+        sync = dataclasses.replace(pattern.synchronizer, blocking_margin=blocking_margin)
+        pattern = dataclasses.replace(pattern, synchronizer=sync)
+    run = HPatternRun(pattern, script, speed_kmh / 3.6, RPM_800)
     return simulate_hpattern(run, max_duration_s=max_s)
 
 
@@ -132,8 +137,19 @@ def test_fixed_mode_reproduces_the_single_engagement_exactly():
     """The x axis in a slot, aligned, with the paper's synchronizer, is the 1-DOF model itself
     (with the latch, our addition beyond the paper, switched off)."""
     p = preset()
-    one_dof = simulate_shift(p.shift, seed=4, duration_s=1.2)
     pattern = p.pattern(physics=False)
+    # The centre plane's gear 3 (synchronizer on the input shaft): its chamfers turn the input
+    # side's inertia as it is, not first gear's (the shift preset's).
+    sync = pattern.synchronizer
+    gearbox = dataclasses.replace(
+        p.shift.gearbox,
+        chamfer=dataclasses.replace(
+            p.shift.gearbox.chamfer,
+            gear_inertia_kg_m2=sync.input_inertia_kg_m2,
+            drag_torque_Nm=sync.drag_torque_Nm,
+        ),
+    )
+    one_dof = simulate_shift(dataclasses.replace(p.shift, gearbox=gearbox), seed=4, duration_s=1.2)
     pattern = dataclasses.replace(
         pattern, feel=dataclasses.replace(pattern.feel, latch_force_N=0.0)
     )
@@ -216,10 +232,23 @@ def test_physics_mode_sequence_engages_with_speed_dependent_times():
 # ---------------------------------------------------------------- clutch, balk, grinding
 
 
+WORN = -0.1
+"""A ring with no blocking margin left: the blocking condition has failed, the teeth grind."""
+
+
 @pytest.mark.parametrize("physics", [False, True])
-def test_with_the_clutch_released_no_gear_engages_and_the_balk_is_felt(physics):
-    p = preset()
+def test_a_sound_ring_balks_silently_with_the_clutch_released(physics):
+    """Issue 10: the blocking condition does not depend on the force or the clutch."""
     result = drive(("N", "1"), physics=physics, clutch=0.0, max_s=3.0)
+    assert engaged(result) == []
+    assert (result["stage"] == "synchronization").sum() > 1500
+    assert np.all(result["grind_N"] == 0.0)
+
+
+@pytest.mark.parametrize("physics", [False, True])
+def test_with_the_clutch_released_no_gear_engages_and_a_worn_ring_grinds(physics):
+    p = preset()
+    result = drive(("N", "1"), physics=physics, clutch=0.0, max_s=3.0, blocking_margin=WORN)
     assert engaged(result) == []
     sync = result["stage"] == "synchronization"
     assert sync.sum() > 1500  # blocked at the ring for the rest of the run
@@ -241,7 +270,14 @@ def test_with_the_clutch_released_no_gear_engages_and_the_balk_is_felt(physics):
 
 
 def test_releasing_the_clutch_early_balks_that_gear_only():
-    result = drive(("N", "1", "2", "N"), physics=True, early_clutch=3, max_s=8.0, speed_kmh=30.0)
+    result = drive(
+        ("N", "1", "2", "N"),
+        physics=True,
+        early_clutch=3,
+        max_s=8.0,
+        speed_kmh=30.0,
+        blocking_margin=WORN,
+    )
     assert engaged(result) == ["1"]  # 2nd balks: the clutch drags the input shaft
     assert np.abs(result["grind_N"]).max() > 0.0
 
@@ -339,8 +375,10 @@ def test_a_normal_synchronization_does_not_grind(physics):
     assert np.all(result["grind_N"] == 0.0)
 
 
-def push_slowly(pattern, force_N: float = 12.0, steps: int = 1500):
-    """Push the knob on the centre plane with a constant force; the outputs of every step."""
+def push_slowly(pattern, force_N: float = 16.0, steps: int = 1500):
+    """Push the knob on the centre plane with a constant force; the outputs of every step.
+
+    16 N: enough to pass the latch against the centring spring and the neutral detent."""
     state = hpattern.initial_state(pattern)
     outs = []
     for _ in range(steps):
@@ -358,15 +396,23 @@ def test_the_latch_is_a_force_bump_before_the_synchro_ring():
         dataclasses.replace(pattern, feel=dataclasses.replace(feel, latch_force_N=0.0))
     )
 
+    damping = pattern.engagement.neutral.damping_N_s_m
+
     def resistance_at(outs, s):
-        near = [o.reaction_x_N for o in outs if abs(o.x_m - s) < 0.2e-3 and o.vx_m_s > 0.0]
+        # Less the lever's damping: with the latch the knob passes the bump more slowly.
+        near = [
+            o.reaction_x_N - damping * o.vx_m_s
+            for o in outs
+            if abs(o.x_m - s) < 0.2e-3 and o.vx_m_s > 0.0
+        ]
         return max(near)
 
     centre = feel.latch_position_m
-    # At the bump's top the gearbox resists by the latch force more (within 10 %: the
-    # triangular bump is sampled over +-0.2 mm of its 2 mm half-width).
+    # At the bump's top the gearbox resists by the latch force more (within 20 %: the
+    # triangular bump is sampled over +-0.2 mm of its 2 mm half-width, and the two runs cross
+    # it at different speeds, so the detent's work over a step differs by up to about 1 N).
     extra = resistance_at(with_latch, centre) - resistance_at(without, centre)
-    assert extra == pytest.approx(feel.latch_force_N, rel=0.1)
+    assert extra == pytest.approx(feel.latch_force_N, rel=0.2)
     # Outside the bump nothing changes.
     before = centre - 1.5 * feel.latch_width_m
     assert resistance_at(with_latch, before) == pytest.approx(resistance_at(without, before))
@@ -400,7 +446,7 @@ def test_reverse_does_not_go_in_while_the_car_rolls(physics):
 def test_grinding_is_rendered_below_a_quarter_of_the_step_rate():
     """At 100 km/h the teeth pass at over 1 kHz; a 1 kHz loop shows at most 250 Hz, not an
     alias: the rendered phase advances by at most a quarter turn per step."""
-    result = drive(("N", "1"), clutch=0.0, speed_kmh=100.0, max_s=2.0)
+    result = drive(("N", "1"), clutch=0.0, speed_kmh=100.0, max_s=2.0, blocking_margin=WORN)
     grind = result["grind_N"][result["stage"] == "synchronization"]
     assert np.count_nonzero(grind) > 500
     spectrum = np.abs(np.fft.rfft(grind))

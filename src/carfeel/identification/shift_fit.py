@@ -588,8 +588,13 @@ def simulate_open_loop(
     linearly at the end of each step (as the runner does); before `start_s` the position is the
     state's. A step in which the stage changes is redone in REFINE sub-steps, so a guard fires
     within step_s / REFINE of the crossing. `tooth_force_N`, if given, replaces the model's
-    random tooth draw each time the lever enters the teeth.
+    random tooth draw each time the lever enters the teeth. The chamfers' random indexing of the
+    gear is off: which relative angle a recorded engagement met is unknown, and the teeth's
+    fitted resistance stands for the whole passage.
     """
+    if params.chamfer.gear_inertia_kg_m2 > 0.0 or params.chamfer.drag_torque_Nm > 0.0:
+        chamfer = dataclasses.replace(params.chamfer, gear_inertia_kg_m2=0.0, drag_torque_Nm=0.0)
+        params = dataclasses.replace(params, chamfer=chamfer)
     stop_s = float(sample_times_s[-1]) if len(sample_times_s) else start_s
     n = max(0, math.ceil((stop_s - start_s) / step_s - 1e-9))
     ends = start_s + step_s * np.arange(1, n + 1)
