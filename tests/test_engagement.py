@@ -592,3 +592,38 @@ def test_the_stop_rings_with_its_physical_damping_at_1_khz():
     zeta = decrement / math.sqrt(4 * math.pi**2 + decrement**2)
     physical = stop.damping_N_s_m / (2 * math.sqrt(stop.stiffness_N_m * stop.mass_kg))
     assert zeta == pytest.approx(physical, rel=0.03)
+
+
+def test_a_compliant_linkage_lets_the_knob_in_by_force_over_stiffness_at_the_ring():
+    """Issue 10: a cable linkage gives against the blocked ring (SAE 932996): at 78.5 N and
+    50 kN/m the knob rests 1.57 mm past the ring, still, while the ring blocks; the paper's
+    preset keeps it rigid (0: the knob exactly at x_sync)."""
+    g = dataclasses.replace(
+        default_params().gearbox, linkage_stiffness_N_m=50_000.0, linkage_damping_N_s_m=100.0
+    )
+    state = engagement.initial_state()._replace(
+        stage=Stage.SYNCHRONIZATION, position_m=g.synchronization_position_m
+    )
+    state, seen = push(state, 78.5, 200, g)
+    assert set(seen) == {"synchronization"}
+    assert state.position_m == pytest.approx(
+        g.synchronization_position_m + 78.5 / 50_000.0, abs=1e-7
+    )
+    assert abs(state.velocity_m_s) < 1e-6
+    state, seen = push(state, 0.0, 100, g)
+    assert seen[0] == "neutral" and state.position_m < g.synchronization_position_m
+    assert default_params().gearbox.linkage_stiffness_N_m == 0.0
+
+
+def test_the_linkage_efficiency_makes_the_gear_heavier_to_index():
+    """m_eq = J * tan^2 / (r^2 * i^2 * efficiency): the knob drives the sleeve through losses."""
+    g = default_params().gearbox
+    lossy = dataclasses.replace(g, chamfer=dataclasses.replace(g.chamfer, linkage_efficiency=0.7))
+    ideal = dataclasses.replace(g, chamfer=dataclasses.replace(g.chamfer, linkage_efficiency=1.0))
+    mass_lossy, drag_lossy = engagement.chamfer_load(lossy, None, None)
+    mass_ideal, drag_ideal = engagement.chamfer_load(ideal, None, None)
+    c = g.chamfer
+    per = math.tan(c.angle_rad) / (c.radius_m * c.lever_ratio)
+    assert mass_ideal == pytest.approx(c.gear_inertia_kg_m2 * per**2)
+    assert mass_lossy == pytest.approx(mass_ideal / 0.7)
+    assert drag_lossy == pytest.approx(drag_ideal / 0.7)

@@ -8,7 +8,8 @@ Axis: x along the slot, 0 = neutral, positive toward the gear. Forces are positi
 
 Stages, in the order a push from neutral meets them (`Stage`):
   neutral          free motion; the neutral spring and spring-ball detent centre the lever
-  synchronization  the blocker ring holds the lever at x_sync while the driver's push (more than
+  synchronization  the blocker ring holds the lever at x_sync (rigidly, or through the linkage's
+                   compliance) while the driver's push (more than
                    the strut and detent force that pushes the sleeve back there) loads it and the
                    cones cancel the speed difference; after `synchronization_duration_s` of
                    pushing the synchro gate opens (or when an outside synchronizer says so). When
@@ -148,6 +149,10 @@ class EngagementParams:
     neutral_detent: DetentParams
     gear_detent: DetentParams
     chamfer: ChamferParams
+    linkage_stiffness_N_m: float
+    """Compliance of the linkage against the blocked ring (0: rigid, the knob held at x_sync);
+    a cable linkage lets the knob in by F / k while the ring blocks."""
+    linkage_damping_N_s_m: float
 
     @property
     def hold_force_N(self) -> float:
@@ -322,17 +327,30 @@ def step(
             else:
                 synchronized = inputs.gate_open
             if not synchronized:
+                x1, v1, reaction = x, 0.0, force
+                k_link = params.linkage_stiffness_N_m
+                if k_link > 0.0:
+                    # The linkage gives against the blocked ring: a spring from x_sync on.
+                    x_sync = params.synchronization_position_m
+                    mass = params.neutral.mass_kg
+                    x1, v1, _ = stick_slip_step(
+                        x, v, force, mass, params.linkage_damping_N_s_m, k_link, x_sync,
+                        0.0, 0.0, 0.0, dt_s,
+                    )  # fmt: skip
+                    if x1 < x_sync:  # the sleeve rests on the ring: no further back
+                        x1, v1 = x_sync, 0.0
+                    reaction = force - mass * (v1 - v) / dt_s
                 held = EngagementState(
                     stage,
-                    x,
-                    0.0,
+                    x1,
+                    v1,
                     state.stage_time_s + dt_s,
                     progress,
                     state.tooth_force_N,
                     state.rng_state,
                     state.index_end_m,
                 )
-                return held, EngagementOutputs(x, 0.0, force, force, stage.value)
+                return held, EngagementOutputs(x1, v1, force, reaction, stage.value)
             stage = Stage.GATE_OPEN  # synchro gate opens
     elif stage is Stage.ENGAGEMENT and force < -params.reversal_force_N:
         # A pull on the teeth, held: a reversal (a grip's rebound or a noisy sample is not one).
