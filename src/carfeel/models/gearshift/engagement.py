@@ -69,8 +69,8 @@ class DetentParams:
     """A spring-ball detent: a conservative force profile, symmetric about its seat.
 
         force toward the seat                 past the crest: away from it
-        seat ~~~ half-sine, peak seat_force_N ~~~ crest ~~~ half-sine, peak far_force_N ~~~ |
-                                               (far_width_m long)
+        seat ~~~ parabola, peak seat_force_N ~~~ crest ~~~ parabola, peak far_force_N ~~~ |
+                                              (far_width_m long)
 
     The seat is 0 for the neutral detent (its crest toward the gear) and x_gear for the gear's
     (its crest toward neutral). Force 0 at the seat, the crest and beyond.
@@ -261,6 +261,11 @@ def _detents(x: float, params: EngagementParams) -> tuple[float, float, float]:
     return f1 + f2, e1 + e2, k1 + k2
 
 
+def _flat_J(width: float, d: DetentParams) -> float:
+    """Potential (J) of a detent beyond its reach (`width` from seat to crest, > 0)."""
+    return (d.seat_force_N * width - d.far_force_N * d.far_width_m) * (2.0 / 3.0)
+
+
 def _detent(x: float, seat: float, width: float, d: DetentParams) -> tuple[float, float, float]:
     """(force N, potential J, stiffness -dF/dx N/m) of one detent at x (see DetentParams);
     `width` is the signed distance from the seat to the crest."""
@@ -269,27 +274,24 @@ def _detent(x: float, seat: float, width: float, d: DetentParams) -> tuple[float
     sign = 1.0 if width > 0.0 else -1.0
     if u < 0.0:
         u, sign = -u, -sign
-    top = d.seat_force_N * span / math.pi
-    if u < 1.0:
-        phase = math.pi * u
-        cos = math.cos(phase)
+    peak = d.seat_force_N
+    if u < 1.0:  # the flank toward the seat: F = 4 * peak * u * (1 - u)
         return (
-            -sign * d.seat_force_N * math.sin(phase),
-            top * (1.0 - cos),
-            d.seat_force_N * math.pi / span * cos,
+            -sign * 4.0 * peak * u * (1.0 - u),
+            peak * span * u * u * (2.0 - u * (4.0 / 3.0)),
+            4.0 * peak * (1.0 - 2.0 * u) / span,
         )
     far = d.far_width_m
     w = (u - 1.0) * span / far if far > 0.0 else 1.0
-    drop = d.far_force_N * far / math.pi
-    if w < 1.0:
-        phase = math.pi * w
-        cos = math.cos(phase)
+    top = peak * span * (2.0 / 3.0)
+    if w < 1.0:  # past the crest, away from the seat
+        help_ = d.far_force_N
         return (
-            sign * d.far_force_N * math.sin(phase),
-            2.0 * top - drop * (1.0 - cos),
-            -d.far_force_N * math.pi / far * cos,
+            sign * 4.0 * help_ * w * (1.0 - w),
+            top - help_ * far * w * w * (2.0 - w * (4.0 / 3.0)),
+            -4.0 * help_ * (1.0 - 2.0 * w) / far,
         )
-    return 0.0, 2.0 * top - 2.0 * drop, 0.0
+    return 0.0, top - d.far_force_N * far * (2.0 / 3.0), 0.0
 
 
 def chamfer_load(
@@ -317,7 +319,12 @@ def step(
 
     # Guards on force and time, before the motion of this step.
     if stage is Stage.SYNCHRONIZATION:
-        if force < params.hold_force_N:
+        neutral = params.neutral
+        # (A cheap bound first: the detent pushes back with at most its seat force.)
+        bound = neutral.stiffness_N_m * params.synchronization_position_m + (
+            params.neutral_detent.seat_force_N + params.ring_release_force_N
+        )
+        if force < bound and force < params.hold_force_N:
             # The push dropped: the struts and the detent push the sleeve off the ring.
             stage = Stage.NEUTRAL
         else:
@@ -383,8 +390,21 @@ def step(
             mass += index_mass
             extra += index_drag
     # The detents: their force at x, linearized where they stiffen (the stiffness joins the
-    # implicit step, so the stop and its detent ring as one spring at any step).
-    detent, potential, k_detent = _detents(x, params)
+    # implicit step, so the stop and its detent ring as one spring at any step). Each is
+    # evaluated only within its reach (beyond, it is flat).
+    nd, gd = params.neutral_detent, params.gear_detent
+    n_width, g_width = nd.width_m, gd.width_m
+    n_reach, g_reach = n_width + nd.far_width_m, g_width + gd.far_width_m
+    x_gear = params.in_gear_position_m
+    near_n = -n_reach < x < n_reach
+    near_g = -g_reach < x - x_gear < g_reach
+    detent = k_detent = u_n = u_g = 0.0
+    if near_n:
+        detent, u_n, k_detent = _detent(x, 0.0, n_width, nd)
+    if near_g:
+        f, u_g, k = _detent(x, x_gear, -g_width, gd)
+        detent += f
+        k_detent += k
     if k_detent > 0.0:  # f(x') = f(x) - k_detent * (x' - x): a spring relaxed at x, plus f(x)
         rest = (stiffness * rest + k_detent * x) / (stiffness + k_detent)
         stiffness += k_detent
@@ -408,18 +428,28 @@ def step(
         params.stick_velocity_m_s,
         dt_s,
     )
-    if potential != 0.0 or x1 != x:
-        # The detents' linearized force did work w over the step; any of it beyond the fall of
-        # their potential is taken back from the kinetic energy, so they stay conservative.
-        dx = x1 - x
-        work = (detent - 0.5 * k_detent * dx) * dx
-        excess = work - potential + _detents(x1, params)[1]
-        if excess > 0.0:
-            kinetic = 0.5 * mass * v1 * v1
-            if kinetic > excess:
-                v1 *= math.sqrt(1.0 - excess / kinetic)
-            else:
-                x1, v1 = x, 0.0
+    if x1 != x:
+        near_n1 = -n_reach < x1 < n_reach
+        near_g1 = -g_reach < x1 - x_gear < g_reach
+        if near_n or near_g or near_n1 or near_g1:
+            # The detents' linearized force did work over the step; any of it beyond the fall
+            # of their potential is taken back from the kinetic energy: they stay conservative.
+            dx = x1 - x
+            excess = (detent - 0.5 * k_detent * dx) * dx
+            if near_n or near_n1:
+                before = u_n if near_n else _flat_J(n_width, nd)
+                after = _detent(x1, 0.0, n_width, nd)[1] if near_n1 else _flat_J(n_width, nd)
+                excess += after - before
+            if near_g or near_g1:
+                before = u_g if near_g else _flat_J(g_width, gd)
+                after = _detent(x1, x_gear, -g_width, gd)[1] if near_g1 else _flat_J(g_width, gd)
+                excess += after - before
+            if excess > 0.0:
+                kinetic = 0.5 * mass * v1 * v1
+                if kinetic > excess:
+                    v1 *= math.sqrt(1.0 - excess / kinetic)
+                else:
+                    x1, v1 = x, 0.0
     reaction = force - mech.mass_kg * (v1 - v) / dt_s
 
     # Guards on position, at the end of the motion of this step.
