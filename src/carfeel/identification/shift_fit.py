@@ -834,9 +834,12 @@ def _fit_stop(
             )
             continue
         t0 = float(tr.time_s[idx[-1]])
-        offset = float(np.polyfit(tr.time_s[idx] - t0, tr.position_m[idx], 1)[1])
+        # A parabola gives the state at t0: the gear detent's suck-in accelerates the lever here.
+        curve = np.polyfit(tr.time_s[idx] - t0, tr.position_m[idx], 2) if len(idx) > 3 else None
+        offset = float(curve[2]) if curve is not None else float(tr.position_m[idx[-1]])
+        speed = float(curve[1]) if curve is not None and curve[1] > 0.0 else slope
         state = engagement.initial_state()._replace(
-            stage=Stage.FREE_TRAVEL, position_m=offset, velocity_m_s=slope
+            stage=Stage.FREE_TRAVEL, position_m=offset, velocity_m_s=speed
         )
         cases.append((tr, state, t0, compare))
     if not cases:
