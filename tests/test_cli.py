@@ -300,7 +300,8 @@ def test_hpattern_with_the_clutch_released_reports_the_balk(tmp_path, capsys):
                  "--synchronizer", "physics", "--out", str(out)])  # fmt: skip
     assert code == 0
     text = capsys.readouterr().out
-    assert "gears engaged    none" in text and "grinding" in text
+    # A sound ring balks silently (issue 10: grinding only when the blocking condition fails).
+    assert "gears engaged    none" in text and "grinding" not in text
 
 
 @pytest.mark.parametrize(
@@ -338,3 +339,83 @@ def test_invalid_layout_file_exits_2(tmp_path, capsys):
                  "--out", str(tmp_path / "x.csv")])  # fmt: skip
     assert code == 2
     assert "gear R is on plane 5" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------- issue 10
+
+
+@pytest.mark.parametrize("seed", [0, 1, 4])
+def test_the_summary_gives_the_engagement_peak_where_the_csv_has_it(tmp_path, capsys, seed):
+    """Issue 10: the summary said "at 21.2 mm" (where the teeth are met) for every seed."""
+    out = tmp_path / "s.csv"
+    assert main(["simulate", "shift", "--seed", str(seed), "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    result = Result.from_csv(out)
+    teeth = result["stage"] == "engagement"
+    peak = np.flatnonzero(teeth)[np.argmax(result["force_N"][teeth])]
+    line = next(line for line in text.splitlines() if "engagement peak" in line)
+    at_mm = float(line.split(" at ")[1].split(" mm")[0])
+    # Printed to 0.1 mm.
+    assert at_mm == pytest.approx(result["position_m"][peak] * 1e3, abs=0.051)
+
+
+def write_profile(path, rows, header="time_s,force_N"):
+    path.write_text(header + "\n" + "\n".join(",".join(str(v) for v in r) for r in rows) + "\n")
+    return path
+
+
+def test_a_force_profile_drives_the_knob_open_loop(tmp_path, capsys):
+    """A hand-made profile: 60 N for 0.5 s (synchronization, then into gear), then nothing. The
+    knob force in the CSV is the profile's, interpolated; the run lasts as long as the profile."""
+    profile = write_profile(
+        tmp_path / "push.csv", [(0.0, 0.0), (0.02, 60.0), (0.5, 60.0), (0.52, 0.0), (0.8, 0.0)]
+    )
+    out = tmp_path / "p.csv"
+    code = main(["simulate", "shift", "--force-profile", str(profile), "--out", str(out)])
+    assert code == 0, capsys.readouterr().err
+    result = Result.from_csv(out)
+    assert result.time_s[-1] == pytest.approx(0.8)
+    expected = np.interp(result.time_s, [0.0, 0.02, 0.5, 0.52, 0.8], [0.0, 60.0, 60.0, 0.0, 0.0])
+    assert np.allclose(result["force_N"], expected)
+    stages = set(result["stage"].tolist())
+    assert {"synchronization", "engagement", "stop"} <= stages
+    meta = json.loads(out.with_suffix(".json").read_text())
+    assert meta["force_profile"] == str(profile)
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        ("time,force\n0,1\n1,2\n", "no column time_s or force_N"),
+        ("time_s,force_N\n0,1\n", "give at least two"),
+        ("time_s,force_N\n0,1\n0.1,abc\n", "line 3: force_N = 'abc' is not a number"),
+        ("time_s,force_N\n0,1\n0.2,2\n0.1,3\n", "times must increase"),
+        ("time_s,force_N\n0,1\n0.1,50000\n", "give the knob force in N"),
+        ("", "is empty"),
+    ],
+)
+def test_bad_force_profiles_are_refused_with_a_message(tmp_path, capsys, content, message):
+    profile = tmp_path / "bad.csv"
+    profile.write_text(content)
+    out = tmp_path / "o.csv"
+    out.write_text("keep me")
+    code = main(["simulate", "shift", "--force-profile", str(profile), "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert message in err and "Traceback" not in err
+    assert err.count("\n") == 1  # one message
+    assert out.read_text() == "keep me"  # existing files untouched
+
+
+def test_a_missing_force_profile_and_pull_out_with_a_profile_are_refused(tmp_path, capsys):
+    out = tmp_path / "o.csv"
+    code = main(
+        ["simulate", "shift", "--force-profile", str(tmp_path / "no.csv"), "--out", str(out)]
+    )
+    assert code == 2 and "not found" in capsys.readouterr().err
+    profile = write_profile(tmp_path / "p.csv", [(0.0, 0.0), (0.1, 10.0)])
+    code = main(
+        ["simulate", "shift", "--force-profile", str(profile), "--pull-out", "--out", str(out)]
+    )
+    assert code == 2 and "exclude each other" in capsys.readouterr().err
+    assert not out.exists()

@@ -39,12 +39,17 @@ def drive(
     early_clutch: int = 0,
     wall: int = 0,
     max_s: float = 60.0,
+    blocking_margin: float | None = None,
 ) -> Result:
     p = preset(layout)
     script = Script(
         sequence, p.setup.layout, p.shift.driver, p.setup.driver, clutch, early_clutch, wall
     )
-    run = HPatternRun(p.pattern(physics), script, speed_kmh / 3.6, RPM_800)
+    pattern = p.pattern(physics)
+    if blocking_margin is not None:
+        sync = dataclasses.replace(pattern.synchronizer, blocking_margin=blocking_margin)
+        pattern = dataclasses.replace(pattern, synchronizer=sync)
+    run = HPatternRun(pattern, script, speed_kmh / 3.6, RPM_800)
     return simulate_hpattern(run, max_duration_s=max_s)
 
 
@@ -132,8 +137,19 @@ def test_fixed_mode_reproduces_the_single_engagement_exactly():
     """The x axis in a slot, aligned, with the paper's synchronizer, is the 1-DOF model itself
     (with the latch, our addition beyond the paper, switched off)."""
     p = preset()
-    one_dof = simulate_shift(p.shift, seed=4, duration_s=1.2)
     pattern = p.pattern(physics=False)
+    # The centre plane's gear 3 (synchronizer on the input shaft): its chamfers turn the input
+    # side's inertia as it is, not first gear's (the shift preset's).
+    sync = pattern.synchronizer
+    gearbox = dataclasses.replace(
+        p.shift.gearbox,
+        chamfer=dataclasses.replace(
+            p.shift.gearbox.chamfer,
+            gear_inertia_kg_m2=sync.input_inertia_kg_m2,
+            drag_torque_Nm=sync.drag_torque_Nm,
+        ),
+    )
+    one_dof = simulate_shift(dataclasses.replace(p.shift, gearbox=gearbox), seed=4, duration_s=1.2)
     pattern = dataclasses.replace(
         pattern, feel=dataclasses.replace(pattern.feel, latch_force_N=0.0)
     )
@@ -216,10 +232,23 @@ def test_physics_mode_sequence_engages_with_speed_dependent_times():
 # ---------------------------------------------------------------- clutch, balk, grinding
 
 
+WORN = -0.1
+"""A ring with no blocking margin left: the blocking condition has failed, the teeth grind."""
+
+
 @pytest.mark.parametrize("physics", [False, True])
-def test_with_the_clutch_released_no_gear_engages_and_the_balk_is_felt(physics):
-    p = preset()
+def test_a_sound_ring_balks_silently_with_the_clutch_released(physics):
+    """Issue 10: the blocking condition does not depend on the force or the clutch."""
     result = drive(("N", "1"), physics=physics, clutch=0.0, max_s=3.0)
+    assert engaged(result) == []
+    assert (result["stage"] == "synchronization").sum() > 1500
+    assert np.all(result["grind_N"] == 0.0)
+
+
+@pytest.mark.parametrize("physics", [False, True])
+def test_with_the_clutch_released_no_gear_engages_and_a_worn_ring_grinds(physics):
+    p = preset()
+    result = drive(("N", "1"), physics=physics, clutch=0.0, max_s=3.0, blocking_margin=WORN)
     assert engaged(result) == []
     sync = result["stage"] == "synchronization"
     assert sync.sum() > 1500  # blocked at the ring for the rest of the run
@@ -241,7 +270,14 @@ def test_with_the_clutch_released_no_gear_engages_and_the_balk_is_felt(physics):
 
 
 def test_releasing_the_clutch_early_balks_that_gear_only():
-    result = drive(("N", "1", "2", "N"), physics=True, early_clutch=3, max_s=8.0, speed_kmh=30.0)
+    result = drive(
+        ("N", "1", "2", "N"),
+        physics=True,
+        early_clutch=3,
+        max_s=8.0,
+        speed_kmh=30.0,
+        blocking_margin=WORN,
+    )
     assert engaged(result) == ["1"]  # 2nd balks: the clutch drags the input shaft
     assert np.abs(result["grind_N"]).max() > 0.0
 
@@ -339,8 +375,10 @@ def test_a_normal_synchronization_does_not_grind(physics):
     assert np.all(result["grind_N"] == 0.0)
 
 
-def push_slowly(pattern, force_N: float = 12.0, steps: int = 1500):
-    """Push the knob on the centre plane with a constant force; the outputs of every step."""
+def push_slowly(pattern, force_N: float = 16.0, steps: int = 1500):
+    """Push the knob on the centre plane with a constant force; the outputs of every step.
+
+    16 N: enough to pass the latch against the centring spring and the neutral detent."""
     state = hpattern.initial_state(pattern)
     outs = []
     for _ in range(steps):
@@ -358,15 +396,23 @@ def test_the_latch_is_a_force_bump_before_the_synchro_ring():
         dataclasses.replace(pattern, feel=dataclasses.replace(feel, latch_force_N=0.0))
     )
 
+    damping = pattern.engagement.neutral.damping_N_s_m
+
     def resistance_at(outs, s):
-        near = [o.reaction_x_N for o in outs if abs(o.x_m - s) < 0.2e-3 and o.vx_m_s > 0.0]
+        # Less the lever's damping: with the latch the knob passes the bump more slowly.
+        near = [
+            o.reaction_x_N - damping * o.vx_m_s
+            for o in outs
+            if abs(o.x_m - s) < 0.2e-3 and o.vx_m_s > 0.0
+        ]
         return max(near)
 
     centre = feel.latch_position_m
-    # At the bump's top the gearbox resists by the latch force more (within 10 %: the
-    # triangular bump is sampled over +-0.2 mm of its 2 mm half-width).
+    # At the bump's top the gearbox resists by the latch force more (within 20 %: the
+    # triangular bump is sampled over +-0.2 mm of its 2 mm half-width, and the two runs cross
+    # it at different speeds, so the detent's work over a step differs by up to about 1 N).
     extra = resistance_at(with_latch, centre) - resistance_at(without, centre)
-    assert extra == pytest.approx(feel.latch_force_N, rel=0.1)
+    assert extra == pytest.approx(feel.latch_force_N, rel=0.2)
     # Outside the bump nothing changes.
     before = centre - 1.5 * feel.latch_width_m
     assert resistance_at(with_latch, before) == pytest.approx(resistance_at(without, before))
@@ -400,7 +446,7 @@ def test_reverse_does_not_go_in_while_the_car_rolls(physics):
 def test_grinding_is_rendered_below_a_quarter_of_the_step_rate():
     """At 100 km/h the teeth pass at over 1 kHz; a 1 kHz loop shows at most 250 Hz, not an
     alias: the rendered phase advances by at most a quarter turn per step."""
-    result = drive(("N", "1"), clutch=0.0, speed_kmh=100.0, max_s=2.0)
+    result = drive(("N", "1"), clutch=0.0, speed_kmh=100.0, max_s=2.0, blocking_margin=WORN)
     grind = result["grind_N"][result["stage"] == "synchronization"]
     assert np.count_nonzero(grind) > 500
     spectrum = np.abs(np.fft.rfft(grind))
@@ -472,3 +518,140 @@ def test_random_throws_with_no_driver_never_gain_energy():
         for _ in range(400):
             state, _ = hpattern.step(state, HPatternInputs(0.0, 0.0, 1.0), pattern, 1e-3)
             assert mechanical_energy(state, pattern) <= start * (1 + 1e-9) + 1e-12
+
+
+# ---------------------------------------------------------------- issue 10
+
+
+def knob_on(pattern, gear: str, x_m: float, speed_kmh: float = 0.0, from_gear: str = "2"):
+    """A knob at rest at x along `gear`'s slot (entered from the corridor), the input shaft
+    turning as in `from_gear` at that speed."""
+    layout = pattern.layout
+    slot = layout.gear(gear)
+    w_out = synchronizer.output_speed_rad_s(speed_kmh / 3.6, pattern.synchronizer)
+    state = hpattern.initial_state(pattern, input_speed_rad_s=w_out * layout.gear(from_gear).ratio)
+    lever = state.lever._replace(position_m=x_m)
+    return state._replace(
+        lever=lever,
+        direction=slot.direction,
+        y_m=layout.planes_y_m[slot.plane],
+        plane=slot.plane,
+        in_slot=x_m > 0.5 * layout.corridor_width_m,
+    )
+
+
+@pytest.mark.parametrize("x_mm", [7.0, 10.0, 14.0])
+def test_a_knob_released_in_a_slot_before_the_ring_returns_to_neutral(x_mm):
+    """Issue 10: the 10 N break-out beat the 400 N/m spring, so a knob let go in a slot stayed
+    there with the gear N. With the detent (and the latch passed back over) it returns to the
+    corridor within 0.5 s."""
+    pattern = preset().pattern(physics=False)
+    state = knob_on(pattern, "3", x_mm * 1e-3)
+    for _ in range(500):
+        state, out = hpattern.step(state, HPatternInputs(0.0, 0.0, 1.0), pattern, 1e-3)
+    assert abs(out.x_m) < 0.5 * pattern.layout.corridor_width_m
+    assert out.gear == "N" and out.stage == "neutral"
+
+
+def test_physics_mode_a_ring_let_go_lets_the_speed_difference_rebuild():
+    """Issue 10: a knob let go during synchronization leaves the ring; with the cone unloaded the
+    drag pulls the input shaft away from the gear's speed again (2 -> 1 at 30 km/h)."""
+    pattern = preset().pattern(physics=True)
+    state = knob_on(pattern, "1", 0.012, speed_kmh=30.0)
+    forward = pattern.layout.gear("1").direction
+    push = HPatternInputs(78.5 * forward, 0.0, 1.0, 30 / 3.6)
+    let_go = HPatternInputs(0.0, 0.0, 1.0, 30 / 3.6)
+    for _ in range(150):
+        state, out = hpattern.step(state, push, pattern, 1e-3)
+    assert out.stage == "synchronization"
+    w_release = state.sync.input_speed_rad_s
+    target = synchronizer.output_speed_rad_s(30 / 3.6, pattern.synchronizer) * 3.909
+    assert w_release < target - 50.0  # still far from first gear's speed
+    for _ in range(300):
+        state, out = hpattern.step(state, let_go, pattern, 1e-3)
+    assert out.stage == "neutral"
+    assert abs(out.x_m) < 0.5 * pattern.layout.corridor_width_m
+    # The 0.3 Nm drag on 0.01 kg m^2 for 0.3 s slows the shaft by 9 rad/s, away from first
+    # gear's speed (to the steps' rounding).
+    sync = pattern.synchronizer
+    drop = sync.drag_torque_Nm / sync.input_inertia_kg_m2 * 0.3
+    assert state.sync.input_speed_rad_s == pytest.approx(w_release - drop, abs=0.1)
+
+
+def sync_time_at(location: str, ratio_from: float, ratio_to: float, speed_m_s: float,
+                 scale: float = 1.0, efficiency: float | None = None) -> float:  # fmt: skip
+    p = dataclasses.replace(preset().setup.synchronizer, physics=True)
+    if efficiency is not None:
+        p = dataclasses.replace(p, linkage_efficiency=efficiency)
+    w_out = synchronizer.output_speed_rad_s(speed_m_s, p)
+    state = synchronizer.initial_state(w_out * ratio_from)
+    inputs = SynchronizerInputs(speed_m_s, RPM_800, 1.0, ratio_to, False, 78.5, location, scale)
+    for k in range(1, 40_000):
+        state, out = synchronizer.step(state, inputs, p, 1e-4)
+        if out.gate_open:
+            return k * 1e-4
+    return math.inf
+
+
+def test_an_input_shaft_synchronizer_is_faster_by_the_ratio():
+    """Issue 10: the cone on the input shaft acts there directly, on the output shaft through
+    the gear (T / r). With the drag the times are J*dw / (T + drag) and J*dw / (T / r + drag)
+    (an upshift: the drag helps); both to two 0.1 ms steps."""
+    p = preset().setup.synchronizer
+    speed, r_from, r_to = 10.0, 2.157, 1.480
+    w_out = synchronizer.output_speed_rad_s(speed, p)
+    dw = w_out * (r_from - r_to) - p.speed_tolerance_rad_s
+    torque = synchronizer.cone_torque_Nm(78.5, p)
+    t_in = sync_time_at(synchronizer.INPUT, r_from, r_to, speed)
+    t_out = sync_time_at(synchronizer.OUTPUT, r_from, r_to, speed)
+    j = p.input_inertia_kg_m2
+    assert t_in == pytest.approx(j * dw / (torque + p.drag_torque_Nm), rel=2e-3)
+    assert t_out == pytest.approx(j * dw / (torque / r_to + p.drag_torque_Nm), rel=2e-3)
+    assert t_out / t_in == pytest.approx(
+        (torque + p.drag_torque_Nm) / (torque / r_to + p.drag_torque_Nm), rel=4e-3
+    )
+
+
+def test_the_linkage_efficiency_scales_the_cone_torque():
+    """F_axial = lever_ratio * efficiency * F_knob: at 0.7 instead of 0.9 the same push takes
+    longer by about 0.9 / 0.7 (less, by the drag's share of the torque: within 5 %)."""
+    a = sync_time_at(synchronizer.OUTPUT, 3.909, 2.157, 10.0, efficiency=0.9)
+    b = sync_time_at(synchronizer.OUTPUT, 3.909, 2.157, 10.0, efficiency=0.7)
+    assert b / a == pytest.approx(0.9 / 0.7, rel=0.05)
+
+
+def test_sync_times_of_the_default_gearbox_stay_in_the_published_range():
+    """0.1-0.4 s (the synchromesh literature) for each up- and downshift of the 5r preset at a
+    2500 rpm shift point, with every downshift slower than its upshift (measured: 1-2 0.21 /
+    0.29 s, 2-3 0.14 / 0.17, 3-4 0.12 / 0.12, 4-5 0.10 / 0.11)."""
+    p = preset().setup
+    gears = {g.name: g for g in p.layout.gears}
+    w_engine = 2500 * 2 * math.pi / 60
+    for low, high in (("1", "2"), ("2", "3"), ("3", "4"), ("4", "5")):
+        a, b = gears[low], gears[high]
+        speed = (
+            w_engine / a.ratio / p.synchronizer.final_drive_ratio * p.synchronizer.wheel_radius_m
+        )
+        up = sync_time_at(b.synchronizer, a.ratio, b.ratio, speed, b.cone_scale)
+        down = sync_time_at(a.synchronizer, b.ratio, a.ratio, speed, a.cone_scale)
+        assert 0.1 <= up < down <= 0.4, (low, high, up, down)
+
+
+def test_the_x_axis_turns_each_gears_own_inertia_through_the_chamfers():
+    """The H-pattern hands the engagement each gear's inertia at its synchronizer: first gear
+    (output shaft, J * r^2) is heavier to index than third (input shaft, J)."""
+    pattern = preset().pattern(physics=False)
+    loads = {}
+    for name in ("1", "3"):
+        state = knob_on(pattern, name, 0.0205)
+        state = state._replace(
+            lever=state.lever._replace(
+                stage=engagement.Stage.GATE_OPEN, velocity_m_s=0.3, synchronization_progress=1.0
+            )
+        )
+        slot = pattern.layout.gear(name)
+        force = 20.0 * slot.direction
+        for _ in range(3):
+            state, out = hpattern.step(state, HPatternInputs(force, 0.0, 1.0), pattern, 1e-3)
+        loads[name] = abs(out.vx_m_s)
+    assert loads["1"] < loads["3"]

@@ -155,6 +155,13 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="after settling in gear, pull the lever back to neutral",
     )
+    shift.add_argument(
+        "--force-profile",
+        metavar="FILE.csv",
+        help="drive the knob open loop with a recorded or hand-made force (CSV columns time_s, "
+        "force_N; interpolated linearly) instead of the eq. (10) driver; the run lasts as long "
+        "as the profile unless --duration says otherwise",
+    )
     shift.add_argument("--out", required=True, metavar="FILE.csv", help="CSV file to write")
     shift.add_argument("--plot", metavar="FILE.png", help="also write a PNG plot")
 
@@ -455,6 +462,7 @@ def _simulate_shift(args: argparse.Namespace) -> int:
         dt_s=args.dt,
         substeps=args.substeps,
         pull_out=args.pull_out,
+        force_profile=Path(args.force_profile) if args.force_profile else None,
     )
     summary = run_shift(config, out, plot)
     print(summary.text())

@@ -14,6 +14,7 @@ from carfeel import __version__
 from carfeel.analysis.shift_features import ShiftFeatures, shift_features
 from carfeel.analysis.steering_feel import SteeringFeel, steering_feel
 from carfeel.errors import CarfeelError, InputError
+from carfeel.io.force_profile import read_force_profile
 from carfeel.io.presets import load_hpattern, load_shift, load_steering
 from carfeel.models.drivers.hpattern import Script
 from carfeel.models.gearshift.hpattern import NEUTRAL_GEAR, Layout
@@ -21,7 +22,7 @@ from carfeel.simulation import manoeuvres
 from carfeel.simulation.hpattern import MAX_STEP_S as HPATTERN_MAX_STEP_S
 from carfeel.simulation.hpattern import HPatternRun, simulate_hpattern
 from carfeel.simulation.result import Result
-from carfeel.simulation.shift import MAX_STEP_S, simulate_shift
+from carfeel.simulation.shift import MAX_STEP_S, simulate_force_profile, simulate_shift
 from carfeel.simulation.steering import LINEAR_TYRE_LIMIT_G, simulate_steering
 from carfeel.simulation.steering import MAX_STEP_S as STEERING_MAX_STEP_S
 
@@ -73,6 +74,8 @@ class ShiftRun:
     dt_s: float = 1e-3
     substeps: int = 1
     pull_out: bool = False
+    force_profile: Path | None = None
+    """A CSV (time_s, force_N) that drives the knob open loop instead of the eq. (10) driver."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -95,7 +98,8 @@ class ShiftSummary:
             f"{f.synchronization_hold_s * 1e3:.0f} ms at "
             f"{at(f.synchronization_position_m, 'mm', 1e3)}",
             f"  engagement peak  {at(f.engagement_peak_N, 'N')} at "
-            f"{at(f.engagement_position_m, 'mm', 1e3)}",
+            f"{at(f.engagement_peak_position_m, 'mm', 1e3)} (teeth met at "
+            f"{at(f.engagement_position_m, 'mm', 1e3)})",
             f"  stop peak        {at(f.stop_peak_N, 'N')}, overshoot "
             f"{at(f.stop_overshoot_m, 'mm', 1e3, 2)}",
             f"  final            {f.final_stage} at {f.final_position_m * 1e3:.2f} mm",
@@ -117,6 +121,16 @@ def run_shift(config: ShiftRun, csv_path: Path, plot_path: Path | None = None) -
         duration = (
             DEFAULT_SHIFT_PULL_OUT_DURATION_S if config.pull_out else DEFAULT_SHIFT_DURATION_S
         )
+    profile = None
+    if config.force_profile is not None:
+        if config.pull_out:
+            raise InputError(
+                "--pull-out and --force-profile exclude each other: the profile's force drives "
+                "the knob; put the pull into the profile (negative force_N)"
+            )
+        profile = read_force_profile(config.force_profile)
+        if config.duration_s is None:
+            duration = float(profile[0][-1])
     check_steps(duration, config.dt_s, config.substeps, MAX_STEP_S)
     params = preset.params
     if config.pull_out != params.driver.pull_out:
@@ -132,14 +146,26 @@ def run_shift(config: ShiftRun, csv_path: Path, plot_path: Path | None = None) -
         "duration_s": repr(duration),
         "pull_out": str(config.pull_out).lower(),
     }
-    result = simulate_shift(
-        params,
-        seed=config.seed,
-        duration_s=duration,
-        dt_s=config.dt_s,
-        substeps=config.substeps,
-        metadata=metadata,
-    )
+    if profile is not None:
+        metadata["force_profile"] = str(config.force_profile)
+        result = simulate_force_profile(
+            params.gearbox,
+            *profile,
+            seed=config.seed,
+            duration_s=duration,
+            dt_s=config.dt_s,
+            substeps=config.substeps,
+            metadata=metadata,
+        )
+    else:
+        result = simulate_shift(
+            params,
+            seed=config.seed,
+            duration_s=duration,
+            dt_s=config.dt_s,
+            substeps=config.substeps,
+            metadata=metadata,
+        )
     check_finite(result, "shift")
     features = shift_features(result, params.gearbox.in_gear_position_m)
     result.to_csv(csv_path)

@@ -22,7 +22,10 @@ class ShiftFeatures:
     synchronization_hold_s: float
     """How long the knob stayed still at the synchro ring."""
     engagement_position_m: float
+    """Where the lever met the teeth (the engagement stage's first sample)."""
     engagement_peak_N: float
+    engagement_peak_position_m: float
+    """Where the knob force peaked in the engagement stage."""
     stop_peak_N: float
     stop_overshoot_m: float
     """How far past the in-gear position the knob went."""
@@ -54,6 +57,9 @@ def shift_features(result: Result, in_gear_position_m: float) -> ShiftFeatures:
     sync = mask("synchronization")
     engagement = mask("engagement")
     stop = mask("stop")
+    peak_at = (
+        int(np.flatnonzero(engagement)[np.argmax(force[engagement])]) if engagement.any() else -1
+    )
     return ShiftFeatures(
         stages=tuple(name for name, _ in first_entries(stages)),
         synchronization_position_m=float(x[sync][0]) if sync.any() else nan,
@@ -62,6 +68,7 @@ def shift_features(result: Result, in_gear_position_m: float) -> ShiftFeatures:
         synchronization_hold_s=float(sync.sum() * dt),
         engagement_position_m=float(x[engagement][0]) if engagement.any() else nan,
         engagement_peak_N=float(force[engagement].max()) if engagement.any() else nan,
+        engagement_peak_position_m=float(x[peak_at]) if engagement.any() else nan,
         stop_peak_N=float(force[stop].max()) if stop.any() else nan,
         stop_overshoot_m=float(x[stop].max() - in_gear_position_m) if stop.any() else nan,
         final_stage=str(stages[-1]),

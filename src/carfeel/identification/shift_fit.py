@@ -588,8 +588,13 @@ def simulate_open_loop(
     linearly at the end of each step (as the runner does); before `start_s` the position is the
     state's. A step in which the stage changes is redone in REFINE sub-steps, so a guard fires
     within step_s / REFINE of the crossing. `tooth_force_N`, if given, replaces the model's
-    random tooth draw each time the lever enters the teeth.
+    random tooth draw each time the lever enters the teeth. The chamfers' random indexing of the
+    gear is off: which relative angle a recorded engagement met is unknown, and the teeth's
+    fitted resistance stands for the whole passage.
     """
+    if params.chamfer.gear_inertia_kg_m2 > 0.0 or params.chamfer.drag_torque_Nm > 0.0:
+        chamfer = dataclasses.replace(params.chamfer, gear_inertia_kg_m2=0.0, drag_torque_Nm=0.0)
+        params = dataclasses.replace(params, chamfer=chamfer)
     stop_s = float(sample_times_s[-1]) if len(sample_times_s) else start_s
     n = max(0, math.ceil((stop_s - start_s) / step_s - 1e-9))
     ends = start_s + step_s * np.arange(1, n + 1)
@@ -829,9 +834,12 @@ def _fit_stop(
             )
             continue
         t0 = float(tr.time_s[idx[-1]])
-        offset = float(np.polyfit(tr.time_s[idx] - t0, tr.position_m[idx], 1)[1])
+        # A parabola gives the state at t0: the gear detent's suck-in accelerates the lever here.
+        curve = np.polyfit(tr.time_s[idx] - t0, tr.position_m[idx], 2) if len(idx) > 3 else None
+        offset = float(curve[2]) if curve is not None else float(tr.position_m[idx[-1]])
+        speed = float(curve[1]) if curve is not None and curve[1] > 0.0 else slope
         state = engagement.initial_state()._replace(
-            stage=Stage.FREE_TRAVEL, position_m=offset, velocity_m_s=slope
+            stage=Stage.FREE_TRAVEL, position_m=offset, velocity_m_s=speed
         )
         cases.append((tr, state, t0, compare))
     if not cases:

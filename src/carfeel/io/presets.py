@@ -23,6 +23,7 @@ from typing import Any, Generic, TypeVar
 
 from carfeel.errors import PresetError
 from carfeel.models.gearshift.hpattern import WALL_DEPTH_M, HPatternParams
+from carfeel.models.gearshift.synchronizer import LOCATIONS
 from carfeel.simulation.hpattern import HPatternSetup
 from carfeel.simulation.shift import ShiftParams
 from carfeel.simulation.steering import SteeringCar
@@ -48,6 +49,24 @@ RANGES: dict[str, tuple[float, float, bool, bool]] = {
     "detent_release_m": (0.0, 0.05, False, True),
     "synchronization_duration_s": (0.0, 10.0, False, True),
     "tooth_force_spread_N": (0.0, 1e3, True, True),
+    "ring_release_force_N": (0.0, 1e3, True, True),
+    "desynchronization_time_s": (0.0, 100.0, False, True),
+    "reversal_force_N": (0.0, 1e3, True, True),
+    "reversal_time_s": (0.0, 1.0, True, True),
+    "linkage_stiffness_N_m": (0.0, 1e7, True, True),
+    "linkage_damping_N_s_m": (0.0, 1e4, True, True),
+    "neutral_detent.width_m": (0.0, 0.1, False, True),
+    "gear_detent.width_m": (0.0, 0.1, False, True),
+    "seat_force_N": (0.0, 1e3, True, True),
+    "far_force_N": (0.0, 1e3, True, True),
+    "far_width_m": (0.0, 0.1, True, True),
+    "gear_inertia_kg_m2": (0.0, 10.0, True, True),
+    "chamfer.drag_torque_Nm": (0.0, 1e3, True, True),
+    "angle_rad": (0.0, 1.4, False, True),
+    "radius_m": (0.0, 0.5, False, True),
+    "linkage_efficiency": (0.0, 1.0, False, True),
+    "travel_m": (0.0, 0.05, True, True),
+    "no_contact_fraction": (0.0, 1.0, True, False),
     "stick_velocity_m_s": (0.0, 0.1, False, True),
     "settle_velocity_m_s": (0.0, 1.0, False, True),
     "settle_distance_m": (0.0, 0.05, False, True),
@@ -108,6 +127,8 @@ RANGES: dict[str, tuple[float, float, bool, bool]] = {
     "cone_radius_m": (0.0, 0.2, False, True),
     "cone_half_angle_rad": (0.0, 0.8, False, True),
     "lever_ratio": (0.0, 50.0, False, True),
+    "blocking_margin": (-1.0, 10.0, True, True),
+    "cone_scale": (0.0, 10.0, False, True),
     "clutch_capacity_Nm": (0.0, 5000.0, True, True),
     "clutch_open_above": (0.0, 1.0, False, True),
     "drag_torque_Nm": (0.0, 100.0, True, True),
@@ -583,6 +604,11 @@ def check_hpattern(setup: HPatternSetup, shift: ShiftParams) -> list[str]:
                 f"{gear.plane}, direction {gear.direction}): slots overlap"
             )
         seen[where] = gear.name
+        if gear.synchronizer not in LOCATIONS:
+            problems.append(
+                f"layout.gears: gear {gear.name} has synchronizer = {gear.synchronizer!r}; "
+                f"allowed {', '.join(repr(x) for x in LOCATIONS)} (the shaft it sits on, or none)"
+            )
         if gear.ratio == 0.0 or (gear.name == "R") != (gear.ratio < 0.0):
             problems.append(
                 f"layout.gears: gear {gear.name} has ratio {gear.ratio:g}; reverse takes a "

@@ -81,6 +81,50 @@ def stick_slip_step(
     return position_m + h * velocity, velocity, friction
 
 
+def stick_slip_midpoint_step(
+    position_m: float,
+    velocity_m_s: float,
+    force_N: float,
+    mass_kg: float,
+    damping_N_s_m: float,
+    stiffness_N_m: float,
+    rest_position_m: float,
+    static_friction_N: float,
+    sliding_friction_N: float,
+    stick_velocity_m_s: float,
+    dt_s: float,
+) -> tuple[float, float, float]:
+    """As `stick_slip_step`, second order (the implicit midpoint rule), for stiff springs.
+
+    Backward Euler damps a spring numerically: a 30 kN/m stop on 1.2 kg (158 rad/s) at 1 kHz
+    rings with an effective damping ratio of 0.18 where the physical one is 0.105. The midpoint
+    rule maps the continuous poles to the unit circle with an error of (w*h)^2/12 (0.2 % there).
+
+    With vm = (v0 + v1)/2 and x1 = x0 + h*vm the update is
+    (2m/h + c + h*k/2)*vm = 2m*v0/h + F - k*(x0-r) - Ff, and
+    E1 - E0 = h*vm*(F - c*vm - Ff), with Ff*vm >= 0 by construction: passive with F = 0.
+    When the friction can stop the lever within the step it ends at rest (a stop at x0 + h*v0/2
+    if that friction opposes v0, else at x0): both only remove energy.
+    """
+    h = dt_s
+    applied = force_N - stiffness_N_m * (position_m - rest_position_m)
+    if -stick_velocity_m_s < velocity_m_s < stick_velocity_m_s and (
+        -static_friction_N <= applied <= static_friction_N
+    ):
+        return position_m, 0.0, applied
+    v0 = velocity_m_s
+    # The friction that brings the lever to rest exactly at the end of the step.
+    stop = mass_kg * v0 / h + applied - (0.5 * damping_N_s_m + 0.25 * h * stiffness_N_m) * v0
+    if -sliding_friction_N <= stop <= sliding_friction_N and stop * v0 >= 0.0:
+        return position_m + 0.5 * h * v0, 0.0, stop
+    drive = 2.0 * mass_kg * v0 / h + applied
+    if -sliding_friction_N <= drive <= sliding_friction_N:
+        return position_m, 0.0, drive
+    friction = sliding_friction_N if drive > 0.0 else -sliding_friction_N
+    mid = (drive - friction) / (2.0 * mass_kg / h + damping_N_s_m + 0.5 * h * stiffness_N_m)
+    return position_m + h * mid, 2.0 * mid - v0, friction
+
+
 def stage_energy_J(
     position_m: float, velocity_m_s: float, mech: StageMechanics, rest_position_m: float
 ) -> float:

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import NamedTuple
+
+import numpy as np
 
 from carfeel.models.drivers import shift as driver
 from carfeel.models.gearshift import engagement
@@ -81,6 +84,38 @@ def simulate_shift(
         duration_s=duration_s,
         dt_s=dt_s,
         substeps=substeps,
+        metadata={"seed": str(seed), **(metadata or {})},
+    )
+    return result
+
+
+def simulate_force_profile(
+    gearbox: engagement.EngagementParams,
+    time_s: Sequence[float],
+    force_N: Sequence[float],
+    *,
+    seed: int = 0,
+    duration_s: float,
+    dt_s: float = 1e-3,
+    substeps: int = 1,
+    metadata: dict[str, str] | None = None,
+) -> Result:
+    """The lever driven open loop by a knob force (N) given at `time_s` (s), interpolated
+    linearly (held before the first and after the last sample): a measured force replayed."""
+    times = np.asarray(time_s, dtype=float)
+    forces = np.asarray(force_N, dtype=float)
+
+    def inputs(t: float) -> engagement.EngagementInputs:
+        return engagement.EngagementInputs(float(np.interp(t, times, forces)))
+
+    result, _ = run(
+        engagement.step,
+        engagement.initial_state(seed),
+        gearbox,
+        duration_s=duration_s,
+        dt_s=dt_s,
+        substeps=substeps,
+        inputs=inputs,
         metadata={"seed": str(seed), **(metadata or {})},
     )
     return result

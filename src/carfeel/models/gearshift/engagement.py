@@ -7,25 +7,33 @@ Axis: x along the slot, 0 = neutral, positive toward the gear. Forces are positi
     0          x_sync        x_teeth   x_teeth_end   x_gear
 
 Stages, in the order a push from neutral meets them (`Stage`):
-  neutral          free motion; the neutral spring-ball centres the lever (x0 = 0)
-  synchronization  the blocker ring holds the lever still at x_sync and carries the driver's
-                   force while the cones cancel the speed difference; after
-                   `synchronization_duration_s` of pushing the synchro gate opens (a time-dependent
-                   transition)
+  neutral          free motion; the neutral spring and spring-ball detent centre the lever
+  synchronization  the blocker ring holds the lever at x_sync (rigidly, or through the linkage's
+                   compliance) while the driver's push (more than
+                   the strut and detent force that pushes the sleeve back there) loads it and the
+                   cones cancel the speed difference; after `synchronization_duration_s` of
+                   pushing the synchro gate opens (or when an outside synchronizer says so). When
+                   the push drops, the ring lets go: back to neutral, the progress kept; it decays
+                   there over `desynchronization_time_s` (the speeds drift apart again)
   gate_open        free motion from the ring to the teeth
-  engagement       tooth contact: the sleeve pushes through the chamfers of the gear's dog teeth,
-                   turning the gear into mesh; the resistance (static and sliding friction of the
-                   stage plus a tooth force drawn per engagement, as it depends on the relative
-                   position of the teeth) decelerates lever and hand into a short, random peak
+  engagement       the sleeve's chamfers meet the gear's dog teeth at a random relative angle: no
+                   contact (a chance), or the sleeve must turn the gear (its inertia reflected
+                   through the chamfer angle and the linkage, against its drag) over an axial
+                   travel set by that angle; then sliding friction to the end of the teeth
   free_travel      free motion to the end stop
-  stop             spring-ball elastic stop around x_gear: overshoot, then recovery
-  in_gear          settled; the detent holds the lever at x_gear
-  returning        free motion back toward neutral: after the driver pulls the lever out of gear, or
-                   after a force reversal during synchronization or engagement (never into gear)
+  stop             elastic end stop around x_gear: overshoot, then recovery
+  in_gear          settled; the stop's spring and the gear detent hold the lever at x_gear
+  returning        free motion back from past the ring: after the driver pulls the lever out of
+                   gear or back from the teeth. Pushed forward again it goes on where it is (gate
+                   open, teeth, free travel): the ring can block again only once the sleeve is back
+                   behind it, in neutral
 
 The active stage selects the mechanics (mass, stiffness, damping, friction) of equation (8) and its
 rest position x0 (0 for neutral and the free stages, x_sync while blocked, x_gear for stop and
-in gear).
+in gear). Two spring-ball detents act in every free stage as forces of position only (conservative):
+the neutral one (seat 0) and the gear one (seat x_gear, the "suck-in" past its crest).
+The stop and in-gear stages are integrated to second order (the midpoint rule), so the stop rings
+with its continuous-time damping at 1 kHz; the other stages by backward Euler.
 """
 
 from __future__ import annotations
@@ -35,7 +43,11 @@ from dataclasses import dataclass
 from enum import Enum
 from typing import NamedTuple
 
-from carfeel.models.mechanics import StageMechanics, stick_slip_step
+from carfeel.models.mechanics import (
+    StageMechanics,
+    stick_slip_midpoint_step,
+    stick_slip_step,
+)
 from carfeel.models.rng import next_uniform, seed_state
 
 
@@ -53,6 +65,53 @@ class Stage(Enum):
 
 
 @dataclass(frozen=True, slots=True)
+class DetentParams:
+    """A spring-ball detent: a conservative force profile, symmetric about its seat.
+
+        force toward the seat                 past the crest: away from it
+        seat ~~~ parabola, peak seat_force_N ~~~ crest ~~~ parabola, peak far_force_N ~~~ |
+                                              (far_width_m long)
+
+    The seat is 0 for the neutral detent (its crest toward the gear) and x_gear for the gear's
+    (its crest toward neutral). Force 0 at the seat, the crest and beyond.
+    """
+
+    width_m: float
+    """From the seat to the crest."""
+    seat_force_N: float
+    far_force_N: float
+    far_width_m: float
+
+
+@dataclass(frozen=True, slots=True)
+class ChamferParams:
+    """The sleeve's chamfers indexing the gear's dog teeth (Lovas et al. 2006), at the knob.
+
+    The gear (with all it drives, inertia J at the synchronizer) must turn by the relative angle
+    of the teeth: the sleeve moving dx turns it by dx * tan(angle) / radius, so it adds an
+    equivalent mass J * tan^2 / (radius^2 * ratio^2 * efficiency) at the knob, picked up by a
+    plastic impact, and its drag torque a resistance T * tan / (radius * ratio * efficiency).
+    The relative angle u is U(0, 1): below `no_contact_fraction` the teeth meet gap to gap (no
+    contact); above, the chamfer travel is (u - f) / (1 - f) * `travel_m` of knob travel.
+    """
+
+    gear_inertia_kg_m2: float
+    """Inertia the chamfers turn, at the synchronizer (the gear and what it drives); 0: none."""
+    drag_torque_Nm: float
+    """Drag on that inertia at the synchronizer (bearings, oil)."""
+    angle_rad: float
+    """Angle of the chamfer faces to the shaft axis."""
+    radius_m: float
+    """Pitch radius of the dog teeth."""
+    lever_ratio: float
+    """Knob travel per unit of sleeve travel."""
+    linkage_efficiency: float
+    travel_m: float
+    """Knob travel over a whole chamfer (the largest relative angle)."""
+    no_contact_fraction: float
+
+
+@dataclass(frozen=True, slots=True)
 class EngagementParams:
     """Parameters of one engagement. Positions in m along the slot, forces in N, times in s."""
 
@@ -65,7 +124,8 @@ class EngagementParams:
     synchronization_duration_s: float
     """Time the blocker ring holds the lever while the driver pushes (the paper's ~0.3 s)."""
     tooth_force_spread_N: float
-    """Each engagement adds U(0, 1) times this to both frictions of the engagement stage."""
+    """Each engagement adds u times this to both frictions of the engagement stage, u the
+    relative tooth angle U(0, 1) that also sets the chamfer contact."""
     stick_velocity_m_s: float
     """Below this speed the static friction applies (Karnopp's velocity band)."""
     settle_velocity_m_s: float
@@ -78,6 +138,28 @@ class EngagementParams:
     stop: StageMechanics
     in_gear: StageMechanics
     returning: StageMechanics
+    ring_release_force_N: float
+    """The ring lets go when the push drops below the force that pushes the sleeve back at
+    x_sync (neutral spring and detent, `hold_force_N`) plus this."""
+    desynchronization_time_s: float
+    """Fixed synchronizer: after the ring lets go the progress falls by dt / this."""
+    reversal_force_N: float
+    reversal_time_s: float
+    """In the teeth a pull counts as a reversal only beyond this force, held this long."""
+    neutral_detent: DetentParams
+    gear_detent: DetentParams
+    chamfer: ChamferParams
+    linkage_stiffness_N_m: float
+    """Compliance of the linkage against the blocked ring (0: rigid, the knob held at x_sync);
+    a cable linkage lets the knob in by F / k while the ring blocks."""
+    linkage_damping_N_s_m: float
+
+    @property
+    def hold_force_N(self) -> float:
+        """Push (N) below which the blocked ring lets go: what pushes the sleeve back there."""
+        x = self.synchronization_position_m
+        back = self.neutral.stiffness_N_m * x - detent_force_N(x, self, 0.0)
+        return back + self.ring_release_force_N
 
 
 class EngagementState(NamedTuple):
@@ -92,6 +174,10 @@ class EngagementState(NamedTuple):
     tooth_force_N: float
     """Resistance of the teeth drawn for the current (or last) engagement, N."""
     rng_state: int
+    index_end_m: float = 0.0
+    """Where the chamfers of the current engagement have turned the gear into line, m."""
+    reversal_s: float = 0.0
+    """How long the driver has pulled beyond the reversal force in the teeth, s."""
 
 
 class EngagementInputs(NamedTuple):
@@ -107,6 +193,9 @@ class EngagementInputs(NamedTuple):
     True / False: an outside synchronizer model says whether the speeds are matched."""
     extra_friction_N: float = 0.0
     """Friction added to the stage's own, static and sliding (a latch of the H-pattern)."""
+    gear_inertia_kg_m2: float | None = None
+    gear_drag_Nm: float | None = None
+    """The selected gear's inertia and drag at its synchronizer (None: the chamfer params')."""
 
 
 class EngagementOutputs(NamedTuple):
@@ -148,6 +237,75 @@ def mechanics(params: EngagementParams, stage: Stage) -> tuple[StageMechanics, f
     raise ValueError(f"stage {stage.value} has no free mechanics (the lever is blocked)")
 
 
+def detent_force_N(x: float, params: EngagementParams, seat_m: float | None = None) -> float:
+    """Force (N, + toward the gear) of both detents at x; with `seat_m`, of that one only."""
+    force = 0.0
+    if seat_m is None or seat_m == 0.0:
+        force += _detent(x, 0.0, params.neutral_detent.width_m, params.neutral_detent)[0]
+    if seat_m is None or seat_m != 0.0:
+        gear = params.gear_detent
+        force += _detent(x, params.in_gear_position_m, -gear.width_m, gear)[0]
+    return force
+
+
+def detent_energy_J(x: float, params: EngagementParams) -> float:
+    """Potential energy (J) of both detents at x, 0 at their seats."""
+    return _detents(x, params)[1]
+
+
+def _detents(x: float, params: EngagementParams) -> tuple[float, float, float]:
+    """(force N, potential J, stiffness -dF/dx N/m) of both detents at x."""
+    neutral, gear = params.neutral_detent, params.gear_detent
+    f1, e1, k1 = _detent(x, 0.0, neutral.width_m, neutral)
+    f2, e2, k2 = _detent(x, params.in_gear_position_m, -gear.width_m, gear)
+    return f1 + f2, e1 + e2, k1 + k2
+
+
+def _flat_J(width: float, d: DetentParams) -> float:
+    """Potential (J) of a detent beyond its reach (`width` from seat to crest, > 0)."""
+    return (d.seat_force_N * width - d.far_force_N * d.far_width_m) * (2.0 / 3.0)
+
+
+def _detent(x: float, seat: float, width: float, d: DetentParams) -> tuple[float, float, float]:
+    """(force N, potential J, stiffness -dF/dx N/m) of one detent at x (see DetentParams);
+    `width` is the signed distance from the seat to the crest."""
+    span = width if width > 0.0 else -width
+    u = (x - seat) / width  # 1 at the crest; negative on the other side of the seat (mirror)
+    sign = 1.0 if width > 0.0 else -1.0
+    if u < 0.0:
+        u, sign = -u, -sign
+    peak = d.seat_force_N
+    if u < 1.0:  # the flank toward the seat: F = 4 * peak * u * (1 - u)
+        return (
+            -sign * 4.0 * peak * u * (1.0 - u),
+            peak * span * u * u * (2.0 - u * (4.0 / 3.0)),
+            4.0 * peak * (1.0 - 2.0 * u) / span,
+        )
+    far = d.far_width_m
+    w = (u - 1.0) * span / far if far > 0.0 else 1.0
+    top = peak * span * (2.0 / 3.0)
+    if w < 1.0:  # past the crest, away from the seat
+        help_ = d.far_force_N
+        return (
+            sign * 4.0 * help_ * w * (1.0 - w),
+            top - help_ * far * w * w * (2.0 - w * (4.0 / 3.0)),
+            -4.0 * help_ * (1.0 - 2.0 * w) / far,
+        )
+    return 0.0, top - d.far_force_N * far * (2.0 / 3.0), 0.0
+
+
+def chamfer_load(
+    params: EngagementParams, inertia_kg_m2: float | None, drag_Nm: float | None
+) -> tuple[float, float]:
+    """(equivalent mass kg, drag N) of the gear at the knob while the chamfers turn it."""
+    c = params.chamfer
+    j = c.gear_inertia_kg_m2 if inertia_kg_m2 is None else inertia_kg_m2
+    drag = c.drag_torque_Nm if drag_Nm is None else drag_Nm
+    tan = math.tan(c.angle_rad)
+    per = tan / (c.radius_m * c.lever_ratio)  # gear angle per knob travel, rad/m
+    return j * per * per / c.linkage_efficiency, drag * per / c.linkage_efficiency
+
+
 def step(
     state: EngagementState, inputs: EngagementInputs, params: EngagementParams, dt_s: float
 ) -> tuple[EngagementState, EngagementOutputs]:
@@ -156,38 +314,64 @@ def step(
     stage = state.stage
     x = state.position_m
     v = state.velocity_m_s
+    progress = state.synchronization_progress
+    reversal = 0.0
 
     # Guards on force and time, before the motion of this step.
     if stage is Stage.SYNCHRONIZATION:
-        if force < 0.0:
-            stage = Stage.RETURNING  # force reversal: free motion, never into gear
+        neutral = params.neutral
+        # (A cheap bound first: the detent pushes back with at most its seat force.)
+        bound = neutral.stiffness_N_m * params.synchronization_position_m + (
+            params.neutral_detent.seat_force_N + params.ring_release_force_N
+        )
+        if force < bound and force < params.hold_force_N:
+            # The push dropped: the struts and the detent push the sleeve off the ring.
+            stage = Stage.NEUTRAL
         else:
-            progress = state.synchronization_progress
             if inputs.gate_open is None:
-                if force > 0.0:
-                    progress += dt_s / params.synchronization_duration_s
+                progress += dt_s / params.synchronization_duration_s
                 synchronized = progress >= _DONE
             else:
                 synchronized = inputs.gate_open
             if not synchronized:
+                x1, v1, reaction = x, 0.0, force
+                k_link = params.linkage_stiffness_N_m
+                if k_link > 0.0:
+                    # The linkage gives against the blocked ring: a spring from x_sync on.
+                    x_sync = params.synchronization_position_m
+                    mass = params.neutral.mass_kg
+                    x1, v1, _ = stick_slip_step(
+                        x, v, force, mass, params.linkage_damping_N_s_m, k_link, x_sync,
+                        0.0, 0.0, 0.0, dt_s,
+                    )  # fmt: skip
+                    if x1 < x_sync:  # the sleeve rests on the ring: no further back
+                        x1, v1 = x_sync, 0.0
+                    reaction = force - mass * (v1 - v) / dt_s
                 held = EngagementState(
                     stage,
-                    x,
-                    0.0,
+                    x1,
+                    v1,
                     state.stage_time_s + dt_s,
                     progress,
                     state.tooth_force_N,
                     state.rng_state,
+                    state.index_end_m,
                 )
-                return held, EngagementOutputs(x, 0.0, force, force, stage.value)
+                return held, EngagementOutputs(x1, v1, force, reaction, stage.value)
             stage = Stage.GATE_OPEN  # synchro gate opens
-    elif stage is Stage.ENGAGEMENT and force < 0.0 and v <= 0.0:
-        # Force reversal on the teeth (a braking hand on a lever still moving in is not one).
-        stage = Stage.RETURNING
+    elif stage is Stage.ENGAGEMENT and force < -params.reversal_force_N:
+        # A pull on the teeth, held: a reversal (a grip's rebound or a noisy sample is not one).
+        reversal = state.reversal_s + dt_s
+        if reversal >= params.reversal_time_s and v <= 0.0:
+            stage = Stage.RETURNING
+    elif stage is Stage.NEUTRAL and progress > 0.0:
+        # The ring let go before the gate opened: the speeds drift apart again.
+        progress = max(0.0, progress - dt_s / params.desynchronization_time_s)
     if stage is not state.stage:
         v = _hand_over(v, x, state.stage, stage, params)
 
     mech, rest = mechanics(params, stage)
+    mass = mech.mass_kg
     stiffness = mech.stiffness_N_m
     damping = mech.damping_N_s_m
     k_wall = inputs.wall_stiffness_N_m
@@ -196,13 +380,46 @@ def step(
         stiffness += k_wall
         damping += inputs.wall_damping_N_s_m
     extra = inputs.extra_friction_N
+    heavy = stage is Stage.ENGAGEMENT and x < state.index_end_m
     if stage is Stage.ENGAGEMENT:
         extra += state.tooth_force_N
-    x1, v1, _ = stick_slip_step(
+        if heavy:  # turning the gear through the chamfers
+            index_mass, index_drag = chamfer_load(
+                params, inputs.gear_inertia_kg_m2, inputs.gear_drag_Nm
+            )
+            mass += index_mass
+            extra += index_drag
+    # The detents: their force at x, linearized where they stiffen (the stiffness joins the
+    # implicit step, so the stop and its detent ring as one spring at any step). Each is
+    # evaluated only within its reach (beyond, it is flat).
+    nd, gd = params.neutral_detent, params.gear_detent
+    n_width, g_width = nd.width_m, gd.width_m
+    n_reach, g_reach = n_width + nd.far_width_m, g_width + gd.far_width_m
+    x_gear = params.in_gear_position_m
+    near_n = -n_reach < x < n_reach
+    near_g = -g_reach < x - x_gear < g_reach
+    detent = k_detent = u_n = u_g = 0.0
+    if near_n:
+        detent, u_n, k_detent = _detent(x, 0.0, n_width, nd)
+    if near_g:
+        f, u_g, k = _detent(x, x_gear, -g_width, gd)
+        detent += f
+        k_detent += k
+    if k_detent > 0.0:  # f(x') = f(x) - k_detent * (x' - x): a spring relaxed at x, plus f(x)
+        rest = (stiffness * rest + k_detent * x) / (stiffness + k_detent)
+        stiffness += k_detent
+    else:
+        k_detent = 0.0
+    integrate = (
+        stick_slip_midpoint_step
+        if stage is Stage.STOP or stage is Stage.IN_GEAR
+        else stick_slip_step
+    )
+    x1, v1, _ = integrate(
         x,
         v,
-        force,
-        mech.mass_kg,
+        force + detent,
+        mass,
         damping,
         stiffness,
         rest,
@@ -211,17 +428,39 @@ def step(
         params.stick_velocity_m_s,
         dt_s,
     )
+    if x1 != x:
+        near_n1 = -n_reach < x1 < n_reach
+        near_g1 = -g_reach < x1 - x_gear < g_reach
+        if near_n or near_g or near_n1 or near_g1:
+            # The detents' linearized force did work over the step; any of it beyond the fall
+            # of their potential is taken back from the kinetic energy: they stay conservative.
+            dx = x1 - x
+            excess = (detent - 0.5 * k_detent * dx) * dx
+            if near_n or near_n1:
+                before = u_n if near_n else _flat_J(n_width, nd)
+                after = _detent(x1, 0.0, n_width, nd)[1] if near_n1 else _flat_J(n_width, nd)
+                excess += after - before
+            if near_g or near_g1:
+                before = u_g if near_g else _flat_J(g_width, gd)
+                after = _detent(x1, x_gear, -g_width, gd)[1] if near_g1 else _flat_J(g_width, gd)
+                excess += after - before
+            if excess > 0.0:
+                kinetic = 0.5 * mass * v1 * v1
+                if kinetic > excess:
+                    v1 *= math.sqrt(1.0 - excess / kinetic)
+                else:
+                    x1, v1 = x, 0.0
     reaction = force - mech.mass_kg * (v1 - v) / dt_s
 
     # Guards on position, at the end of the motion of this step.
     new_stage = stage
     rng_state = state.rng_state
     tooth = state.tooth_force_N
-    progress = state.synchronization_progress
+    index_end = state.index_end_m
     x_sync = params.synchronization_position_m
     if stage is Stage.NEUTRAL:
         if x1 >= x_sync and v1 > 0.0:
-            x1, v1, new_stage, progress = x_sync, 0.0, Stage.SYNCHRONIZATION, 0.0
+            x1, v1, new_stage = x_sync, 0.0, Stage.SYNCHRONIZATION
     elif stage is Stage.GATE_OPEN:
         x_teeth = params.teeth_position_m
         if x1 < x_sync:
@@ -230,7 +469,13 @@ def step(
             new_stage = Stage.ENGAGEMENT
             rng_state, u = next_uniform(rng_state)
             tooth = u * params.tooth_force_spread_N
+            miss = params.chamfer.no_contact_fraction
+            index_end = 0.0
+            if u >= miss:
+                index_end = x_teeth + (u - miss) / (1.0 - miss) * params.chamfer.travel_m
     elif stage is Stage.ENGAGEMENT:
+        if x1 >= index_end:
+            index_end = 0.0  # the teeth are in line: the chamfers are done with this gear
         if x1 >= params.teeth_end_position_m:
             new_stage = Stage.FREE_TRAVEL
         elif x1 < params.teeth_position_m:
@@ -256,21 +501,43 @@ def step(
     elif stage is Stage.RETURNING:
         if x1 <= x_sync:
             new_stage = Stage.NEUTRAL
+            progress = 0.0  # back behind the ring after passing it: the next push starts anew
         elif v1 > 0.0 and force > 0.0:
-            # Pushed forward again. Where the step started decides, so the outcome does not
-            # depend on how far one step travels.
-            if x <= params.teeth_end_position_m:
-                # The sleeve is not in mesh: the blocker ring holds it where it is, a new
-                # synchronization.
-                x1, v1, new_stage, progress = x, 0.0, Stage.SYNCHRONIZATION, 0.0
+            # Pushed forward again: the sleeve goes on where the step started (past the ring,
+            # it cannot block it again).
+            if x < params.teeth_position_m:
+                new_stage = Stage.GATE_OPEN
+            elif x < params.teeth_end_position_m:
+                new_stage = Stage.ENGAGEMENT
             else:
-                new_stage = Stage.FREE_TRAVEL  # still in mesh with the gear's teeth
+                new_stage = Stage.FREE_TRAVEL
 
     if new_stage is not stage:
         v1 = _hand_over(v1, x1, stage, new_stage, params)
+    if new_stage is Stage.ENGAGEMENT and x1 < index_end and not heavy:
+        # The chamfers meet: the lever picks up the gear's inertia (a plastic impact).
+        index_mass = chamfer_load(params, inputs.gear_inertia_kg_m2, inputs.gear_drag_Nm)[0]
+        v1 = hand_over_velocity(v1, mech.mass_kg, mech.mass_kg + index_mass)
     stage_time = state.stage_time_s + dt_s if new_stage is state.stage else 0.0
-    new_state = EngagementState(new_stage, x1, v1, stage_time, progress, tooth, rng_state)
+    new_state = EngagementState(
+        new_stage, x1, v1, stage_time, progress, tooth, rng_state, index_end, reversal
+    )
     return new_state, EngagementOutputs(x1, v1, force, reaction, new_stage.value)
+
+
+def energy_J(state: EngagementState, params: EngagementParams) -> float:
+    """Mechanical energy (J) of the lever in a free stage: kinetic (the gear's, while the chamfers
+    turn it, included), the stage's spring and the detents."""
+    mech, rest = mechanics(params, state.stage)
+    mass = mech.mass_kg
+    if state.stage is Stage.ENGAGEMENT and state.position_m < state.index_end_m:
+        mass += chamfer_load(params, None, None)[0]
+    stretch = state.position_m - rest
+    return (
+        0.5 * mass * state.velocity_m_s**2
+        + 0.5 * mech.stiffness_N_m * stretch**2
+        + detent_energy_J(state.position_m, params)
+    )
 
 
 def _mass_and_spring(params: EngagementParams, stage: Stage, x: float) -> tuple[float, float]:

@@ -62,6 +62,10 @@ class GearSlot:
     """+1: the slot runs forward (x > 0), -1: back."""
     ratio: float
     """Gearbox ratio, input over output speed; negative for reverse."""
+    synchronizer: str
+    """Where its synchronizer sits: "output" or "input" shaft, or "none"."""
+    cone_scale: float
+    """Its cone torque relative to the synchronizer's cone (number of cones x radius ratio)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -291,11 +295,17 @@ def step(
     half_corridor = 0.5 * layout.corridor_width_m
     in_slot = state.in_slot and s > half_corridor
     plane = state.plane if in_slot else nearest_plane(layout, y)
+    if lever.synchronization_progress > 0.0 and (
+        direction != state.direction or plane != state.plane
+    ):
+        # Another slot: the fixed synchronizer's progress belonged to the last gear.
+        lever = lever._replace(synchronization_progress=0.0)
     slot = layout.gear_at(plane, direction)
     aligned = slot is not None and _facing(layout, plane, y)
 
     # Synchronizer: which gear is selected, is it in mesh, how hard is the ring pressed.
     ratio = slot.ratio if slot is not None and (aligned or in_slot) else None
+    location = slot.synchronizer if slot is not None else synchronizer.NONE
     axial = direction * inputs.force_x_N if lever.stage is Stage.SYNCHRONIZATION else 0.0
     sync_state, sync_out = synchronizer.step(
         state.sync,
@@ -306,6 +316,8 @@ def step(
             ratio,
             lever.stage in IN_MESH,
             axial,
+            location,
+            slot.cone_scale if slot is not None else 1.0,
         ),
         params.synchronizer,
         dt_s,
@@ -321,6 +333,9 @@ def step(
         off = abs(s - feel.latch_position_m)
         if off < feel.latch_width_m and (in_slot or aligned):
             latch = feel.latch_force_N * (1.0 - off / feel.latch_width_m)
+    # The gear the chamfers turn: the input side's inertia (and drag), seen at the synchronizer.
+    sync_p = params.synchronizer
+    reflect = abs(slot.ratio) if slot is not None and location != synchronizer.INPUT else 1.0
     x_inputs = engagement.EngagementInputs(
         direction * inputs.force_x_N,
         walls.stiffness_N_m if walled_x else 0.0,
@@ -328,6 +343,8 @@ def step(
         half_corridor,
         sync_out.gate_open,
         latch,
+        sync_p.input_inertia_kg_m2 * reflect * reflect,
+        sync_p.drag_torque_Nm * reflect,
     )
     impact_speed = lever.velocity_m_s
     was_stop = lever.stage is Stage.STOP

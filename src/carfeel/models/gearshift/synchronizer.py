@@ -19,15 +19,24 @@ Two modes (`SynchronizerParams.physics`):
   speed step) takes longer than an upshift at the same speed; a clutch not pressed far enough
   drags the shaft toward the engine harder than the cone can pull it: no synchronization (balk).
 
-Reverse (a negative ratio) has no synchronizer, as in most manual boxes: it goes in only when
-the input shaft and the car have (nearly) stopped; in the fixed mode, only at standstill.
+Where the synchronizer sits (per gear, `SynchronizerInputs.location`): on the output shaft (the
+gear idles on it, driven by the input shaft: the cone torque reaches the input shaft divided by
+the ratio, as above) or on the input shaft (front-drive transaxles often put 3-4 and 5 there: the
+cone acts on the input shaft directly, T_cone instead of T_cone / |r|, so the time changes by
+the ratio), or none. Reverse (a negative ratio) has no synchronizer, as in most manual boxes: it
+goes in only when the input shaft and the car have (nearly) stopped; in the fixed mode, only at
+standstill. The knob force reaches the sleeve through the linkage: F_axial = lever_ratio *
+linkage_efficiency * F_knob.
 
-Grinding (both modes): while the ring cannot win (physics: the clutch drags harder than the
-cone pulls, or the gear has no synchronizer; fixed: the gate is shut) and the driver pushes
-harder than `grind_force_N`, the sleeve's dog teeth chatter on the gear's: a vibration of
-amplitude `grind_amplitude_N` at the tooth-passing frequency n_teeth * |w_in / r - w_out| / (2 pi),
-rendered up to a quarter of the step rate (beyond, a sampled vibration would alias), felt on top
-of the balk. The ring itself still blocks: a balk is a wall, the grinding only a vibration.
+Grinding (both modes) means the blocking condition has failed: the gear has no synchronizer, or
+the ring has no blocking margin left (`blocking_margin` <= 0: a worn ring, low friction; the
+margin is the cone torque over the indexing torque of the blocker chamfers, less one, and does
+not depend on the force). A sound ring balks silently, whatever the clutch does. While the speeds
+differ and the driver pushes harder than `grind_force_N`, the sleeve's dog teeth then chatter on
+the gear's: a vibration of amplitude `grind_amplitude_N` at the tooth-passing frequency
+n_teeth * |w_in / r - w_out| / (2 pi), rendered up to a quarter of the step rate (beyond, a
+sampled vibration would alias), felt on top of the balk. The ring itself still blocks: a balk is
+a wall, the grinding only a vibration.
 """
 
 from __future__ import annotations
@@ -35,6 +44,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from typing import NamedTuple
+
+OUTPUT = "output"
+INPUT = "input"
+NONE = "none"
+LOCATIONS = (OUTPUT, INPUT, NONE)
+"""Where a gear's synchronizer sits: on the output shaft, the input shaft, or none."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -45,7 +60,11 @@ class SynchronizerParams:
     cone_radius_m: float
     cone_half_angle_rad: float
     lever_ratio: float
-    """Sleeve axial force per newton at the knob."""
+    """Knob travel per unit of sleeve travel (the ideal force ratio)."""
+    linkage_efficiency: float
+    """Share of the knob's work the linkage passes to the sleeve (0.7-0.9, SAE 932996)."""
+    blocking_margin: float
+    """Cone torque over the blocker's indexing torque, less one; <= 0: the ring cannot block."""
     clutch_capacity_Nm: float
     """Torque the clutch transmits with the pedal released."""
     clutch_open_above: float
@@ -75,6 +94,10 @@ class SynchronizerInputs(NamedTuple):
     """The gear is in mesh: the input shaft turns with the output through `ratio`."""
     axial_force_N: float
     """Knob force pressing the synchronizer ring (0 unless the ring blocks the lever)."""
+    location: str = OUTPUT
+    """Where the selected gear's synchronizer sits: OUTPUT, INPUT or NONE."""
+    cone_scale: float = 1.0
+    """The selected gear's cone torque relative to `cone_torque_Nm` (more or larger cones)."""
 
 
 class SynchronizerOutputs(NamedTuple):
@@ -99,6 +122,7 @@ def cone_torque_Nm(axial_force_N: float, params: SynchronizerParams) -> float:
     return (
         params.cone_friction
         * params.lever_ratio
+        * params.linkage_efficiency
         * max(axial_force_N, 0.0)
         * params.cone_radius_m
         / math.sin(params.cone_half_angle_rad)
@@ -126,10 +150,13 @@ def step(
     engaged = (p.clutch_open_above - inputs.clutch_pedal) / p.clutch_open_above
     clutch = p.clutch_capacity_Nm * min(1.0, max(0.0, engaged))
     # Reverse (a negative ratio) has no synchronizer, as in most manual boxes: no cone.
-    synchronized_gear = ratio is not None and ratio > 0.0
+    location = inputs.location
+    synchronized_gear = ratio is not None and ratio > 0.0 and location != NONE
     cone = 0.0
     if synchronized_gear and inputs.axial_force_N > 0.0:
-        cone = cone_torque_Nm(inputs.axial_force_N, p) / abs(ratio)  # type: ignore[arg-type]
+        cone = cone_torque_Nm(inputs.axial_force_N, p) * inputs.cone_scale
+        if location == OUTPUT:  # the gear turns at w_in / r: its torque reaches w_in / r
+            cone /= abs(ratio)  # type: ignore[arg-type]
     if ratio is not None and inputs.locked:
         w_in = w_out * ratio
     else:
@@ -151,12 +178,10 @@ def step(
         gate = False  # reverse without a synchronizer: only at standstill
     else:
         gate = None
-    # Grinding needs a ring that cannot win: the clutch drags harder than the cone pulls, or
-    # the gear has no synchronizer. A ring synchronizing normally blocks by friction, silently.
-    if p.physics:
-        balked = not matched and (clutch >= cone or not synchronized_gear)
-    else:
-        balked = gate is False
+    # Grinding needs a blocking condition that has failed: no synchronizer, or no margin left.
+    # A sound ring blocks silently, also while the clutch drags harder than the cone pulls.
+    failed = not synchronized_gear or p.blocking_margin <= 0.0
+    balked = failed and (not matched if p.physics else gate is False)
     phase = state.grind_phase_rad
     grind = 0.0
     if balked and inputs.axial_force_N > p.grind_force_N:
