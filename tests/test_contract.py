@@ -162,7 +162,8 @@ def test_no_hidden_state_between_runs(c):
         def scaled(t: float) -> Any:
             value = inputs(t)
             if isinstance(value, tuple):
-                return type(value)(*(0.5 * v if isinstance(v, float) else v for v in value))
+                halved: list[Any] = [0.5 * v if isinstance(v, float) else v for v in value]
+                return type(value)(*halved)
             return 0.5 * value
 
         run(c.step, c.initial(4), c.params, duration_s=0.5 * c.duration_s, inputs=scaled)
