@@ -419,6 +419,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
+        handler = getattr(args, "handler", None)
+        if handler is not None:  # a command family in carfeel.commands
+            code: int = handler(args)
+            return code
         if args.command == "demo":
             return _demo(args)
         if args.command == "simulate":
