@@ -25,7 +25,7 @@ def test_simulate_shift_writes_csv_metadata_and_plot(tmp_path, capsys):
     assert np.all(np.isfinite(result["force_N"]))
     assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     meta = json.loads(out.with_suffix(".json").read_text())
-    assert meta["seed"] == "3" and meta["preset"] == "paper-first-gear"
+    assert meta["seed"] == 3 and meta["preset"] == "paper-first-gear"
 
 
 def test_pull_out_option_ends_in_neutral(tmp_path):

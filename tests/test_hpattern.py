@@ -15,7 +15,7 @@ from carfeel.models.drivers.hpattern import Script
 from carfeel.models.gearshift import engagement, hpattern, synchronizer
 from carfeel.models.gearshift.hpattern import HPatternInputs
 from carfeel.models.gearshift.synchronizer import SynchronizerInputs
-from carfeel.runs import engagements_of, outside_distance
+from carfeel.commands.simulate import engagements_of, outside_distance
 from carfeel.simulation.hpattern import HPatternRun, simulate_hpattern
 from carfeel.simulation.result import Result
 from carfeel.simulation.shift import simulate_shift

@@ -116,3 +116,45 @@ def test_a_wheel_s_peak_command_is_in_nm(capsys):
                  "--json"]) == 0  # fmt: skip
     summary = json.loads(capsys.readouterr().out)
     assert summary["command_unit"] == "Nm" and 0 < summary["peak_command"] <= 4.0
+
+
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["simulate", "shift"],
+        ["simulate", "steering", "--manoeuvre", "weave"],
+        ["simulate", "hpattern", "--sequence", "N,1,N"],
+    ],
+)
+def test_a_failed_simulation_leaves_the_user_s_files(precious, capsys, command):
+    """The plot cannot be written: refused before the run, nothing replaced."""
+    code = main([*command, "--out", str(precious), "--plot", "/proc/x.png"])
+    assert code == 2
+    assert "cannot write /proc/x.png" in capsys.readouterr().err
+    assert untouched(precious)
+
+
+def test_a_simulation_replaces_its_outputs_only_when_done(precious, tmp_path, capsys):
+    plot = tmp_path / "keep.png"
+    assert main(["simulate", "shift", "--out", str(precious), "--plot", str(plot)]) == 0
+    out = capsys.readouterr().out
+    assert f"wrote {precious} and {plot}" in out  # the user's names, not the staged ones
+    assert precious.read_text().startswith("time_s,")
+    assert json.loads(precious.with_suffix(".json").read_text())["seed"] == 0
+    assert not list(tmp_path.glob("*.part.*")) and not list(tmp_path.glob(".*tmp*"))
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--mistake", "early-clutch:0"], "K counts the gears of --sequence from 1"),
+        (["--mistake", "wall:1", "--mistake", "wall:2"], "given twice"),
+        (["--out", ""], "an output file name is empty"),
+    ],
+)
+def test_bad_simulate_options_exit_2(tmp_path, capsys, args, message):
+    base = ["simulate", "hpattern", "--sequence", "N,1,2,N"]
+    if "--out" not in args:
+        args = [*args, "--out", str(tmp_path / "x.csv")]
+    assert main([*base, *args]) == 2
+    assert message in capsys.readouterr().err

@@ -20,7 +20,7 @@ from carfeel.models.vehicle.single_track import (
     VehicleParams,
     steady_state_lateral_accel,
 )
-from carfeel.runs import feel_of
+from carfeel.commands.metrics import feel_of
 from carfeel.simulation import manoeuvres
 from carfeel.simulation.runner import run
 from carfeel.simulation.steering import ImposedInputs, SteeringCar, imposed_step, simulate_steering

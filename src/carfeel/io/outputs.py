@@ -27,10 +27,10 @@ from carfeel.errors import InputError
 
 def check_writable(path: Path, suffix: str | None = None) -> None:
     """Raise InputError unless `path` can be written: its suffix, its folder, not a folder."""
-    if suffix is not None and path.suffix.lower() != suffix:
-        raise InputError(f"{path}: expected a {suffix} file name")
     if not path.name or str(path) in ("", "."):
         raise InputError("an output file name is empty: give a file name")
+    if suffix is not None and path.suffix.lower() != suffix:
+        raise InputError(f"{path}: expected a {suffix} file name")
     folder = path.parent
     if not folder.is_dir():
         raise InputError(f"cannot write {path}: folder {folder} does not exist")

@@ -1,18 +1,27 @@
-"""What the commands do, as plain functions over config objects (the CLI only parses and prints)."""
+"""`carfeel simulate shift|hpattern|steering`: one run offline, its CSV, metadata and plot."""
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
-from collections.abc import Iterator
+import re
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from carfeel import __version__
 from carfeel.analysis.shift_features import ShiftFeatures, shift_features
-from carfeel.analysis.steering_feel import SteeringFeel, steering_feel
+from carfeel.analysis.steering_feel import SteeringFeel
+from carfeel.commands.common import (
+    outputs_of,
+    positive_float,
+    positive_int,
+    seed_arg,
+)
+from carfeel.commands.metrics import feel_lines, feel_of
 from carfeel.errors import CarfeelError, InputError
 from carfeel.io.force_profile import read_force_profile
 from carfeel.io.presets import load_hpattern, load_shift, load_steering
@@ -21,14 +30,21 @@ from carfeel.models.gearshift.hpattern import NEUTRAL_GEAR, Layout
 from carfeel.simulation import manoeuvres
 from carfeel.simulation.hpattern import MAX_STEP_S as HPATTERN_MAX_STEP_S
 from carfeel.simulation.hpattern import HPatternRun, simulate_hpattern
+from carfeel.simulation.manoeuvres import MANOEUVRES
 from carfeel.simulation.result import Result
 from carfeel.simulation.shift import MAX_STEP_S, simulate_force_profile, simulate_shift
 from carfeel.simulation.steering import LINEAR_TYRE_LIMIT_G, simulate_steering
 from carfeel.simulation.steering import MAX_STEP_S as STEERING_MAX_STEP_S
 
 DEFAULT_SHIFT_DURATION_S = 1.2
+
+
 DEFAULT_SHIFT_PULL_OUT_DURATION_S = 2.0
+
+
 MAX_SAMPLES = 50_000_000  # a bound on memory: 50 M samples of 7 signals is several GB
+
+
 MIN_DT_S = 1e-6
 
 
@@ -180,9 +196,22 @@ def run_shift(config: ShiftRun, csv_path: Path, plot_path: Path | None = None) -
 def write_metadata(result: Result, csv_path: Path) -> Path:
     """Write the run's metadata as JSON beside its CSV (FILE.csv -> FILE.json)."""
     target = csv_path.with_suffix(".json")
-    clean = {k: v for k, v in result.metadata.items()}
+    clean = {k: _typed(v) for k, v in result.metadata.items()}
     target.write_text(json.dumps(clean, indent=2) + "\n", encoding="utf-8")
     return target
+
+
+_NUMBER = re.compile(r"-?(0|[1-9][0-9]*)(\.[0-9]+)?([eE][-+]?[0-9]+)?")
+
+
+def _typed(value: str) -> object:
+    """A metadata value as JSON would type it: numbers and booleans as such, the rest text."""
+    if value in ("true", "false"):
+        return value == "true"
+    if _NUMBER.fullmatch(value):
+        number = float(value)
+        return int(value) if value.lstrip("-").isdigit() else number
+    return value
 
 
 @dataclass(frozen=True, slots=True)
@@ -194,15 +223,6 @@ class SteeringRun:
     preset: str = "b-segment"
     dt_s: float = 1e-3
     substeps: int = 1
-
-
-REQUIRED_STEERING_COLUMNS = (
-    "time_s",
-    "speed_m_s",
-    "steering_angle_rad",
-    "lateral_accel_m_s2",
-    "torque_Nm",
-)
 
 
 @dataclass(frozen=True, slots=True)
@@ -223,26 +243,6 @@ class SteeringSummary:
             f"wrote {self.csv}" + (f" and {self.plot}" if self.plot else ""),
         ]
         return "\n".join(lines)
-
-
-FEEL_LABELS = {
-    "torque_gradient_Nm_per_g": ("torque gradient at 0 g", "Nm/g"),
-    "torque_at_0_1g_Nm": ("torque at 0.1 g", "Nm"),
-    "deadband_g": ("torque deadband", "g"),
-    "hysteresis_Nm": ("torque hysteresis (at 0 g)", "Nm"),
-    "sensitivity_g_per_100deg": ("steering sensitivity", "g/100 deg"),
-    "understeer_gradient_deg_per_g": ("understeer gradient", "deg/g"),
-}
-
-
-def feel_lines(feel: SteeringFeel) -> list[str]:
-    lines = []
-    for key, value in feel.as_dict().items():
-        label, unit = FEEL_LABELS[key]
-        shown = "n/a" if math.isnan(value) else f"{value:.3g} {unit}"
-        lines.append(f"  {label:28s} {shown}")
-    lines.extend(f"  note: {note}" for note in feel.notes)
-    return lines
 
 
 def run_steering(
@@ -297,73 +297,6 @@ def run_steering(
         csv_path,
         plot_path,
     )
-
-
-def feel_of(
-    result: Result, steering_ratio: float | None, wheelbase_m: float | None
-) -> SteeringFeel:
-    return steering_feel(
-        result.time_s,
-        result["speed_m_s"],
-        result["steering_angle_rad"],
-        result["lateral_accel_m_s2"],
-        result["torque_Nm"],
-        steering_ratio=steering_ratio,
-        wheelbase_m=wheelbase_m,
-    )
-
-
-def steering_metrics(csv_path: Path, preset: str | None = None) -> SteeringFeel:
-    """The feel metrics of a steering CSV (a run of carfeel's or a measured log).
-
-    The understeer gradient needs the steering ratio and wheelbase: from `preset` if given, else
-    from the run's metadata file beside the CSV, else the default car preset.
-    """
-    result = Result.from_csv(csv_path)
-    missing = [c for c in REQUIRED_STEERING_COLUMNS if c not in result.names]
-    if missing:
-        raise InputError(
-            f"{csv_path}: missing column(s) {', '.join(missing)}; a steering log needs "
-            f"{', '.join(REQUIRED_STEERING_COLUMNS)} (SI units: s, m/s, rad, m/s^2, Nm)"
-        )
-    for name in REQUIRED_STEERING_COLUMNS:
-        values = result[name]
-        if values.dtype.kind != "f":
-            raise InputError(f"{csv_path}: column {name} must hold numbers")
-        bad = ~np.isfinite(values)
-        if bad.any():
-            row = int(np.flatnonzero(bad)[0]) + 2
-            raise InputError(f"{csv_path}, line {row}: {name} is not a finite number")
-    if len(result) < 3:
-        raise InputError(f"{csv_path}: {len(result)} rows; the metrics need a run of samples")
-    steps = np.diff(result.time_s)
-    if np.any(steps <= 0):
-        row = int(np.flatnonzero(steps <= 0)[0]) + 3
-        raise InputError(f"{csv_path}, line {row}: time_s does not increase from the row before")
-    ratio, wheelbase, where = _car_geometry(csv_path, preset)
-    feel = feel_of(result, ratio, wheelbase)
-    note = (
-        f"understeer gradient with steering ratio {ratio:g} and wheelbase {wheelbase:g} m {where}"
-    )
-    return replace(feel, notes=(*feel.notes, note))
-
-
-def _car_geometry(csv_path: Path, preset: str | None) -> tuple[float, float, str]:
-    """(steering ratio, wheelbase, where they came from) for a log's understeer gradient."""
-    if preset is None:
-        meta_path = csv_path.with_suffix(".json")
-        if meta_path.is_file():
-            try:
-                meta = json.loads(meta_path.read_text(encoding="utf-8"))
-                ratio, wheelbase = float(meta["steering_ratio"]), float(meta["wheelbase_m"])
-                if ratio > 0.0 and wheelbase > 0.0 and math.isfinite(ratio * wheelbase):
-                    return ratio, wheelbase, f"from {meta_path.name}"
-            except (ValueError, KeyError, TypeError, UnicodeDecodeError, OSError):
-                pass  # not ours, or not a steering run: fall back to the default car
-    name = preset or "b-segment"
-    vehicle = load_steering(name).params.vehicle
-    hint = "" if preset else " (no metadata beside the CSV; give --preset for your car)"
-    return vehicle.steering_ratio, vehicle.wheelbase_m, f"of preset {name}{hint}"
 
 
 @dataclass(frozen=True, slots=True)
@@ -583,113 +516,239 @@ def outside_distance(result: Result, layout: Layout) -> np.ndarray:
     return np.asarray(best)
 
 
-def demo(folder: Path, clock: str = "wall") -> Iterator[str]:
-    """Run the demo into `folder`, yielding a line to print per step."""
-    if folder.exists() and not folder.is_dir():
-        raise InputError(f"--out-dir {folder} exists and is not a folder")
-    folder.mkdir(parents=True, exist_ok=True)
-    yield f"carfeel {__version__} demo: writing into {folder.resolve()}"
-    summary = run_shift(ShiftRun(seed=0, pull_out=True), folder / "shift.csv", folder / "shift.png")
-    yield "gear engagement, neutral to first and back (paper Fig. 5/6/9/11):"
-    yield summary.text()
-    peaks = []
-    for seed in range(1, 6):
-        s = run_shift(ShiftRun(seed=seed), folder / f"shift-seed{seed}.csv")
-        peaks.append(s.features.engagement_peak_N)
-    finite = [p for p in peaks if not math.isnan(p)]
-    yield (
-        "engagement peaks over seeds 1-5 (the teeth meet at random): "
-        + ", ".join(f"{p:.1f}" for p in finite)
-        + " N"
+def register(commands: Any) -> None:
+    """Add `simulate` and their options."""
+    simulate = commands.add_parser(
+        "simulate",
+        help="run a model offline in simulated time",
+        description="Run a model offline in simulated time and write its samples as CSV.",
     )
-    yield ""
-    yield "the complete H-pattern (5+R), up and down the box at 30 km/h:"
-    pattern = run_hpattern(
-        HPatternRunConfig(parse_sequence("N,1,2,3,4,5,4,3,2,1,N"), speed_kmh=30.0),
-        folder / "hpattern.csv",
-        folder / "hpattern.png",
+    models = simulate.add_subparsers(dest="model", metavar="MODEL", required=True)
+    shift = models.add_parser(
+        "shift",
+        help="one gear engagement, neutral to first, pushed by the paper's driver (eq. 10)",
+        description="Simulate one gear engagement along the slot: the driver of eq. (10) pushes "
+        "the knob from neutral through synchronization, tooth engagement and the end stop into "
+        "gear, and (with --pull-out) back to neutral. CSV columns: time_s, position_m, "
+        "velocity_m_s, force_N (the driver's force at the knob), reaction_N, stage, "
+        "driver_phase.",
+        epilog="The plot shows force and position vs time and force vs position (as the paper's "
+        "Fig. 5, 6, 9 and 11), with the stages coloured.",
     )
-    yield pattern.text()
-    yield "and into reverse at standstill, with the synchronizer's physics:"
-    reverse = run_hpattern(
-        HPatternRunConfig(parse_sequence("N,R,N"), speed_kmh=0.0, synchronizer="physics"),
-        folder / "hpattern-reverse.csv",
-        folder / "hpattern-reverse.png",
+    shift.add_argument(
+        "--preset",
+        default="paper-first-gear",
+        metavar="NAME|PATH",
+        help="shipped preset name or TOML file (default: paper-first-gear; see `carfeel presets`)",
     )
-    yield reverse.text()
-    yield ""
-    yield "the H-pattern on the virtual force-feedback joystick, in real time (1 kHz):"
-    from carfeel.io.plots import plot_recording
-    from carfeel.realtime.session import RealtimeRun, run_realtime
+    shift.add_argument(
+        "--seed", type=seed_arg, default=0, help="seed of the tooth-position draw (default: 0)"
+    )
+    shift.add_argument(
+        "--duration",
+        type=positive_float,
+        default=None,
+        metavar="S",
+        help="simulated time, s (default: 1.2, or 2.0 with --pull-out)",
+    )
+    shift.add_argument(
+        "--dt",
+        type=positive_float,
+        default=1e-3,
+        metavar="S",
+        help="output sample period, s (default: 0.001, i.e. 1 kHz)",
+    )
+    shift.add_argument(
+        "--substeps",
+        type=positive_int,
+        default=1,
+        metavar="N",
+        help="model steps per output sample (default: 1)",
+    )
+    shift.add_argument(
+        "--pull-out",
+        action="store_true",
+        help="after settling in gear, pull the lever back to neutral",
+    )
+    shift.add_argument(
+        "--force-profile",
+        metavar="FILE.csv",
+        help="drive the knob open loop with a recorded or hand-made force (CSV columns time_s, "
+        "force_N; interpolated linearly) instead of the eq. (10) driver; the run lasts as long "
+        "as the profile unless --duration says otherwise",
+    )
+    shift.add_argument("--out", required=True, metavar="FILE.csv", help="CSV file to write")
+    shift.add_argument("--plot", metavar="FILE.png", help="also write a PNG plot")
 
-    record = folder / "realtime-hpattern.csv"
-    live = run_realtime(
-        RealtimeRun(model="hpattern", mode="admittance", record=record, clock=clock)
+    hpattern = models.add_parser(
+        "hpattern",
+        help="the complete H-pattern gearshift driven through a gear sequence",
+        description="Simulate the 2-DOF H-pattern gearshift: a driver pulls out, selects in the "
+        "neutral corridor and pushes each gear of --sequence in with the paper's law (eq. 10); "
+        "every slot runs the single-gear engagement model, walls keep the knob on the paths, "
+        "the synchronizer decides when the gate opens. CSV columns: time_s, x_m (engage, "
+        "forward +), y_m (select), vx_m_s, vy_m_s, force_x_N, force_y_N (the driver's force on "
+        "the knob), reaction_x_N, reaction_y_N (the gearbox's force on it), region, gear (N, R, "
+        "1, 2 ...), event, stage, clutch_pedal, speed_difference_rad_s, grind_N, click_N, "
+        "driver_phase, target.",
+        epilog="layouts: 5r (default), 6r, 5r-reverse-left (see `carfeel presets`), or a TOML "
+        "file. mistakes (K counts the gears of --sequence, not N): early-clutch:K releases the "
+        "clutch while pushing into the K-th gear; wall:K pushes toward the K-th gear while the "
+        "knob is still between planes.",
     )
-    plot_recording(
-        Result.from_csv(record, drop_partial_last_line=True),
-        folder / "realtime-hpattern.png",
-        "H-pattern on the virtual joystick, admittance (the paper's scheme)",
-    )
-    yield live.text()
-    yield f"plotted {folder / 'realtime-hpattern.png'} (cf. paper Fig. 10 and 11)"
-    yield ""
-    yield "steering wheel torque, ISO 3888-1 double lane change (paper Fig. 3):"
-    dlc = run_steering(
-        SteeringRun("iso3888"), folder / "steering-iso3888.csv", folder / "steering-iso3888.png"
-    )
-    yield dlc.text()
-    yield ""
-    yield "steering feel from an ISO 13674-1 weave:"
-    weave = run_steering(
-        SteeringRun("weave"), folder / "steering-weave.csv", folder / "steering-weave.png"
-    )
-    yield weave.text()
-    yield ""
-    yield from _demo_identification(folder)
-
-
-def as_logged(run: Result, seed: int, rate_hz: float = 200.0) -> Result:
-    """A simulated steering run as a test rig would log it: `rate_hz`, white noise of 0.05 Nm,
-    0.02 deg, 0.05 m/s^2 and 0.05 m/s, and no rate column (the fit derives it)."""
-    rng = np.random.default_rng(seed)
-    idx = np.arange(
-        0, len(run.time_s), max(1, round(1.0 / (rate_hz * np.median(np.diff(run.time_s)))))
-    )
-    n = idx.size
-    noise = {"speed_m_s": 0.05, "steering_angle_rad": math.radians(0.02),
-             "lateral_accel_m_s2": 0.05, "torque_Nm": 0.05}  # fmt: skip
-    signals = {name: run[name][idx] + rng.normal(0.0, sigma, n) for name, sigma in noise.items()}
-    signals["steering_torque_Nm"] = signals.pop("torque_Nm")
-    return Result(run.time_s[idx], signals)
-
-
-def _demo_identification(folder: Path) -> Iterator[str]:
-    from carfeel.identification.workflows import fit_steering_logs, fit_summary
-
-    yield (
-        "identification: K1..K9 fitted back from the weave, the lane change and a parking steer "
-        "cycle, logged with noise:"
-    )
-    car = load_steering().params
-    runs = {
-        "weave": Result.from_csv(folder / "steering-weave.csv"),
-        "iso3888": Result.from_csv(folder / "steering-iso3888.csv"),
-        "steer-cycle": simulate_steering(car, manoeuvres.build("steer-cycle", car.vehicle)),
-    }
-    paths = []
-    for seed, (name, run) in enumerate(runs.items()):
-        path = folder / f"logged-{name}.csv"
-        as_logged(run, seed).to_csv(path)
-        paths.append(path)
-    fit = fit_steering_logs(
-        paths, folder / "fitted-b-segment.toml", report_dir=folder / "fit-report",
-        show_progress=False,
+    hpattern.add_argument(
+        "--sequence", required=True, metavar="N,1,2,...",
+        help="gears to go through, comma separated, e.g. N,1,2,3,2,N or N,R,N",
     )  # fmt: skip
-    yield fit_summary(fit)
-    true = car.torque
-    yield (
-        f"  (the b-segment preset the logs came from: K1 {true.k1_Nm_s2_m:g}, K4 {true.k4_1_Nm:g}, "
-        f"K7 {true.k7_Nm:g}, K9 {true.k9_Nm_s_rad:g})"
+    hpattern.add_argument(
+        "--layout", default="5r", metavar="NAME|PATH",
+        help="H-pattern preset name or TOML file (default: 5r)",
+    )  # fmt: skip
+    hpattern.add_argument(
+        "--clutch", type=float, default=1.0, metavar="0..1",
+        help="clutch pedal held during the run: 1 pressed to the floor (default), 0 released",
+    )  # fmt: skip
+    hpattern.add_argument(
+        "--speed-kmh", type=float, default=30.0, metavar="V",
+        help="vehicle speed during the shifts, km/h (default: 30)",
+    )  # fmt: skip
+    hpattern.add_argument(
+        "--synchronizer", choices=("fixed", "physics"), default=None,
+        help="fixed: the paper's synchronization time; physics: cone torque against the speed "
+        "difference (default: the layout preset's)",
+    )  # fmt: skip
+    hpattern.add_argument(
+        "--mistake", action="append", default=[], metavar="KIND:K",
+        help="make a mistake on the K-th gear: early-clutch:K or wall:K (repeatable)",
+    )  # fmt: skip
+    hpattern.add_argument("--seed", type=seed_arg, default=0, help="tooth draw seed (default: 0)")
+    hpattern.add_argument(
+        "--dt", type=positive_float, default=1e-3, metavar="S",
+        help="output sample period, s (default: 0.001)",
+    )  # fmt: skip
+    hpattern.add_argument(
+        "--substeps", type=positive_int, default=1, metavar="N",
+        help="model steps per output sample (default: 1)",
+    )  # fmt: skip
+    hpattern.add_argument("--out", required=True, metavar="FILE.csv", help="CSV file to write")
+    hpattern.add_argument("--plot", metavar="FILE.png", help="also write a PNG plot")
+
+    steering = models.add_parser(
+        "steering",
+        help="steering wheel torque (paper eqs. 1-7) on a car through an ISO manoeuvre",
+        description="Simulate the steering wheel torque of the paper's law (tau0 aligning, tau1 "
+        "tire spin, tau2 friction, tau3 damping) on a single-track car driven through a standard "
+        "manoeuvre. CSV columns: time_s, speed_m_s, steering_angle_rad, steering_rate_rad_s, "
+        "lateral_accel_m_s2, torque_Nm and its four terms, yaw_rate_rad_s, sideslip_rad, x_m, "
+        "y_m, yaw_rad, cross_track_m, segment. Signs: positive to the left (counter-clockwise).",
+        epilog="manoeuvres: iso4138 (steady-state circle, R 40 m, Ay in 0.5 m/s^2 steps, both "
+        "ways), iso3888 (ISO 3888-1 double lane change, 80 km/h), iso7401-step / iso7401-sine / "
+        "iso7401-sweep (lateral transient response, 60 km/h), steer-cycle (lock to lock and back "
+        "at standstill), weave (ISO 13674-1 on-centre, 0.2 Hz, 0.2 g, 100 km/h).",
     )
-    yield f"wrote {folder / 'fitted-b-segment.toml'} and {folder / 'fit-report' / 'index.html'}"
+    steering.add_argument(
+        "--manoeuvre", required=True, choices=MANOEUVRES, metavar="NAME",
+        help="one of: " + ", ".join(MANOEUVRES),
+    )  # fmt: skip
+    steering.add_argument(
+        "--speed-kmh",
+        type=float,
+        default=None,
+        metavar="V",
+        help="vehicle speed, km/h (default: the manoeuvre's standard speed)",
+    )
+    steering.add_argument(
+        "--preset",
+        default="b-segment",
+        metavar="NAME|PATH",
+        help="car preset name or TOML file (default: b-segment; see `carfeel presets`)",
+    )
+    steering.add_argument(
+        "--dt", type=positive_float, default=1e-3, metavar="S",
+        help="output sample period, s (default: 0.001)",
+    )  # fmt: skip
+    steering.add_argument(
+        "--substeps", type=positive_int, default=1, metavar="N",
+        help="model steps per output sample (default: 1)",
+    )  # fmt: skip
+    steering.add_argument("--out", required=True, metavar="FILE.csv", help="CSV file to write")
+    steering.add_argument("--plot", metavar="FILE.png", help="also write a PNG plot")
+    simulate.set_defaults(handler=_handle)
+
+
+def _handle(args: argparse.Namespace) -> int:
+    code: int = {
+        "shift": _simulate_shift,
+        "steering": _simulate_steering,
+        "hpattern": _simulate_hpattern,
+    }[args.model](args)
+    return code
+
+
+def _simulate_shift(args: argparse.Namespace) -> int:
+    staging = outputs_of(args)
+    config = ShiftRun(
+        preset=args.preset,
+        seed=args.seed,
+        duration_s=args.duration,
+        dt_s=args.dt,
+        substeps=args.substeps,
+        pull_out=args.pull_out,
+        force_profile=Path(args.force_profile) if args.force_profile else None,
+    )
+    with staging.outputs:
+        summary = run_shift(config, staging.out, staging.plot)
+    print(staging.text(summary.text()))
+    return 0
+
+
+def _simulate_steering(args: argparse.Namespace) -> int:
+    staging = outputs_of(args)
+    config = SteeringRun(
+        manoeuvre=args.manoeuvre,
+        speed_kmh=args.speed_kmh,
+        preset=args.preset,
+        dt_s=args.dt,
+        substeps=args.substeps,
+    )
+    with staging.outputs:
+        summary = run_steering(config, staging.out, staging.plot)
+    print(staging.text(summary.text()))
+    return 0
+
+
+def _simulate_hpattern(args: argparse.Namespace) -> int:
+    staging = outputs_of(args)
+    sequence = parse_sequence(args.sequence)
+    mistakes = {"early-clutch": 0, "wall": 0}
+    for text in args.mistake:
+        kind, _, number = text.partition(":")
+        if kind not in mistakes or not number.isdigit():
+            raise InputError(
+                f"--mistake {text!r}: expected early-clutch:K or wall:K, K the position of a "
+                "gear in --sequence (1 for the first)"
+            )
+        if mistakes[kind]:
+            raise InputError(f"--mistake {kind}: given twice; one {kind} mistake per run")
+        if int(number) < 1:
+            raise InputError(
+                f"--mistake {text!r}: K counts the gears of --sequence from 1 (not N); leave "
+                "--mistake out for a run without one"
+            )
+        mistakes[kind] = int(number)
+    config = HPatternRunConfig(
+        sequence=sequence,
+        layout=args.layout,
+        clutch=args.clutch,
+        speed_kmh=args.speed_kmh,
+        seed=args.seed,
+        synchronizer=args.synchronizer,
+        early_clutch_release=mistakes["early-clutch"],
+        wall_push=mistakes["wall"],
+        dt_s=args.dt,
+        substeps=args.substeps,
+    )
+    with staging.outputs:
+        summary = run_hpattern(config, staging.out, staging.plot)
+    print(staging.text(summary.text()))
+    return 0

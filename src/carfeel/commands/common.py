@@ -1,0 +1,100 @@
+"""What the command families share: argument types, JSON output, output files, exit codes."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+from carfeel.io.outputs import Outputs, check_writable
+
+__all__ = [
+    "EXIT_FAULT",
+    "check_writable",
+    "finite",
+    "outputs_of",
+    "positive_float",
+    "positive_int",
+    "seed_arg",
+    "to_json",
+]
+
+EXIT_FAULT = 3
+"""A run stopped by a safety fault (stall, lost device, NaN, limit cycle)."""
+
+
+def positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not value > 0.0 or value != value or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
+    return value
+
+
+def positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {text!r}")
+    return value
+
+
+def seed_arg(text: str) -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+
+
+def finite(value: object) -> object:
+    """NaN and infinities as null (JSON has no NaN), through dicts, lists and tuples."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: finite(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [finite(v) for v in value]
+    return value
+
+
+def to_json(value: object) -> str:
+    """Strict JSON (RFC 8259) of a result: what a script reading `--json` can parse."""
+    return json.dumps(finite(value), allow_nan=False)
+
+
+@dataclass
+class Staging:
+    """A run's --out (with its .json sidecar) and --plot, staged until the run has succeeded."""
+
+    outputs: Outputs
+    out: Path
+    """Where to write the CSV (its sidecar beside it, same stem) until the run has succeeded."""
+    plot: Path | None
+    finals: dict[str, str]
+
+    def text(self, message: str) -> str:
+        """A message with the staged names replaced by the files the user asked for."""
+        for staged, final in self.finals.items():
+            message = message.replace(staged, final)
+        return message
+
+
+def outputs_of(args: argparse.Namespace) -> Staging:
+    """--out (and its .json sidecar) and --plot, checked before any work is done and written
+    under temporary names until the run has succeeded (`with staging.outputs:`)."""
+    outputs = Outputs()
+    out = Path(args.out)
+    staged = outputs.add(out, ".csv", partial=True)
+    outputs.add(out.with_suffix(".json"), ".json", partial=True)  # written beside the CSV
+    finals = {str(staged): str(out)}
+    plot = None
+    if args.plot:
+        plot = outputs.add(Path(args.plot), ".png")
+        finals[str(plot)] = args.plot
+    return Staging(outputs, staged, plot, finals)

@@ -1,0 +1,110 @@
+"""`carfeel fit` and `carfeel validate`: identification from measured logs, and its check."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+from carfeel.commands.common import (
+    check_writable,
+    to_json,
+)
+from carfeel.errors import InputError
+
+
+def register(commands: Any) -> None:
+    """Add `fit`, `validate` and their options."""
+    fit = commands.add_parser(
+        "fit",
+        help="fit a model to measured logs and write a preset",
+        description="Identify a model's parameters from a car's measured logs; write a preset "
+        "that `carfeel simulate` and `carfeel run` accept, and optionally a report.",
+    )
+    fit_kinds = fit.add_subparsers(dest="kind", metavar="KIND", required=True)
+    fit_steer = fit_kinds.add_parser(
+        "steering",
+        help="K1..K9 of the torque law from steering logs",
+        description="Fit the steering torque law (K1..K9, robust least squares) to logs with "
+        "time_s, speed_m_s, steering_angle_rad, steering_torque_Nm and optionally "
+        "lateral_accel_m_s2 and steering_rate_rad_s (several files: one per manoeuvre).",
+    )
+    fit_steer.add_argument("logs", nargs="+", metavar="LOG.csv")
+    fit_steer.add_argument("--out", required=True, metavar="PRESET.toml", help="preset to write")
+    fit_steer.add_argument("--base", default="b-segment", metavar="NAME|PATH",
+                           help="car preset the fit starts from (default b-segment)")  # fmt: skip
+    fit_steer.add_argument("--fit-vehicle", action="store_true",
+                           help="also fit the understeer gradient (logs without Ay)")  # fmt: skip
+    fit_steer.add_argument("--report", metavar="DIR", help="write a report (HTML + PNG)")
+    fit_steer.add_argument("--json", action="store_true", help="print the fit as one JSON object")
+    fit_shift = fit_kinds.add_parser(
+        "shift",
+        help="engagement stages, forces and the stop from measured shift traces",
+        description="Fit the gear engagement to traces with time_s, position_m, force_N (the "
+        "knob's position and force, as the paper's Fig. 5/6).",
+    )
+    fit_shift.add_argument("traces", nargs="+", metavar="TRACE.csv")
+    fit_shift.add_argument("--out", required=True, metavar="PRESET.toml", help="preset to write")
+    fit_shift.add_argument("--base", default="paper-first-gear", metavar="NAME|PATH",
+                           help="shift preset the fit starts from")  # fmt: skip
+    fit_shift.add_argument("--report", metavar="DIR", help="write a report (HTML + PNG)")
+    fit_shift.add_argument("--json", action="store_true", help="print the fit as one JSON object")
+    fit.set_defaults(handler=_fit)
+
+    validate = commands.add_parser(
+        "validate",
+        help="run a preset's model against measured logs and write a report",
+        description="Run the model of a steering or shift preset against measured logs and "
+        "write one report (HTML + PNG): overlays, residuals and, for steering, the feel metrics "
+        "measured and modelled side by side.",
+    )
+    validate.add_argument("logs", nargs="+", metavar="LOG.csv")
+    validate.add_argument("--preset", required=True, metavar="PRESET.toml")
+    validate.add_argument("--report", required=True, metavar="DIR")
+    validate.add_argument("--json", action="store_true", help="print the figures as JSON")
+    validate.set_defaults(handler=_validate)
+
+
+def _fit(args: argparse.Namespace) -> int:
+    out = Path(args.out)
+    if out.suffix.lower() != ".toml":
+        raise InputError(f"--out {out}: expected a .toml file name for the preset")
+    check_writable(out, ".toml")
+    report_dir = Path(args.report) if args.report else None
+    if args.kind == "steering":
+        from carfeel.identification.workflows import fit_steering_logs, fit_summary
+
+        fit = fit_steering_logs(
+            [Path(p) for p in args.logs], out, base=args.base, fit_vehicle=args.fit_vehicle,
+            report_dir=report_dir, show_progress=not args.json,
+        )  # fmt: skip
+        if args.json:
+            print(to_json(fit.as_dict()))
+        else:
+            print(fit_summary(fit))
+            print(f"wrote {out}" + (f" and {report_dir / 'index.html'}" if report_dir else ""))
+        return 0
+    from carfeel.identification import shift_workflows
+
+    result = shift_workflows.fit_shift_traces(
+        [Path(p) for p in args.traces],
+        out,
+        base=args.base,
+        report_dir=report_dir,
+        show_progress=not args.json,
+    )
+    print(to_json(result) if args.json else shift_workflows.summary_text(result, out))
+    return 0
+
+
+def _validate(args: argparse.Namespace) -> int:
+    from carfeel.identification.workflows import validate
+
+    figures = validate(args.preset, [Path(p) for p in args.logs], Path(args.report))
+    if args.json:
+        print(to_json(figures))
+    else:
+        for name, values in figures.items():
+            print(f"{name}: " + ", ".join(f"{k} {v:.4g}" for k, v in values.items()))
+        print(f"wrote {Path(args.report) / 'index.html'}")
+    return 0

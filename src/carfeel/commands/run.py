@@ -1,0 +1,163 @@
+"""`carfeel run`: a model in the fixed-rate loop on a force-feedback device."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+from carfeel.commands.common import (
+    EXIT_FAULT,
+    positive_float,
+    positive_int,
+    seed_arg,
+    to_json,
+)
+from carfeel.errors import InputError
+
+DEFAULT_SEQUENCE = "N,1,2,3,4,5,4,3,2,1,N"
+
+
+def register(commands: Any) -> None:
+    """Add `run` and their options."""
+    run = commands.add_parser(
+        "run",
+        help="render a model at 1 kHz on a force-feedback device (virtual by default)",
+        description="Run a model in a fixed-rate loop against a force-feedback device: "
+        "admittance (the paper's: the device's force drives the model, the model's motion is "
+        "displayed) or impedance with a virtual coupling (the device's motion drives the model, "
+        "the coupling force is rendered). Forces are limited in size and slew; a stall, a lost "
+        "device or a bad reading fades the force to zero. Ctrl-C stops cleanly, force first.",
+        epilog="devices: virtual (a 10 N joystick, or a 4 Nm wheel for --model steering, held by "
+        "a simulated hand that drives the model's own script), evdev:/dev/input/eventN, "
+        "sdl:INDEX, replay:RECORDING.csv. `carfeel devices` lists what is attached.",
+    )
+    run.add_argument("--model", choices=("shift", "hpattern", "steering"), default="hpattern")
+    run.add_argument("--device", default="virtual", metavar="SPEC",
+                     help="virtual (default), evdev:PATH, sdl:INDEX or replay:FILE")  # fmt: skip
+    run.add_argument("--mode", choices=("admittance", "impedance"), default="impedance",
+                     help="rendering (default impedance; steering: impedance)")  # fmt: skip
+    run.add_argument("--rate-hz", type=positive_float, default=1000.0, metavar="HZ",
+                     help="loop rate, Hz (default 1000)")  # fmt: skip
+    run.add_argument("--substeps", type=positive_int, default=1, metavar="N",
+                     help="model steps per tick (up to 10 kHz of model steps)")  # fmt: skip
+    run.add_argument("--duration", type=positive_float, default=None, metavar="S",
+                     help="seconds to run (default: long enough for the script)")  # fmt: skip
+    run.add_argument("--sequence", default=None, metavar="N,1,2,...",
+                     help="gears for --model hpattern (the virtual hand's script; default "
+                     f"{DEFAULT_SEQUENCE})")  # fmt: skip
+    run.add_argument("--preset", default=None, metavar="NAME|PATH",
+                     help="shift, hpattern (layout) or steering preset for the model")  # fmt: skip
+    run.add_argument("--speed-kmh", type=float, default=30.0, metavar="V",
+                     help="vehicle speed (synchronizer, steering), km/h (default 30)")  # fmt: skip
+    run.add_argument("--seed", type=seed_arg, default=0, help="seed (default 0)")
+    run.add_argument("--clock", choices=("wall", "simulated"), default="wall",
+                     help="wall (real time, default) or simulated (as fast as it goes; "
+                          "virtual and replay devices only)")  # fmt: skip
+    run.add_argument("--no-calibration", action="store_true",
+                     help="skip the start-up polarity pulses and force ramp-in")  # fmt: skip
+    run.add_argument("--device-max-force", type=positive_float, default=None, metavar="F",
+                     help="a real device's force (N) or torque (Nm) limit")  # fmt: skip
+    run.add_argument("--device-travel", type=positive_float, default=None, metavar="X",
+                     help="a real device's half travel, m or rad")  # fmt: skip
+    run.add_argument("--hand", choices=("script", "none", "release"), default="script",
+                     help="virtual devices: the simulated driver holds the device (script), "
+                     "nobody touches it (none), or the script runs, then lets go "
+                     "(release)")  # fmt: skip
+    run.add_argument("--release-angle-deg", type=float, default=30.0, metavar="DEG",
+                     help="--hand release, steering: rim angle held for 1 s before letting "
+                     "go")  # fmt: skip
+    run.add_argument("--device-delay-ms", type=float, default=None, metavar="MS",
+                     help="transport delay each way (commands and readings): sets a virtual "
+                     "device's (default 2), declares a real one's (default 2)")  # fmt: skip
+    run.add_argument("--device-report-hz", type=float, default=None, metavar="HZ",
+                     help="position reports per second: a virtual device's (default 1000), "
+                     "a real one's (default 500)")  # fmt: skip
+    run.add_argument("--device-damping", type=positive_float, default=None, metavar="B",
+                     help="a real device's own damping, N*s/m (or Nm*s/rad): the rendering is "
+                     "sized on it")  # fmt: skip
+    run.add_argument("--device-mass", type=positive_float, default=None, metavar="M",
+                     help="a real device's moving mass at the handle, kg (or kg m^2)")  # fmt: skip
+    run.add_argument("--aligning", choices=("front-axle", "steady-state"), default="front-axle",
+                     help="--model steering: the aligning torque from the front axle's force "
+                     "(default) or from the paper's steady-state Ay")  # fmt: skip
+    run.add_argument("--synchronizer", choices=("fixed", "physics"), default=None,
+                     help="--model hpattern: the paper's synchronization time, or cone torque "
+                     "against the speed difference (default: the preset's)")  # fmt: skip
+    run.add_argument("--record", metavar="FILE.csv", help="record every sample (+ FILE.json)")
+    run.add_argument("--plot", metavar="FILE.png", help="plot the recording (needs --record)")
+    run.add_argument("--json", action="store_true", help="print the summary as one JSON object")
+    run.set_defaults(handler=_handle)
+
+
+def _handle(args: argparse.Namespace) -> int:
+    code: int = _run(args)
+    return code
+
+
+def _run(args: argparse.Namespace) -> int:
+    from carfeel.commands.simulate import parse_sequence
+    from carfeel.io.outputs import Outputs
+    from carfeel.realtime.session import RealtimeRun, run_realtime
+
+    outputs = Outputs()
+    record = Path(args.record) if args.record else None
+    staged_record = staged_plot = None
+    if args.plot and record is None:
+        raise InputError("--plot draws the recording: give --record FILE.csv too")
+    if args.sequence is not None and args.model != "hpattern":
+        raise InputError(f"--sequence is the H-pattern's script; --model {args.model} has none")
+    if record is not None:
+        # A killed run leaves NAME.part.csv readable; a finished one replaces NAME.csv.
+        staged_record = outputs.add(record, ".csv", partial=True)
+        outputs.add(record.with_suffix(".json"), ".json", partial=True)
+    if args.plot:
+        staged_plot = outputs.add(Path(args.plot), ".png")
+    config = RealtimeRun(
+        model=args.model,
+        device=args.device,
+        mode=args.mode,
+        rate_hz=args.rate_hz,
+        substeps=args.substeps,
+        duration_s=args.duration,
+        sequence=parse_sequence(args.sequence or DEFAULT_SEQUENCE),
+        preset=args.preset,
+        speed_kmh=args.speed_kmh,
+        seed=args.seed,
+        clock=args.clock,
+        record=staged_record,
+        calibrate=not args.no_calibration,
+        device_max_force=args.device_max_force,
+        device_travel=args.device_travel,
+        hand=args.hand,
+        release_angle_deg=args.release_angle_deg,
+        device_delay_ms=args.device_delay_ms,
+        device_report_hz=args.device_report_hz,
+        device_damping=args.device_damping,
+        device_mass=args.device_mass,
+        aligning=args.aligning,
+        synchronizer=args.synchronizer,
+    )
+
+    def announce() -> None:
+        if not args.json:
+            print(f"carfeel run: {args.model} on {args.device}, {args.mode}, {args.rate_hz:g} Hz "
+                  f"({args.clock} clock); Ctrl-C stops", flush=True)  # fmt: skip
+
+    with outputs:
+        result = run_realtime(config, announce)
+        if staged_plot is not None and staged_record is not None:
+            from carfeel.io.plots import plot_recording
+            from carfeel.simulation.result import Result
+
+            recording = Result.from_csv(staged_record, drop_partial_last_line=True)
+            title = f"{args.model} on {result.device}, {args.mode}"
+            plot_recording(recording, staged_plot, title)
+    result.record = record
+    text = result.text()
+    if args.plot:
+        text += f"\nplotted {args.plot}"
+    print(to_json(result.as_dict()) if args.json else text)
+    if result.summary.stopped == "fault":
+        return EXIT_FAULT
+    return {"SIGINT": 130, "SIGTERM": 143}.get(result.summary.stopped, 0)
