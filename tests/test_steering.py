@@ -12,6 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from carfeel.analysis.steering_feel import steering_feel
+from carfeel.commands.metrics import feel_of
 from carfeel.io.presets import load_steering
 from carfeel.models.steering.torque import SteeringTorqueParams, torque_terms
 from carfeel.models.vehicle import single_track
@@ -20,7 +21,6 @@ from carfeel.models.vehicle.single_track import (
     VehicleParams,
     steady_state_lateral_accel,
 )
-from carfeel.commands.metrics import feel_of
 from carfeel.simulation import manoeuvres
 from carfeel.simulation.runner import run
 from carfeel.simulation.steering import ImposedInputs, SteeringCar, imposed_step, simulate_steering
