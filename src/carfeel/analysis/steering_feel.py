@@ -20,7 +20,12 @@ torque T (signs: positive to the left), with Ay in g (9.80665 m/s^2):
   least 0.25 s on end; it needs the car's steering ratio SR and wheelbase L. It is a steady-state
   measure: ISO 4138 and slow weaves give it; a transient manoeuvre mostly does not.
 A metric the data cannot give (no on-centre samples, a single branch, no speed) is NaN, with a note
-saying why.
+saying why. The on-centre metrics (all but the understeer gradient) are what ISO 13674-1 measures
+in a weave: a sinusoidal steer at a steady speed. A run that is not one (a lane change, a step, a
+drive) gives numbers for them that mean something else (the lane change's loop is a transient's,
+not the on-centre hysteresis), so they are NaN with a note unless `is_weave` holds: at least two
+cycles of steering at one frequency between 0.05 and 1 Hz holding most (70 %) of the steering's
+variance, at a speed steady within 10 %.
 """
 
 from __future__ import annotations
@@ -126,6 +131,45 @@ def _lasting(
     return out
 
 
+WEAVE_PURITY = 0.7
+WEAVE_BAND_HZ = (0.05, 1.0)
+WEAVE_SPEED_SPREAD = 0.1
+
+
+def is_weave(
+    time_s: FloatArray, speed_m_s: FloatArray, steering_angle_rad: FloatArray
+) -> tuple[bool, str]:
+    """Whether a run is a weave (see the module docstring), and if not, why not."""
+    angle = steering_angle_rad - float(np.mean(steering_angle_rad))
+    duration = float(time_s[-1] - time_s[0]) if len(time_s) > 1 else 0.0
+    if len(angle) < 4 * MIN_SAMPLES or duration <= 0.0 or not np.any(angle):
+        return False, "too short or no steering"
+    # Resample evenly (logs have jitter) and look at the spectrum of the steering angle.
+    even = np.linspace(time_s[0], time_s[-1], min(len(time_s), 20_000))
+    values = np.interp(even, time_s, angle)
+    power = np.abs(np.fft.rfft(values * np.hanning(len(values)))) ** 2
+    freqs = np.fft.rfftfreq(len(values), even[1] - even[0])
+    peak = int(np.argmax(power[1:]) + 1)
+    around = power[max(1, peak - 2) : peak + 3].sum()
+    purity = float(around / power[1:].sum())
+    # Cycles actually steered: alternations between beyond +30 % and beyond -30 % of the peak.
+    edge = 0.3 * float(np.max(np.abs(angle)))
+    sides = np.sign(angle[np.abs(angle) > edge])
+    cycles = 0.5 * (1 + int(np.count_nonzero(np.diff(sides)))) if len(sides) else 0.0
+    speed = speed_m_s[np.isfinite(speed_m_s)]
+    spread = float(np.std(speed) / np.mean(speed)) if len(speed) and np.mean(speed) > 0 else 1.0
+    low, high = WEAVE_BAND_HZ
+    if not low <= freqs[peak] <= high:
+        return False, f"its steering is dominated by {freqs[peak]:.3g} Hz, not a weave's 0.05-1 Hz"
+    if cycles < 2.0:
+        return False, f"{cycles:.1f} steering cycles, a weave has two at least"
+    if purity < WEAVE_PURITY:
+        return False, f"only {purity:.0%} of its steering is at one frequency (a weave: 70 %)"
+    if spread > WEAVE_SPEED_SPREAD:
+        return False, f"its speed varies by {spread:.0%} (a weave holds it within 10 %)"
+    return True, ""
+
+
 def steering_feel(
     time_s: FloatArray,
     speed_m_s: FloatArray,
@@ -197,6 +241,14 @@ def steering_feel(
                 "too little quasi-steady cornering (V > 5 m/s, |dAy/dt| <= 0.5 m/s^3, steering "
                 "rate <= 0.1 rad/s, Ay range > 0.5 m/s^2) for the understeer gradient"
             )
+    weave, why = is_weave(time_s, speed_m_s, steering_angle_rad)
+    if not weave and any(math.isfinite(v) for v in (gradient, torque_01, deadband, hysteresis,
+                                                       sensitivity)):  # fmt: skip
+        gradient = torque_01 = deadband = hysteresis = sensitivity = nan
+        notes.append(
+            f"on-centre metrics (torque gradient, torque at 0.1 g, deadband, hysteresis, "
+            f"sensitivity) are ISO 13674-1's, measured in a weave; this run is not one ({why})"
+        )
     return SteeringFeel(
         gradient, torque_01, deadband, hysteresis, sensitivity, understeer, tuple(notes)
     )

@@ -6,6 +6,7 @@ Results do not plot themselves: `carfeel.io.plots` does.
 from __future__ import annotations
 
 import csv
+import io
 import os
 import tempfile
 from collections.abc import Mapping, Sequence
@@ -105,12 +106,23 @@ class Result:
         """
         source = Path(path)
         try:
-            with source.open(newline="") as handle:
-                rows = list(csv.reader(handle))
+            data = source.read_bytes()
         except FileNotFoundError:
             raise InputError(f"{source}: no such file") from None
-        except UnicodeDecodeError:
-            raise InputError(f"{source}: not a text CSV file") from None
+        except IsADirectoryError:
+            raise InputError(f"{source}: a folder, not a CSV file") from None
+        try:
+            # utf-8-sig: a spreadsheet's "CSV UTF-8" starts with a byte-order mark.
+            text = data.decode("utf-8-sig")
+        except UnicodeDecodeError as exc:
+            line = data[: exc.start].count(b"\n") + 1
+            raise InputError(
+                f"{source}, line {line}: byte 0x{data[exc.start]:02x} is not UTF-8 text; save "
+                "the file as CSV UTF-8 (a spreadsheet's export, or iconv -f latin1 -t utf-8)"
+            ) from None
+        if "\x00" in text:
+            raise InputError(f"{source}: not a text CSV file (it holds NUL bytes)")
+        rows = list(csv.reader(io.StringIO(text, newline="")))
         if not rows:
             raise InputError(f"{source}: empty file, expected a header row with time_s")
         header, body = rows[0], rows[1:]
