@@ -106,13 +106,16 @@ def _mark_peaks(ax: Any, t: np.ndarray, force: np.ndarray, stages: np.ndarray) -
         if not mask.any():
             continue
         i = int(np.flatnonzero(mask)[np.argmax(force[mask])])
+        # Above and right of the peak, on a white ground with a leader, clear of the trace.
         ax.annotate(
             f"{label}\n{force[i]:.1f} N",
             xy=(t[i], force[i]),
-            xytext=(8, -26 if name == "synchronization" else 6),
+            xytext=(14, -34 if name == "synchronization" else 22),
             textcoords="offset points",
             fontsize=8,
             color=STAGE_COLOURS[name],
+            bbox={"boxstyle": "round,pad=0.2", "fc": "white", "ec": "none", "alpha": 0.85},
+            arrowprops={"arrowstyle": "-", "lw": 0.6, "color": STAGE_COLOURS[name]},
         )
         ax.plot(t[i], force[i], "o", ms=4, color=STAGE_COLOURS[name])
 
@@ -165,7 +168,7 @@ def plot_steering(
     ax_t.set_xlabel("time [s]")
     ax_t.set_ylabel("steering wheel torque [Nm]")
     ax_t.grid(alpha=0.3)
-    ax_t.legend(fontsize=8, loc="best")
+    ax_t.legend(fontsize=8, loc="upper right", framealpha=0.6)
     ax_t.set_title("torque and its terms vs time")
 
     x_loop, x_label = (
@@ -202,7 +205,8 @@ def plot_steering(
                 )  # fmt: skip
         ax_extra.set_xlabel("x [m]")
         ax_extra.set_ylabel("y [m]")
-        ax_extra.set_aspect("equal" if y_span > 0.2 * x_span else "auto")
+        # Equal scales only where the path is not a long thin strip (it would be a squashed line).
+        ax_extra.set_aspect("equal" if y_span > 0.5 * x_span else "auto")
         ax_extra.set_title("path" + (" and ISO 3888-1 cones" if lanes else ""))
     else:
         for name, (colour, label) in TERM_COLOURS.items():
@@ -276,6 +280,7 @@ def plot_hpattern(result: Result, layout: Any, path: str | Path, title: str = "H
 
     events, phases, targets = result["event"], result["driver_phase"], result["target"]
     start = 0
+    previous = "N"
     for i, event in enumerate(events):
         if not event.startswith("engage"):
             continue
@@ -285,7 +290,9 @@ def plot_hpattern(result: Result, layout: Any, path: str | Path, title: str = "H
         window = window[targets[window] == gear.name]
         s = gear.direction * x_mm[window]
         f = gear.direction * result["force_x_N"][window]
-        ax_l.plot(s, f, lw=1.3, label=f"into {gear.name}")
+        # Up and down shifts into the same gear told apart by where they came from.
+        ax_l.plot(s, f, lw=1.3, label=f"{previous} \u2192 {gear.name}")
+        previous = gear.name
         start = i + 1
     ax_l.set_xlabel("travel along the slot [mm]")
     ax_l.set_ylabel("force along the slot [N]")
