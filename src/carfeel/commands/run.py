@@ -32,7 +32,9 @@ def register(commands: Any) -> None:
         "a simulated hand that drives the model's own script), evdev:/dev/input/eventN, "
         "sdl:INDEX, replay:RECORDING.csv. `carfeel devices` lists what is attached.",
     )
-    run.add_argument("--model", choices=("shift", "hpattern", "steering"), default="hpattern")
+    run.add_argument("--model", choices=("shift", "hpattern", "steering"), default="hpattern",
+                     help="what to render: one engagement (shift), the H-pattern (default), "
+                     "or the steering wheel torque (on a wheel)")  # fmt: skip
     run.add_argument("--device", default="virtual", metavar="SPEC",
                      help="virtual (default), evdev:PATH, sdl:INDEX or replay:FILE")  # fmt: skip
     run.add_argument("--mode", choices=("admittance", "impedance"), default="impedance",
