@@ -1,0 +1,293 @@
+"""One decoder per game format, from the published layouts (`struct`, little-endian).
+
+Each decoder takes one datagram (a bytes-like object whose size the receiver has checked against
+`Format.sizes`) and the last state (for formats that split the state over several packets), and
+returns a `VehicleState` in SI units, or None for a datagram that carries no vehicle state (a menu,
+a paused game, another packet type). The receiver then checks the state once (`plausible`).
+
+Signs are turned into ISO 8855 here (left positive). Where a format has no lateral acceleration,
+it is derived and `lateral_derived` is set: OutSim rotates its world acceleration by the heading;
+BeamNG's MotionSim uses speed x yaw rate (exact in a steady turn; it misses the sideslip's rate).
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from carfeel.telemetry.state import NEUTRAL, REVERSE, VehicleState
+
+G = 9.80665
+KMH = 1.0 / 3.6
+
+Decoder = Callable[[Any, VehicleState], VehicleState | None]
+
+
+@dataclass(frozen=True, slots=True)
+class Format:
+    name: str
+    sizes: frozenset[int]
+    """Datagram sizes the decoder accepts; any other is a bad packet (unless `other_sizes`)."""
+    decode: Decoder
+    default_port: int
+    describe: str
+    other_sizes: bool = False
+    """True where the game sends other packet types, of other sizes, to the same port (F1)."""
+
+
+# --- Codemasters "extradata" (DiRT Rally 1/2, DiRT 4, GRID ...), extradata=3: 66 floats ----------
+_CM = struct.Struct("<66f")
+
+
+def decode_codemasters(data: Any, last: VehicleState) -> VehicleState | None:
+    f = _CM.unpack_from(data)
+    raw_gear = round(f[33])
+    # 0 neutral; reverse is -1 (DiRT Rally 2.0) or 10 (DiRT Rally 1, where no car has 10 gears).
+    gear = REVERSE if raw_gear < 0 or (raw_gear == 10 and f[65] < 10) else raw_gear
+    return VehicleState(
+        speed_m_s=f[7],
+        lateral_accel_m_s2=-f[34] * G,  # gforce_lat, g, positive to the right as published
+        engine_speed_rpm=f[37] * 10.0,  # engine_rate: rpm / 10
+        gear=gear,
+        clutch_pedal=f[32],
+        throttle=f[29],
+        brake=f[31],
+        engine_max_rpm=f[63] * 10.0,
+    )
+
+
+# --- EA SPORTS F1 2023+: header, Motion (id 0) and Car Telemetry (id 6) -----------------------
+_F1_HEADER = struct.Struct("<HBBBBBQfIIBB")  # 29 bytes
+_F1_MOTION_CAR = struct.Struct("<6f6h6f")  # 60 bytes a car
+_F1_TELEMETRY_CAR = struct.Struct("<HfffBbHBBH4H4B4BH4f4B")  # 60 bytes a car
+F1_MOTION_SIZE = 29 + 22 * 60
+F1_TELEMETRY_SIZE = 29 + 22 * 60 + 3
+
+
+def decode_f1(data: Any, last: VehicleState) -> VehicleState | None:
+    header = _F1_HEADER.unpack_from(data)
+    packet_format, packet_id, player = header[0], header[5], header[10]
+    if packet_format < 2023 or player >= 22:
+        return None
+    offset = 29 + 60 * player
+    if packet_id == 0 and len(data) == F1_MOTION_SIZE:
+        m = _F1_MOTION_CAR.unpack_from(data, offset)
+        speed = math.sqrt(m[3] * m[3] + m[4] * m[4] + m[5] * m[5])
+        # gForceLateral, g, positive to the right as published (the car's right-direction vector).
+        return last._replace(speed_m_s=speed, lateral_accel_m_s2=-m[12] * G)
+    if packet_id == 6 and len(data) == F1_TELEMETRY_SIZE:
+        c = _F1_TELEMETRY_CAR.unpack_from(data, offset)
+        speed = last.speed_m_s if not math.isnan(last.speed_m_s) else c[0] * KMH
+        return last._replace(
+            speed_m_s=speed,
+            throttle=c[1],
+            brake=c[3],
+            clutch_pedal=c[4] / 100.0,
+            gear=REVERSE if c[5] < 0 else c[5],
+            engine_speed_rpm=float(c[6]),
+        )
+    return None
+
+
+# --- Assetto Corsa remote telemetry: RTCarInfo (328 bytes) ------------------------------------
+_AC = struct.Struct("<c3xi3f6?2x3f4i5fif52f4f2f3f")
+AC_PORT = 9996
+AC_HANDSHAKE, AC_SUBSCRIBE_UPDATE, AC_SUBSCRIBE_SPOT, AC_DISMISS = 0, 1, 2, 3
+AC_RESPONSE_SIZE = 408
+_AC_HANDSHAKER = struct.Struct("<iii")  # identifier, version, operationId
+
+
+def ac_request(operation: int) -> bytes:
+    """The client's 12-byte handshaker (identifier 1 = eIPhoneDevice, version 1)."""
+    return _AC_HANDSHAKER.pack(1, 1, operation)
+
+
+def ac_car_name(response: Any) -> str:
+    """The car's name from the 408-byte handshake response (wchar_t[50], UTF-16LE, then
+    '%'-padded in practice)."""
+    raw = bytes(response[0:100]).decode("utf-16-le", "replace")
+    return raw.split("\x00", 1)[0].split("%", 1)[0].strip()
+
+
+def decode_assetto(data: Any, last: VehicleState) -> VehicleState | None:
+    f = _AC.unpack_from(data)
+    if f[0] != b"a" or f[1] != 328:
+        return None
+    raw_gear = f[23]  # 0 reverse, 1 neutral, 2 first
+    return VehicleState(
+        speed_m_s=f[4],
+        # accG_horizontal, g: positive in right-hand turns (Monza, clockwise: its large values
+        # are positive and follow the steer's sign).
+        lateral_accel_m_s2=-f[12] * G,
+        engine_speed_rpm=f[21],
+        gear=REVERSE if raw_gear <= 0 else raw_gear - 1,
+        clutch_pedal=1.0 - f[20],  # AC's clutch is 1 engaged (pedal up)
+        throttle=f[18],
+        brake=f[19],
+        steering_angle_rad=-math.radians(f[22]),  # steer, degrees at the wheel, right positive
+        car=last.car,
+    )
+
+
+def assetto_speed_kmh(data: Any) -> float:
+    """The second speed field (speed_Kmh) a test checks speed_Ms against."""
+    return float(_AC.unpack_from(data)[2])
+
+
+# --- Forza "Data Out": Sled (232), Dash FM7 (311), FH4/5 (324), FM 2023 (331) -----------------
+_FORZA_SLED = struct.Struct("<iI3f3f3f3f3f")  # the first 68 bytes
+_FORZA_CAR = struct.Struct("<5i")  # at 212: CarOrdinal, Class, PI, DrivetrainType, NumCylinders
+_FORZA_DASH = struct.Struct("<3f3f4f7fHB5B3b")  # 79 bytes after the sled (+12 bytes in FH4/5)
+FORZA_NEUTRAL = 11
+"""Forza Motorsport 2023 reports gear 11 in neutral (and between gears); 0 is reverse."""
+
+
+def decode_forza(data: Any, last: VehicleState) -> VehicleState | None:
+    s = _FORZA_SLED.unpack_from(data)
+    if s[0] == 0:  # IsRaceOn = 0: menus, paused
+        return None
+    car = _FORZA_CAR.unpack_from(data, 212)
+    # Car frame: x right, y up, z forward; the yaw rate about y is positive turning right.
+    speed = math.sqrt(s[8] * s[8] + s[9] * s[9] + s[10] * s[10])
+    state = VehicleState(
+        speed_m_s=speed,
+        lateral_accel_m_s2=-s[5],
+        yaw_rate_rad_s=-s[12],
+        engine_speed_rpm=s[4],
+        engine_max_rpm=s[2],
+        car=str(car[0]),
+        cylinders=car[4],
+    )
+    size = len(data)
+    if size == 232:
+        return state
+    d = _FORZA_DASH.unpack_from(data, 244 if size == 324 else 232)
+    raw_gear = d[22]
+    gear = REVERSE if raw_gear == 0 else NEUTRAL if raw_gear >= FORZA_NEUTRAL else raw_gear
+    return state._replace(
+        speed_m_s=d[3],
+        gear=gear,
+        throttle=d[19] / 255.0,
+        brake=d[20] / 255.0,
+        clutch_pedal=d[21] / 255.0,
+    )
+
+
+def forza_velocity_speed(data: Any) -> float:
+    """The second speed (the local velocity's magnitude) a test checks Speed against."""
+    s = _FORZA_SLED.unpack_from(data)
+    return math.sqrt(s[8] * s[8] + s[9] * s[9] + s[10] * s[10])
+
+
+# --- Live for Speed / BeamNG OutGauge (92 bytes, 96 with the optional ID) ----------------------
+_OUTGAUGE = struct.Struct("<I4sHBB7f2I3f16s16s")
+
+
+def decode_outgauge(data: Any, last: VehicleState) -> VehicleState | None:
+    f = _OUTGAUGE.unpack_from(data)
+    raw_gear = f[3]  # 0 reverse, 1 neutral, 2 first
+    return VehicleState(
+        speed_m_s=f[5],
+        engine_speed_rpm=f[6],
+        gear=REVERSE if raw_gear == 0 else raw_gear - 1,
+        throttle=f[14],
+        brake=f[15],
+        clutch_pedal=f[16],
+        car=f[1].split(b"\x00", 1)[0].decode("ascii", "replace"),
+    )
+
+
+# --- Live for Speed OutSim (64 bytes, 68 with the optional ID) --------------------------------
+_OUTSIM = struct.Struct("<I3f3f3f3f3i")
+
+
+def decode_outsim(data: Any, last: VehicleState) -> VehicleState | None:
+    f = _OUTSIM.unpack_from(data)
+    heading = f[4]
+    ax, ay = f[7], f[8]
+    vx, vy, vz = f[10], f[11], f[12]
+    # Heading 0 faces world +y, anticlockwise from above: the car's left is (-cos h, -sin h).
+    lateral = -ax * math.cos(heading) - ay * math.sin(heading)
+    return VehicleState(
+        speed_m_s=math.sqrt(vx * vx + vy * vy + vz * vz),
+        lateral_accel_m_s2=lateral,
+        yaw_rate_rad_s=f[3],  # angular velocity about world z, anticlockwise
+        lateral_derived=True,
+    )
+
+
+# --- BeamNG MotionSim "BNG1" (88 bytes) --------------------------------------------------------
+_BNG1 = struct.Struct("<4s21f")
+
+
+def decode_beamng(data: Any, last: VehicleState) -> VehicleState | None:
+    f = _BNG1.unpack_from(data)
+    if f[0] != b"BNG1":
+        return None
+    speed = math.sqrt(f[4] * f[4] + f[5] * f[5] + f[6] * f[6])
+    yaw_rate = f[18]
+    return VehicleState(
+        speed_m_s=speed,
+        lateral_accel_m_s2=speed * yaw_rate,
+        yaw_rate_rad_s=yaw_rate,
+        lateral_derived=True,
+    )
+
+
+# --- carfeel's own format, version 1 (56 bytes) ------------------------------------------------
+CARFEEL_MAGIC = b"CRFL"
+CARFEEL_VERSION = 1
+CARFEEL = struct.Struct("<4sHHId4fb3x4f")
+"""magic, version, flags (0), sequence, time_s, speed_m_s, lateral_accel_m_s2, yaw_rate_rad_s,
+engine_speed_rpm, gear (-1 R, 0 N, 1..), 3 pad bytes, clutch_pedal, throttle, brake,
+steering_angle_rad. NaN where the sender does not know a value."""
+
+
+def encode_carfeel(state: VehicleState, sequence: int = 0, time_s: float = 0.0) -> bytes:
+    s = state
+    return CARFEEL.pack(
+        CARFEEL_MAGIC, CARFEEL_VERSION, 0, sequence & 0xFFFFFFFF, time_s, s.speed_m_s,
+        s.lateral_accel_m_s2, s.yaw_rate_rad_s, s.engine_speed_rpm, s.gear, s.clutch_pedal,
+        s.throttle, s.brake, s.steering_angle_rad,
+    )  # fmt: skip
+
+
+def decode_carfeel(data: Any, last: VehicleState) -> VehicleState | None:
+    f = CARFEEL.unpack_from(data)
+    if f[0] != CARFEEL_MAGIC or f[1] != CARFEEL_VERSION:
+        return None
+    return VehicleState(
+        speed_m_s=f[5],
+        lateral_accel_m_s2=f[6],
+        yaw_rate_rad_s=f[7],
+        engine_speed_rpm=f[8],
+        gear=f[9],
+        clutch_pedal=f[10],
+        throttle=f[11],
+        brake=f[12],
+        steering_angle_rad=f[13],
+    )
+
+
+FORMATS: dict[str, Format] = {
+    f.name: f
+    for f in (
+        Format("codemasters", frozenset({264}), decode_codemasters, 20777,
+               "Codemasters extradata=3 (DiRT Rally 1/2, DiRT 4, GRID)"),
+        Format("f1", frozenset({F1_MOTION_SIZE, F1_TELEMETRY_SIZE}), decode_f1, 20777,
+               "EA SPORTS F1 2023+ (Motion and Car Telemetry packets)", other_sizes=True),
+        Format("assetto", frozenset({328}), decode_assetto, AC_PORT,
+               "Assetto Corsa remote telemetry (RTCarInfo); HOST:PORT is the game's"),
+        Format("forza", frozenset({232, 311, 324, 331}), decode_forza, 5300,
+               "Forza Data Out: Sled 232, FM7 Dash 311, FH4/5 Dash 324, FM 2023 Dash 331"),
+        Format("outgauge", frozenset({92, 96}), decode_outgauge, 4444,
+               "Live for Speed / BeamNG OutGauge"),
+        Format("outsim", frozenset({64, 68}), decode_outsim, 4123, "Live for Speed OutSim"),
+        Format("beamng", frozenset({88}), decode_beamng, 4444, "BeamNG MotionSim (BNG1)"),
+        Format("carfeel", frozenset({CARFEEL.size}), decode_carfeel, 5606,
+               "carfeel v1 (README)"),
+    )
+}  # fmt: skip
