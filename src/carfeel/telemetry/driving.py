@@ -77,7 +77,8 @@ class TelemetryDriven:
 
     EXTRA = (
         "telemetry_weight", "game_speed_m_s", "game_lateral_accel_m_s2", "game_engine_speed_rpm",
-        "game_gear", "game_clutch_pedal", "engine_vibration",
+        "game_gear", "game_clutch_pedal", "engine_vibration", "model_speed_m_s",
+        "model_engine_speed_rad_s", "model_clutch_pedal",
     )  # fmt: skip
 
     def __init__(
@@ -138,7 +139,8 @@ class TelemetryDriven:
         if self.gear_driver is not None:
             self.gear_driver.update(inner.state)
         extra = (w, state.speed_m_s, state.lateral_accel_m_s2, state.engine_speed_rpm,
-                 state.gear, state.clutch_pedal, vibration)  # fmt: skip
+                 state.gear, state.clutch_pedal, vibration, inner.speed,
+                 getattr(inner, "engine", math.nan), self.pedal.clutch_pedal)  # fmt: skip
         return commands, (*row, *extra)
 
     def close(self) -> None:

@@ -165,7 +165,7 @@ def decode_forza(data: Any, last: VehicleState) -> VehicleState | None:
     if size == 232:
         return state
     d = _FORZA_DASH.unpack_from(data, 244 if size == 324 else 232)
-    raw_gear = d[22]
+    raw_gear = d[23]
     gear = REVERSE if raw_gear == 0 else NEUTRAL if raw_gear >= FORZA_NEUTRAL else raw_gear
     return state._replace(
         speed_m_s=d[3],
@@ -173,6 +173,7 @@ def decode_forza(data: Any, last: VehicleState) -> VehicleState | None:
         throttle=d[19] / 255.0,
         brake=d[20] / 255.0,
         clutch_pedal=d[21] / 255.0,
+        # Steer is a normalized input (-127..127), not an angle: steering_angle_rad stays NaN.
     )
 
 

@@ -38,7 +38,8 @@ AC_RETRY_S = 1.0
 
 @dataclass(frozen=True, slots=True)
 class Source:
-    """`FORMAT:HOST:PORT` (or `FORMAT:PORT`, on 127.0.0.1), checked once."""
+    """`FORMAT:HOST:PORT` (or `FORMAT:PORT`, on 127.0.0.1), checked once. Port 0 listens on
+    any free port (`Receiver.address` says which)."""
 
     format: Format
     host: str
@@ -57,10 +58,12 @@ class Source:
         if not rest:
             port_text = str(fmt.default_port)
         host = host or "127.0.0.1"
-        if not port_text.isdigit() or not 0 < int(port_text) < 65536:
+        if not port_text.isdigit() or not 0 <= int(port_text) < 65536:
             raise InputError(
-                f"telemetry source {text!r}: the port {port_text!r} is not a number 1..65535"
+                f"telemetry source {text!r}: the port {port_text!r} is not a number 0..65535"
             )
+        if fmt.name == "assetto" and int(port_text) == 0:
+            raise InputError(f"telemetry source {text!r}: give the game's port (9996)")
         try:
             socket.getaddrinfo(host, None, socket.AF_INET, socket.SOCK_DGRAM)
         except OSError as exc:
@@ -165,6 +168,9 @@ class Receiver:
         return fresh
 
     def close(self) -> None:
+        """Idempotent; tells Assetto Corsa we are gone (dismiss)."""
+        if self.socket.fileno() < 0:
+            return
         if self._assetto and self.subscribed:
             self._send_to_game(AC_DISMISS)
         self.socket.close()
