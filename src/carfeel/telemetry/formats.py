@@ -18,10 +18,13 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from carfeel.telemetry.state import NEUTRAL, REVERSE, VehicleState
+from carfeel.telemetry.state import NAN, NEUTRAL, REVERSE, VehicleState
 
 G = 9.80665
 KMH = 1.0 / 3.6
+DEG = math.pi / 180.0
+_make = VehicleState._make
+"""Positional, as the fields' order: a third of the keyword constructor's cost."""
 
 Decoder = Callable[[Any, VehicleState], VehicleState | None]
 
@@ -39,24 +42,19 @@ class Format:
 
 
 # --- Codemasters "extradata" (DiRT Rally 1/2, DiRT 4, GRID ...), extradata=3: 66 floats ----------
-_CM = struct.Struct("<66f")
+_CM = struct.Struct("<28xf84x6f8xf100xf4xf")
+"""Only the floats used (the rest skipped): 7 speed; 29 throttle, 30 steer, 31 brake, 32 clutch,
+33 gear, 34 gforce_lat; 37 engine_rate; 63 max_rpm; 65 max_gears (float index = byte / 4)."""
 
 
 def decode_codemasters(data: Any, last: VehicleState) -> VehicleState | None:
-    f = _CM.unpack_from(data)
-    raw_gear = round(f[33])
+    speed, throttle, _, brake, clutch, raw, lateral_g, rate, max_rate, gears = _CM.unpack_from(data)
+    raw_gear = round(raw)
     # 0 neutral; reverse is -1 (DiRT Rally 2.0) or 10 (DiRT Rally 1, where no car has 10 gears).
-    gear = REVERSE if raw_gear < 0 or (raw_gear == 10 and f[65] < 10) else raw_gear
-    return VehicleState(
-        speed_m_s=f[7],
-        lateral_accel_m_s2=-f[34] * G,  # gforce_lat, g, positive to the right as published
-        engine_speed_rpm=f[37] * 10.0,  # engine_rate: rpm / 10
-        gear=gear,
-        clutch_pedal=f[32],
-        throttle=f[29],
-        brake=f[31],
-        engine_max_rpm=f[63] * 10.0,
-    )
+    gear = REVERSE if raw_gear < 0 or (raw_gear == 10 and gears < 10) else raw_gear
+    # gforce_lat in g, positive to the right as published; engine_rate is rpm / 10.
+    return _make((speed, -lateral_g * G, NAN, rate * 10.0, gear, clutch, throttle, brake, NAN,
+                  max_rate * 10.0, "", 0, False))  # fmt: skip
 
 
 # --- EA SPORTS F1 2023+: header, Motion (id 0) and Car Telemetry (id 6) -----------------------
@@ -94,6 +92,8 @@ def decode_f1(data: Any, last: VehicleState) -> VehicleState | None:
 
 # --- Assetto Corsa remote telemetry: RTCarInfo (328 bytes) ------------------------------------
 _AC = struct.Struct("<c3xi3f6?2x3f4i5fif52f4f2f3f")
+_AC_USED = struct.Struct("<c3xi8xf12xf20x5fi")
+"""identifier, size, speed_Ms, accG_horizontal, gas, brake, clutch, engineRPM, steer, gear."""
 AC_PORT = 9996
 AC_HANDSHAKE, AC_SUBSCRIBE_UPDATE, AC_SUBSCRIBE_SPOT, AC_DISMISS = 0, 1, 2, 3
 AC_RESPONSE_SIZE = 408
@@ -113,23 +113,17 @@ def ac_car_name(response: Any) -> str:
 
 
 def decode_assetto(data: Any, last: VehicleState) -> VehicleState | None:
-    f = _AC.unpack_from(data)
-    if f[0] != b"a" or f[1] != 328:
-        return None
-    raw_gear = f[23]  # 0 reverse, 1 neutral, 2 first
-    return VehicleState(
-        speed_m_s=f[4],
-        # accG_horizontal, g: positive in right-hand turns (Monza, clockwise: its large values
-        # are positive and follow the steer's sign).
-        lateral_accel_m_s2=-f[12] * G,
-        engine_speed_rpm=f[21],
-        gear=REVERSE if raw_gear <= 0 else raw_gear - 1,
-        clutch_pedal=1.0 - f[20],  # AC's clutch is 1 engaged (pedal up)
-        throttle=f[18],
-        brake=f[19],
-        steering_angle_rad=-math.radians(f[22]),  # steer, degrees at the wheel, right positive
-        car=last.car,
+    ident, size, speed, lateral_g, gas, brake, clutch, rpm, steer, raw_gear = _AC_USED.unpack_from(
+        data
     )
+    if ident != b"a" or size != 328:
+        return None
+    # accG_horizontal, g: positive in right-hand turns (Monza, clockwise: its large values are
+    # positive and follow the steer's sign). gear: 0 reverse, 1 neutral, 2 first. clutch: 1
+    # engaged (pedal up). steer: degrees at the wheel, right positive.
+    gear = REVERSE if raw_gear <= 0 else raw_gear - 1
+    return _make((speed, -lateral_g * G, NAN, rpm, gear, 1.0 - clutch, gas, brake,
+                  -steer * DEG, NAN, last.car, 0, False))  # fmt: skip
 
 
 def assetto_speed_kmh(data: Any) -> float:
@@ -139,42 +133,34 @@ def assetto_speed_kmh(data: Any) -> float:
 
 # --- Forza "Data Out": Sled (232), Dash FM7 (311), FH4/5 (324), FM 2023 (331) -----------------
 _FORZA_SLED = struct.Struct("<iI3f3f3f3f3f")  # the first 68 bytes
-_FORZA_CAR = struct.Struct("<5i")  # at 212: CarOrdinal, Class, PI, DrivetrainType, NumCylinders
-_FORZA_DASH = struct.Struct("<3f3f4f7fHB5B3b")  # 79 bytes after the sled (+12 bytes in FH4/5)
+_FORZA_USED = struct.Struct("<i4xf4xff8x3f4xf")
+"""IsRaceOn, EngineMaxRpm, CurrentEngineRpm, AccelerationX, Velocity XYZ, AngularVelocityY."""
+_FORZA_CAR = struct.Struct("<i12xi")  # at 212: CarOrdinal .. NumCylinders
+_FORZA_DASH = struct.Struct("<12xf55xBBBxB")
+"""After the sled (+12 bytes in FH4/5): Speed, Accel, Brake, Clutch, Gear (u8 each)."""
 FORZA_NEUTRAL = 11
 """Forza Motorsport 2023 reports gear 11 in neutral (and between gears); 0 is reverse."""
 
 
 def decode_forza(data: Any, last: VehicleState) -> VehicleState | None:
-    s = _FORZA_SLED.unpack_from(data)
-    if s[0] == 0:  # IsRaceOn = 0: menus, paused
+    race_on, max_rpm, rpm, ax, vx, vy, vz, yaw = _FORZA_USED.unpack_from(data)
+    if race_on == 0:  # menus, paused
         return None
-    car = _FORZA_CAR.unpack_from(data, 212)
+    ordinal, cylinders = _FORZA_CAR.unpack_from(data, 212)
+    car = str(ordinal)
     # Car frame: x right, y up, z forward; the yaw rate about y is positive turning right.
-    speed = math.sqrt(s[8] * s[8] + s[9] * s[9] + s[10] * s[10])
-    state = VehicleState(
-        speed_m_s=speed,
-        lateral_accel_m_s2=-s[5],
-        yaw_rate_rad_s=-s[12],
-        engine_speed_rpm=s[4],
-        engine_max_rpm=s[2],
-        car=str(car[0]),
-        cylinders=car[4],
-    )
     size = len(data)
     if size == 232:
-        return state
-    d = _FORZA_DASH.unpack_from(data, 244 if size == 324 else 232)
-    raw_gear = d[23]
-    gear = REVERSE if raw_gear == 0 else NEUTRAL if raw_gear >= FORZA_NEUTRAL else raw_gear
-    return state._replace(
-        speed_m_s=d[3],
-        gear=gear,
-        throttle=d[19] / 255.0,
-        brake=d[20] / 255.0,
-        clutch_pedal=d[21] / 255.0,
-        # Steer is a normalized input (-127..127), not an angle: steering_angle_rad stays NaN.
+        speed = math.sqrt(vx * vx + vy * vy + vz * vz)
+        return _make((speed, -ax, -yaw, rpm, NEUTRAL, NAN, NAN, NAN, NAN, max_rpm, car,
+                      cylinders, False))  # fmt: skip
+    speed, accel, brake, clutch, raw_gear = _FORZA_DASH.unpack_from(
+        data, 244 if size == 324 else 232
     )
+    gear = REVERSE if raw_gear == 0 else NEUTRAL if raw_gear >= FORZA_NEUTRAL else raw_gear
+    # Steer is a normalized input (-127..127), not an angle: steering_angle_rad stays NaN.
+    return _make((speed, -ax, -yaw, rpm, gear, clutch / 255.0, accel / 255.0, brake / 255.0,
+                  NAN, max_rpm, car, cylinders, False))  # fmt: skip
 
 
 def forza_velocity_speed(data: Any) -> float:
@@ -184,21 +170,19 @@ def forza_velocity_speed(data: Any) -> float:
 
 
 # --- Live for Speed / BeamNG OutGauge (92 bytes, 96 with the optional ID) ----------------------
-_OUTGAUGE = struct.Struct("<I4sHBB7f2I3f16s16s")
+_OUTGAUGE = struct.Struct("<4x4s2xBxff28x3f")
+"""Car, Gear (0 R, 1 N, 2 first), Speed, RPM, then Throttle, Brake, Clutch (the first 60)."""
 
 
 def decode_outgauge(data: Any, last: VehicleState) -> VehicleState | None:
-    f = _OUTGAUGE.unpack_from(data)
-    raw_gear = f[3]  # 0 reverse, 1 neutral, 2 first
-    return VehicleState(
-        speed_m_s=f[5],
-        engine_speed_rpm=f[6],
-        gear=REVERSE if raw_gear == 0 else raw_gear - 1,
-        throttle=f[14],
-        brake=f[15],
-        clutch_pedal=f[16],
-        car=f[1].split(b"\x00", 1)[0].decode("ascii", "replace"),
-    )
+    name, raw_gear, speed, rpm, throttle, brake, clutch = _OUTGAUGE.unpack_from(data)
+    car = _name(name)
+    gear = REVERSE if raw_gear == 0 else raw_gear - 1
+    return _make((speed, NAN, NAN, rpm, gear, clutch, throttle, brake, NAN, NAN, car, 0, False))
+
+
+def _name(raw: bytes) -> str:
+    return raw.split(b"\x00", 1)[0].decode("ascii", "replace")
 
 
 # --- Live for Speed OutSim (64 bytes, 68 with the optional ID) --------------------------------
@@ -206,18 +190,12 @@ _OUTSIM = struct.Struct("<I3f3f3f3f3i")
 
 
 def decode_outsim(data: Any, last: VehicleState) -> VehicleState | None:
-    f = _OUTSIM.unpack_from(data)
-    heading = f[4]
-    ax, ay = f[7], f[8]
-    vx, vy, vz = f[10], f[11], f[12]
+    _, _, _, yaw_rate, heading, _, _, ax, ay, _, vx, vy, vz, *_ = _OUTSIM.unpack_from(data)
     # Heading 0 faces world +y, anticlockwise from above: the car's left is (-cos h, -sin h).
     lateral = -ax * math.cos(heading) - ay * math.sin(heading)
-    return VehicleState(
-        speed_m_s=math.sqrt(vx * vx + vy * vy + vz * vz),
-        lateral_accel_m_s2=lateral,
-        yaw_rate_rad_s=f[3],  # angular velocity about world z, anticlockwise
-        lateral_derived=True,
-    )
+    speed = math.sqrt(vx * vx + vy * vy + vz * vz)
+    # The angular velocity about world z (anticlockwise) is the yaw rate on flat ground.
+    return _make((speed, lateral, yaw_rate, NAN, NEUTRAL, NAN, NAN, NAN, NAN, NAN, "", 0, True))
 
 
 # --- BeamNG MotionSim "BNG1" (88 bytes) --------------------------------------------------------
@@ -230,12 +208,8 @@ def decode_beamng(data: Any, last: VehicleState) -> VehicleState | None:
         return None
     speed = math.sqrt(f[4] * f[4] + f[5] * f[5] + f[6] * f[6])
     yaw_rate = f[18]
-    return VehicleState(
-        speed_m_s=speed,
-        lateral_accel_m_s2=speed * yaw_rate,
-        yaw_rate_rad_s=yaw_rate,
-        lateral_derived=True,
-    )
+    return _make((speed, speed * yaw_rate, yaw_rate, NAN, NEUTRAL, NAN, NAN, NAN, NAN, NAN, "",
+                  0, True))  # fmt: skip
 
 
 # --- carfeel's own format, version 1 (56 bytes) ------------------------------------------------
@@ -257,20 +231,10 @@ def encode_carfeel(state: VehicleState, sequence: int = 0, time_s: float = 0.0) 
 
 
 def decode_carfeel(data: Any, last: VehicleState) -> VehicleState | None:
-    f = CARFEEL.unpack_from(data)
-    if f[0] != CARFEEL_MAGIC or f[1] != CARFEEL_VERSION:
+    magic, version, _, _, _, *values = CARFEEL.unpack_from(data)
+    if magic != CARFEEL_MAGIC or version != CARFEEL_VERSION:
         return None
-    return VehicleState(
-        speed_m_s=f[5],
-        lateral_accel_m_s2=f[6],
-        yaw_rate_rad_s=f[7],
-        engine_speed_rpm=f[8],
-        gear=f[9],
-        clutch_pedal=f[10],
-        throttle=f[11],
-        brake=f[12],
-        steering_angle_rad=f[13],
-    )
+    return _make((*values, NAN, "", 0, False))
 
 
 FORMATS: dict[str, Format] = {

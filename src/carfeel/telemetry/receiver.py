@@ -167,6 +167,21 @@ class Receiver:
             self._handshake()
         return fresh
 
+    def flush(self, limit: int = 100_000) -> int:
+        """Drop what queued before now (at most `limit` datagrams); return how many. The kernel
+        keeps the oldest datagrams when its buffer is full, so a backlog from before the loop
+        started would otherwise be read as news."""
+        dropped = 0
+        for _ in range(limit):
+            try:
+                self.socket.recv_into(self._buffer)
+            except (BlockingIOError, InterruptedError):
+                break
+            except OSError:
+                pass
+            dropped += 1
+        return dropped
+
     def close(self) -> None:
         """Idempotent; tells Assetto Corsa we are gone (dismiss)."""
         if self.socket.fileno() < 0:

@@ -40,11 +40,15 @@ class VehicleSource:
         self.events: list[str] = []
         """What happened, with the loop's time: telemetry lost, back, bad packets."""
         self._bad_seen = 0
+        self._started = False
 
     def update(self, t_s: float) -> tuple[VehicleState, float]:
         dt = max(0.0, t_s - self._t)
         self._t = t_s
         receiver = self.receiver
+        if not self._started:  # what queued while the run was being set up is old news
+            receiver.flush()
+            self._started = True
         if receiver.poll():
             state = receiver.latest
             if self.needs(state):
