@@ -230,11 +230,16 @@ def encode_carfeel(state: VehicleState, sequence: int = 0, time_s: float = 0.0) 
     )  # fmt: skip
 
 
+_CARFEEL_USED = struct.Struct("<4sH14x4fb3x4f")
+
+
 def decode_carfeel(data: Any, last: VehicleState) -> VehicleState | None:
-    magic, version, _, _, _, *values = CARFEEL.unpack_from(data)
+    magic, version, v, ay, r, rpm, gear, clutch, throttle, brake, steer = _CARFEEL_USED.unpack_from(
+        data
+    )
     if magic != CARFEEL_MAGIC or version != CARFEEL_VERSION:
         return None
-    return _make((*values, NAN, "", 0, False))
+    return _make((v, ay, r, rpm, gear, clutch, throttle, brake, steer, NAN, "", 0, False))
 
 
 FORMATS: dict[str, Format] = {
