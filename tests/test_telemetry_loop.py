@@ -364,3 +364,18 @@ def test_cli_listen_and_replay(capsys: pytest.CaptureFixture[str], tmp_path: Pat
     assert summary["packets"] == 30 and summary["bad"] == 0
     rows = list(csv.DictReader(record.open()))
     assert len(rows) == 30 and float(rows[0]["speed_m_s"]) > 20.0
+
+
+def test_car_presets_mapping(tmp_path: Path) -> None:
+    from carfeel.telemetry.carmap import preset_for_car
+    from carfeel.telemetry.state import VehicleState
+
+    mapping = tmp_path / "cars.toml"
+    mapping.write_text('[cars."445"]\nhpattern = "5r"\nsteering = "b-segment"\n')
+    receiver = types.SimpleNamespace(latest=VehicleState(car="445"), poll=lambda: 0)
+    assert preset_for_car(mapping, receiver, "hpattern") == "5r"
+    receiver.latest = VehicleState(car="999")
+    assert preset_for_car(mapping, receiver, "hpattern") is None  # keeps the run's preset
+    mapping.write_text('[cars."445"]\nhpattern = 5\n')
+    with pytest.raises(InputError, match="cars"):
+        preset_for_car(mapping, receiver, "hpattern")
