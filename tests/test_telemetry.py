@@ -346,3 +346,45 @@ def test_nan_in_a_needed_field_counts_as_no_data() -> None:
             _, weight = source.update(k * 0.001)
             assert weight == 0.0
         source.close()
+
+
+@pytest.mark.parametrize("options", [0x1FF, 0x3D, 0x08])
+def test_outsim_pack2_against_lfs_insim(options: int) -> None:
+    """OutSimPack2 packed by lfs-insim with LFS's OutSim Opts decodes to what it was given."""
+    packets = pytest.importorskip("lfs_insim.packets")
+    vector = packets.Vector
+    main = packets.OutSimMain(
+        AngVel=vector(X=0.0, Y=0.0, Z=-0.2), Heading=0.0,
+        Accel=vector(X=4.0, Y=0.0, Z=0.0), Vel=vector(X=0.0, Y=30.0, Z=0.0),
+    )  # fmt: skip
+    kwargs: dict[str, object] = {"OSOpts": options, "OSMain": main}
+    if options & 2:
+        kwargs["ID"] = 9
+    if options & 4:
+        kwargs["Time"] = 123
+    if options & 16:
+        kwargs["OSInputs"] = packets.OutSimInputs(Throttle=0.6, Brake=0.1, Clutch=0.9)
+    if options & 32:
+        kwargs.update(Gear=4, EngineAngVel=500.0, MaxTorqueAtVel=300.0)
+    if options & 64:
+        kwargs.update(CurrentLapDist=10.0, IndexedDistance=11.0)
+    if options & 128:
+        kwargs["OSWheels"] = [packets.OutSimWheel() for _ in range(4)]
+    if options & 256:
+        kwargs["SteerTorque"] = 2.0
+    data = packets.OutSimPack2(**kwargs).pack()
+    fmt = Source.parse(f"outsim@{options:x}:127.0.0.1:0").format
+    assert len(data) in fmt.sizes
+    s = fmt.decode(data, VehicleState())
+    assert s is not None
+    # Heading 0 faces +y; +x is the car's right: Ay = -4 (a right turn, yaw rate negative).
+    assert s.lateral_accel_m_s2 == pytest.approx(-4.0)
+    assert s.speed_m_s == pytest.approx(30.0)
+    assert s.yaw_rate_rad_s == pytest.approx(-0.2)
+    if options & 32:
+        assert s.gear == 3
+        assert s.engine_speed_rpm == pytest.approx(500.0 * 30 / math.pi, rel=1e-6)
+    if options & 16:
+        assert (s.throttle, s.brake, s.clutch_pedal) == pytest.approx((0.6, 0.1, 0.9))
+    with pytest.raises(InputError, match="OSMain"):
+        Source.parse("outsim@10:127.0.0.1:0")

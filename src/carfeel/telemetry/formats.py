@@ -198,6 +198,52 @@ def decode_outsim(data: Any, last: VehicleState) -> VehicleState | None:
     return _make((speed, lateral, yaw_rate, NAN, NEUTRAL, NAN, NAN, NAN, NAN, NAN, "", 0, True))
 
 
+# --- Live for Speed OutSimPack2 (OutSim Opts != 0: the parts present depend on them) ----------
+OSO_HEADER, OSO_ID, OSO_TIME, OSO_MAIN, OSO_INPUTS, OSO_DRIVE = 1, 2, 4, 8, 16, 32
+OSO_DISTANCE, OSO_WHEELS, OSO_EXTRA_1 = 64, 128, 256
+_OSO_SIZES = ((OSO_HEADER, 4), (OSO_ID, 4), (OSO_TIME, 4), (OSO_MAIN, 60), (OSO_INPUTS, 20),
+              (OSO_DRIVE, 12), (OSO_DISTANCE, 8), (OSO_WHEELS, 160), (OSO_EXTRA_1, 8))  # fmt: skip
+_OS2_MAIN = struct.Struct("<8xff8xff4x3f")
+"""From OSMain: AngVel z, Heading, Accel x y, Vel x y z."""
+_OS2_INPUTS = struct.Struct("<ff4xf")  # Throttle, Brake, (InputSteer), Clutch
+_OS2_DRIVE = struct.Struct("<B3xf")  # Gear (0 R, 1 N, 2 first), EngineAngVel rad/s
+
+
+def outsim_pack2(options: int) -> Format:
+    """The OutSimPack2 format for LFS's "OutSim Opts" (hexadecimal in cfg.txt; OSMain needed)."""
+    offsets: dict[int, int] = {}
+    size = 0
+    for flag, part in _OSO_SIZES:
+        if options & flag:
+            offsets[flag] = size
+            size += part
+    main = offsets.get(OSO_MAIN)
+    if main is None or options >> 9:
+        raise ValueError(f"OutSim Opts {options:x}: needs OSMain (8) and only the bits 1..100")
+    inputs, drive = offsets.get(OSO_INPUTS), offsets.get(OSO_DRIVE)
+    header = OSO_HEADER in offsets
+
+    def decode(data: Any, last: VehicleState) -> VehicleState | None:
+        if header and bytes(data[0:4]) != b"LFST":
+            return None
+        yaw_rate, heading, ax, ay, vx, vy, vz = _OS2_MAIN.unpack_from(data, main)
+        lateral = -ax * math.cos(heading) - ay * math.sin(heading)  # as OutSim's
+        speed = math.sqrt(vx * vx + vy * vy + vz * vz)
+        throttle = brake = clutch = rpm = NAN
+        gear = NEUTRAL
+        if inputs is not None:
+            throttle, brake, clutch = _OS2_INPUTS.unpack_from(data, inputs)
+        if drive is not None:
+            raw_gear, engine = _OS2_DRIVE.unpack_from(data, drive)
+            gear = REVERSE if raw_gear == 0 else raw_gear - 1
+            rpm = engine * 30.0 / math.pi
+        return _make((speed, lateral, yaw_rate, rpm, gear, clutch, throttle, brake, NAN, NAN, "",
+                      0, True))  # fmt: skip
+
+    return Format(f"outsim@{options:x}", frozenset({size}), decode, 4123,
+                  f"Live for Speed OutSimPack2 (OutSim Opts {options:x})")  # fmt: skip
+
+
 # --- BeamNG MotionSim "BNG1" (88 bytes) --------------------------------------------------------
 _BNG1 = struct.Struct("<4s21f")
 

@@ -27,6 +27,7 @@ from carfeel.telemetry.formats import (
     Format,
     ac_car_name,
     ac_request,
+    outsim_pack2,
 )
 from carfeel.telemetry.state import VehicleState, plausible
 
@@ -48,12 +49,25 @@ class Source:
     @classmethod
     def parse(cls, text: str) -> Source:
         name, _, rest = text.partition(":")
+        base, at, options = name.partition("@")
+        if base == "outsim" and at:  # OutSimPack2: outsim@OPTS, OPTS as in LFS's cfg.txt (hex)
+            try:
+                pack2 = outsim_pack2(int(options, 16))
+            except ValueError as exc:
+                raise InputError(
+                    f"telemetry source {text!r}: outsim@OPTS takes LFS's OutSim Opts in hex, "
+                    f"with OSMain (8) among them, e.g. outsim@1ff ({exc})"
+                ) from exc
+            return cls._address(text, pack2, rest)
         if name not in FORMATS:
             raise InputError(
                 f"telemetry source {text!r}: the format {name!r} is not one of "
                 f"{', '.join(FORMATS)} (SOURCE is FORMAT:HOST:PORT, e.g. forza:0.0.0.0:5300)"
             )
-        fmt = FORMATS[name]
+        return cls._address(text, FORMATS[name], rest)
+
+    @classmethod
+    def _address(cls, text: str, fmt: Format, rest: str) -> Source:
         host, _, port_text = rest.rpartition(":")
         if not rest:
             port_text = str(fmt.default_port)
