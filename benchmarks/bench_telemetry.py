@@ -6,7 +6,8 @@ Runs, in one process (the sender in a second one, as a game would be):
 2. the 1 kHz loop rendering the steering on the virtual wheel on the wall clock, without
    telemetry (the reference), then with `carfeel` packets arriving at 1 kHz from another
    process: overruns and period errors of both, and the latency from a packet's send (its
-   time stamp) to the first force command computed from it (p50, p99).
+   time stamp) to the first force command computed from it (p50, p99);
+3. the same with garbage flooding the port from a third process.
 Asserts nothing; numbers go in notes, not tests.
     python benchmarks/bench_telemetry.py [--seconds 10]
 """
@@ -114,6 +115,17 @@ def sender(port: int, seconds: float, rate_hz: float) -> None:
                 time.sleep(delay)
 
 
+def flooder(port: int, seconds: float) -> None:
+    """Garbage on the port as fast as one process can send it."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        start = time.monotonic()
+        junk = [bytes([i]) * (i * 7 % 1400 + 1) for i in range(64)]
+        k = 0
+        while time.monotonic() - start < seconds:
+            s.sendto(junk[k % 64], ("127.0.0.1", port))
+            k += 1
+
+
 class StampedSource(source.VehicleSource):
     """Notes the send stamp of the newest packet each time a fresh one arrives."""
 
@@ -122,8 +134,9 @@ class StampedSource(source.VehicleSource):
     def update(self, t_s: float) -> Any:
         before = self.receiver.packets
         out = super().update(t_s)
-        if self.receiver.packets != before:
-            # The newest datagram is still in the receiver's buffer: its time_s field.
+        if self.receiver.packets != before and self.receiver._buffer[:4] == b"CRFL":
+            # The newest datagram is still in the receiver's buffer: its time_s field (when the
+            # newest one was a good packet; under the flood it is often garbage: not counted).
             StampedSource.pending.append(struct.unpack_from("<d", self.receiver._buffer, 12)[0])
         return out
 
@@ -171,8 +184,25 @@ def main() -> None:
         game.terminate()
         game.join()
     tel = with_telemetry.summary
+    StampedSource.pending.clear()
+    flood_latencies = len(latencies)
+    game = multiprocessing.Process(target=sender, args=(port, args.seconds + 30.0, 1000.0))
+    junk = multiprocessing.Process(target=flooder, args=(port, args.seconds + 30.0))
+    game.start()
+    junk.start()
+    try:
+        flooded = run(args.seconds, f"carfeel:127.0.0.1:{port}")
+    finally:
+        for process in (game, junk):
+            process.terminate()
+            process.join()
+    flood = flooded.summary
+    flood_used = latencies[flood_latencies:]
+    del latencies[flood_latencies:]
     print(f"loop, steering on the virtual wheel, 1 kHz, {args.seconds:g} s each:")
-    for label, s in (("without telemetry", ref), ("with 1 kHz telemetry", tel)):
+    runs = (("without telemetry", ref), ("with 1 kHz telemetry", tel),
+            ("1 kHz + garbage flood", flood))  # fmt: skip
+    for label, s in runs:
         print(f"  {label:22s} overruns {s.overruns:4d}   period error p50 "
               f"{s.period_error_p50_us:7.2f} us   p99 {s.period_error_p99_us:8.2f} us   max "
               f"{s.period_error_max_us:9.1f} us")  # fmt: skip
@@ -183,6 +213,11 @@ def main() -> None:
         print(f"send to force command: {len(ordered)} packets used, p50 {p50:.0f} us, "
               f"p99 {p99:.0f} us, max {ordered[-1] * 1e6:.0f} us")  # fmt: skip
     print("notes: " + "; ".join(n for n in tel.notes if "telemetry" in n))
+    print("flood notes: " + "; ".join(n for n in flood.notes if "telemetry" in n))
+    if flood_used:
+        ordered = sorted(flood_used)
+        print(f"under the flood, send to force command: p50 {ordered[len(ordered) // 2] * 1e6:.0f}"
+              f" us, p99 {ordered[int(0.99 * (len(ordered) - 1))] * 1e6:.0f} us")  # fmt: skip
 
 
 if __name__ == "__main__":

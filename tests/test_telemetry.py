@@ -99,19 +99,23 @@ def test_forza_capture_decodes_to_si_units() -> None:
 
 
 def _serve_assetto(
-    packets: list[bytes], rate_hz: float
+    packets: list[bytes], rate_hz: float, sent: list[int] | None = None
 ) -> tuple[tuple[str, int], threading.Thread]:
     bound: list[tuple[str, int]] = []
     ready = threading.Event()
+    counts = sent if sent is not None else []
 
     def on_ready(address: tuple[str, int]) -> None:
         bound.append(address)
         ready.set()
 
     def serve() -> None:
-        replay.serve_assetto(
-            packets, ("127.0.0.1", 0), rate_hz, car="ks_audi_r8_lms", wait_s=5.0, ready=on_ready
-        )
+        counts.append(
+            replay.serve_assetto(
+                packets, ("127.0.0.1", 0), rate_hz, car="ks_audi_r8_lms", wait_s=5.0,
+                ready=on_ready,
+            )
+        )  # fmt: skip
 
     thread = threading.Thread(target=serve, daemon=True)
     thread.start()
@@ -128,11 +132,24 @@ def test_assetto_replayed_over_loopback_handshake_subscribe_dismiss() -> None:
         assert receiver.subscribed
         assert receiver.car == "ks_audi_r8_lms"
     thread.join(5.0)
-    assert not thread.is_alive()  # the dismiss (or the end) stopped the server
+    assert not thread.is_alive()
     assert len(states) == len(packets)  # none dropped at 60 Hz
     expected = [formats.decode_assetto(p, VehicleState()) for p in packets]
     assert [s.speed_m_s for s in states] == [e.speed_m_s for e in expected if e is not None]
     assert all(s.car == "ks_audi_r8_lms" for s in states)
+
+
+@needs_captures
+def test_assetto_dismiss_stops_the_stream() -> None:
+    """The client's dismiss on close stops the game's stream (600 packets, 10 s, cut at 30)."""
+    packets = _packets(AC_CAPTURE, 328)[:600]
+    sent: list[int] = []
+    (host, port), thread = _serve_assetto(packets, CAPTURE_RATE_HZ, sent)
+    with Receiver(Source.parse(f"assetto:{host}:{port}")) as receiver:
+        _drain(receiver, time.monotonic() + 5.0, 30)
+    thread.join(2.0)  # 2 s: the server sees the dismiss at its next packet (17 ms)
+    assert not thread.is_alive()
+    assert sent and sent[0] < 100
 
 
 @needs_captures
