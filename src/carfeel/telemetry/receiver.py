@@ -181,8 +181,9 @@ class Receiver:
             self._handshake()
         return fresh
 
-    def flush(self, limit: int = 100_000) -> int:
-        """Drop what queued before now (at most `limit` datagrams); return how many. The kernel
+    def flush(self, limit: int = 1024) -> int:
+        """Drop what queued before now (at most `limit` datagrams, more than the 64 KiB buffer
+        holds, so that a flood cannot hold it up); return how many. The kernel
         keeps the oldest datagrams when its buffer is full, so a backlog from before the loop
         started would otherwise be read as news."""
         dropped = 0
