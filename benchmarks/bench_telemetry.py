@@ -212,7 +212,8 @@ def main() -> None:
     runs = (("without telemetry", ref), ("with 1 kHz telemetry", tel),
             ("1 kHz + 20 kHz garbage", flood))  # fmt: skip
     for label, s in runs:
-        print(f"  {label:22s} overruns {s.overruns:4d}   period error p50 "
+        print(f"  {label:22s} {s.periods} periods, stopped by {s.stopped} {s.faults}")
+        print(f"  {'':22s} overruns {s.overruns:4d}   period error p50 "
               f"{s.period_error_p50_us:7.2f} us   p99 {s.period_error_p99_us:8.2f} us   max "
               f"{s.period_error_max_us:9.1f} us")  # fmt: skip
     ordered = sorted(latencies)
