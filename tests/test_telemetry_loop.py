@@ -379,3 +379,47 @@ def test_car_presets_mapping(tmp_path: Path) -> None:
     mapping.write_text('[cars."445"]\nhpattern = 5\n')
     with pytest.raises(InputError, match="cars"):
         preset_for_car(mapping, receiver, "hpattern")
+
+
+class ConstantSource(VehicleSource):
+    """Sends one fixed state at 100 Hz of simulated time over a real socket."""
+
+    state: Any = None
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.next_s = 0.0
+
+    def update(self, t_s: float) -> Any:
+        from carfeel.telemetry.formats import encode_carfeel
+
+        if t_s >= self.next_s:
+            self.next_s += 0.01
+            self.sock.sendto(encode_carfeel(ConstantSource.state), self.receiver.address)
+        return super().update(t_s)
+
+    def close(self) -> None:
+        self.sock.close()
+        super().close()
+
+
+def test_the_games_clutch_reaches_the_synchronizer(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The physics synchronizer with the game's clutch: pressed, the cone only meets the input
+    shaft and both gears go in; released with the engine at 6000 rpm, the clutch holds the input
+    shaft to the engine, the cone cannot match the speeds and the lever balks (no gear)."""
+    from carfeel.telemetry.state import VehicleState
+
+    monkeypatch.setattr(source, "VehicleSource", ConstantSource)
+    gears = {}
+    for pedal, rpm in ((1.0, 2000.0), (0.0, 6000.0)):
+        ConstantSource.state = VehicleState(
+            speed_m_s=12.0, lateral_accel_m_s2=0.0, engine_speed_rpm=rpm, gear=1,
+            clutch_pedal=pedal,
+        )  # fmt: skip
+        run = RealtimeRun(model="hpattern", clock="simulated", telemetry="carfeel:127.0.0.1:0",
+                          sequence=("N", "1", "2"), synchronizer="physics")  # fmt: skip
+        result = run_realtime(run)
+        assert not result.summary.faults
+        gears[pedal] = result.summary.gears
+    assert gears == {1.0: ["1", "2"], 0.0: []}
