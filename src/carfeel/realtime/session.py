@@ -576,7 +576,8 @@ def _run_realtime(
         r = driven.source.receiver
         notes += driven.source.events
         notes.append(
-            f"telemetry {r.format.name}: {r.packets} good packets, {r.bad} bad, {r.ignored} "
+            f"telemetry {r.format.name} on {r.bound[0]}:{r.bound[1]}: {r.packets} good packets, "
+            f"{r.bad} bad, {r.ignored} "
             f"ignored{'; car ' + r.latest.car if r.latest.car else ''}"
         )
     summary.notes.extend(notes)

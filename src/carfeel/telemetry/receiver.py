@@ -121,6 +121,8 @@ class Receiver:
             ) from exc
         sock.setblocking(False)
         self.socket = sock
+        self.bound = self.address
+        """Where it listens (port 0 given: the one the system chose)."""
         self._sent_s = -math.inf
         if self._assetto:
             self._handshake()
