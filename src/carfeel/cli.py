@@ -12,7 +12,7 @@ import sys
 from collections.abc import Sequence
 
 from carfeel import __version__
-from carfeel.commands import demo, devices, identify, metrics, presets, run, simulate
+from carfeel.commands import demo, devices, identify, metrics, presets, run, simulate, telemetry
 from carfeel.errors import CarfeelError
 
 DESCRIPTION = """\
@@ -46,7 +46,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"carfeel {__version__}")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
-    for family in (demo, simulate, metrics, run, identify, devices, presets):
+    for family in (demo, simulate, metrics, run, identify, devices, presets, telemetry):
         family.register(commands)
     return parser
 

@@ -86,6 +86,27 @@ def register(commands: Any) -> None:
     run.add_argument("--synchronizer", choices=("fixed", "physics"), default=None,
                      help="--model hpattern: the paper's synchronization time, or cone torque "
                      "against the speed difference (default: the preset's)")  # fmt: skip
+    run.add_argument("--telemetry", metavar="SOURCE", default=None,
+                     help="FORMAT:HOST:PORT: the game's speed, Ay, engine, gear and clutch drive "
+                     "the model (see `carfeel telemetry listen`)")  # fmt: skip
+    run.add_argument(
+        "--gear-output",
+        default="none",
+        metavar="uinput|vjoy|none",
+        help="--model hpattern: the lever's slot as a virtual joystick's buttons",
+    )
+    run.add_argument(
+        "--gear-timing",
+        default="slot",
+        metavar="slot|engaged",
+        help="press the gear's button at slot entry (default) or once in gear",
+    )
+    run.add_argument(
+        "--car-presets",
+        metavar="FILE.toml",
+        default=None,
+        help="--telemetry: presets per car the format names (README)",
+    )
     run.add_argument("--record", metavar="FILE.csv", help="record every sample (+ FILE.json)")
     run.add_argument("--plot", metavar="FILE.png", help="plot the recording (needs --record)")
     run.add_argument("--json", action="store_true", help="print the summary as one JSON object")
@@ -139,6 +160,10 @@ def _run(args: argparse.Namespace) -> int:
         device_mass=args.device_mass,
         aligning=args.aligning,
         synchronizer=args.synchronizer,
+        telemetry=args.telemetry,
+        gear_output=args.gear_output,
+        gear_timing=args.gear_timing,
+        car_presets=Path(args.car_presets) if args.car_presets else None,
     )
 
     def announce() -> None:

@@ -360,6 +360,8 @@ class SteeringRenderer:
         self.substeps = 1
         """Model steps per tick (the loop at 1 kHz, the model up to 10 kHz)."""
         self.effect = 0.0
+        self.lateral_accel_m_s2: float | None = None
+        """The game's Ay for tau0 (telemetry, already faded by its weight); None: the car's."""
         fs, ps = scaling.force_scale, scaling.position_scale
         k = car.torque
         friction_level = fs * k.k7_Nm * math.pi / 2.0
@@ -408,7 +410,9 @@ class SteeringRenderer:
             self.vehicle, out = single_track.step(
                 self.vehicle, VehicleInputs(speed, angle), vehicle, dt_s / self.substeps
             )
-        if self.rendering.aligning == "front-axle":
+        if self.lateral_accel_m_s2 is not None:
+            ay = self.lateral_accel_m_s2
+        elif self.rendering.aligning == "front-axle":
             ay = single_track.aligning_lateral_accel(self.vehicle, speed, vehicle)
         else:
             ay = single_track.steady_state_lateral_accel(speed, angle, vehicle)

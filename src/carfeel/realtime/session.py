@@ -91,6 +91,13 @@ class RealtimeRun:
     passivity_controller: bool = True
     synchronizer: str | None = None
     """--model hpattern: fixed (the paper's timer) or physics; None: the preset's."""
+    telemetry: str | None = None
+    """FORMAT:HOST:PORT: the game's vehicle state drives the model (`carfeel.telemetry`)."""
+    gear_output: str = "none"
+    """--model hpattern: none, uinput or vjoy (a virtual joystick's buttons per gear slot)."""
+    gear_timing: str = "slot"
+    car_presets: Path | None = None
+    """A TOML file mapping the car a format names to the presets for it."""
 
 
 @dataclass
@@ -227,12 +234,36 @@ def _check(run: RealtimeRun) -> None:
         )
     if run.duration_s is not None and not 0.0 < run.duration_s <= 3600.0:
         raise InputError(f"--duration {run.duration_s:g}: allowed 0 < value <= 3600 s")
+    _check_telemetry(run)
     if run.clock not in ("wall", "simulated"):
         raise InputError(f"--clock {run.clock!r}: choose wall or simulated")
     if run.clock == "simulated" and not run.device.startswith(("virtual", "replay")):
         raise InputError(
             "--clock simulated needs a virtual or replay device; a real one lives in wall time"
         )
+
+
+def _check_telemetry(run: RealtimeRun) -> None:
+    from carfeel.telemetry.gearout import GEAR_OUTPUTS, GEAR_TIMINGS
+
+    if run.gear_output not in GEAR_OUTPUTS:
+        raise InputError(
+            f"--gear-output {run.gear_output!r}: choose one of {', '.join(GEAR_OUTPUTS)}"
+        )
+    if run.gear_timing not in GEAR_TIMINGS:
+        raise InputError(
+            f"--gear-timing {run.gear_timing!r}: choose one of {', '.join(GEAR_TIMINGS)}"
+        )
+    if run.gear_output != "none" and run.model != "hpattern":
+        raise InputError("--gear-output needs --model hpattern (the lever's slot is the gear)")
+    if run.car_presets is not None and run.telemetry is None:
+        raise InputError("--car-presets needs --telemetry (the format names the car)")
+    if run.telemetry is not None:
+        from carfeel.telemetry.receiver import Source
+
+        Source.parse(run.telemetry)
+        if run.model not in ("steering", "hpattern"):
+            raise InputError("--telemetry drives --model steering or hpattern")
 
 
 DEVICE_DEFAULTS = {"joystick": (10.0, 0.04), "wheel": (2.5, math.radians(450.0))}
@@ -349,10 +380,6 @@ def run_realtime(run: RealtimeRun, announce: Callable[[], None] | None = None) -
     """Render a model on a device at a fixed rate; record and summarize. `announce` is called
     once everything is checked and the device is open, just before the loop starts."""
     _check(run)
-    from carfeel.io.presets import load_hpattern, load_shift, load_steering
-    from carfeel.models.drivers.hpattern import Script
-    from carfeel.realtime import hands, stability
-
     wheel = run.model == "steering"
     preset_name = run.preset or DEFAULT_PRESETS[run.model]
     # The virtual hand waits for the calibration pulses and the ramp-in.
@@ -360,6 +387,39 @@ def run_realtime(run: RealtimeRun, announce: Callable[[], None] | None = None) -
     ready_s = calibration_s + SafetyLimits(1.0, 1.0).ramp_s if run.calibrate else 0.0
     kind = "wheel" if wheel else "joystick"
     delay = None if run.device_delay_ms is None else run.device_delay_ms / 1e3
+    receiver = None
+    if run.telemetry is not None:
+        # Before the device: a port in use or a bad source stops the run before anything starts.
+        from carfeel.telemetry.receiver import Receiver, Source
+
+        receiver = Receiver(Source.parse(run.telemetry))
+    try:
+        return _run_realtime(run, announce, receiver, preset_name, calibration_s, ready_s, kind,
+                             delay)  # fmt: skip
+    finally:
+        if receiver is not None:
+            receiver.close()
+
+
+def _run_realtime(
+    run: RealtimeRun,
+    announce: Callable[[], None] | None,
+    receiver: Any,
+    preset_name: str,
+    calibration_s: float,
+    ready_s: float,
+    kind: str,
+    delay: float | None,
+) -> RealtimeResult:
+    from carfeel.io.presets import load_hpattern, load_shift, load_steering
+    from carfeel.models.drivers.hpattern import Script
+    from carfeel.realtime import hands, stability
+
+    wheel = run.model == "steering"
+    if receiver is not None and run.car_presets is not None:
+        from carfeel.telemetry.carmap import preset_for_car
+
+        preset_name = preset_for_car(run.car_presets, receiver, run.model) or preset_name
     # The device first: the scales come from its limits (its hand, if virtual, comes after).
     device = open_device(
         run.device, None, run.seed, kind, run.device_max_force, run.device_travel, delay,
@@ -439,6 +499,10 @@ def run_realtime(run: RealtimeRun, announce: Callable[[], None] | None = None) -
                                     info, SteeringRendering(aligning=run.aligning))  # fmt: skip
         duration = duration or ready_s + WEAVE_CYCLES / 0.2 + 2.0
     renderer.substeps = run.substeps
+    driven = None
+    if receiver is not None:
+        driven = _drive_by_telemetry(run, renderer, receiver, info, hand if virtual else None)
+        renderer = driven
     if virtual and run.hand != "none":
         device.hand = hand  # type: ignore[attr-defined]
     if run.device.startswith("replay"):
@@ -506,9 +570,39 @@ def run_realtime(run: RealtimeRun, announce: Callable[[], None] | None = None) -
         finally:
             if recorder is not None:
                 recorder.close(summary.as_dict() if summary else {"stopped": "error"})
+            if driven is not None:
+                driven.close()
+    if driven is not None:
+        r = driven.source.receiver
+        notes += driven.source.events
+        notes.append(
+            f"telemetry {r.format.name} on {r.bound[0]}:{r.bound[1]}: {r.packets} good packets, "
+            f"{r.bad} bad, {r.ignored} "
+            f"ignored{'; car ' + r.latest.car if r.latest.car else ''}"
+        )
     summary.notes.extend(notes)
     unit = "Nm" if wheel else "N"
     return RealtimeResult(summary, scaling, info.name, run.record, figure, unit)
+
+
+def _drive_by_telemetry(
+    run: RealtimeRun, renderer: Any, receiver: Any, info: DeviceInfo, hand: Any
+) -> Any:
+    """The renderer wrapped so the game's vehicle state drives it (`carfeel.telemetry.driving`)."""
+    from carfeel.telemetry import driving
+    from carfeel.telemetry.gearout import GearDriver, open_gear_output
+    from carfeel.telemetry.source import VehicleSource
+
+    steering = run.model == "steering"
+    needs = driving.steering_needs if steering else driving.hpattern_needs
+    source = VehicleSource(receiver, needs)
+    vibration = driving.EngineVibration(run.rate_hz, 0.03 * info.max_force, 0.05 * info.max_force)
+    gear_driver = None
+    if not steering:
+        output = open_gear_output(run.gear_output, len(renderer.pattern.layout.gears))
+        if output is not None:
+            gear_driver = GearDriver(output, renderer.pattern.layout, run.gear_timing)
+    return driving.TelemetryDriven(renderer, source, run.model, vibration, gear_driver)
 
 
 def stability_figure(sizing: Sizing, info: DeviceInfo, rate_hz: float) -> dict[str, float]:

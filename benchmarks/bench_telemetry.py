@@ -1,0 +1,234 @@
+"""Telemetry: decode cost per packet, and the loop with 1 kHz of telemetry arriving.
+
+Runs, in one process (the sender in a second one, as a game would be):
+1. decode cost per packet of each format (the shared captures where there is one, packets built
+   from the layouts otherwise), and the receiver's cost per poll: empty, and per datagram;
+2. the 1 kHz loop rendering the steering on the virtual wheel on the wall clock, without
+   telemetry (the reference), then with `carfeel` packets arriving at 1 kHz from another
+   process: overruns and period errors of both, and the latency from a packet's send (its
+   time stamp) to the first force command computed from it (p50, p99);
+3. the same with garbage flooding the port from a third process (20 kHz).
+Asserts nothing; numbers go in notes, not tests.
+    python benchmarks/bench_telemetry.py [--seconds 10]
+"""
+
+from __future__ import annotations
+
+import argparse
+import multiprocessing
+import platform
+import socket
+import struct
+import time
+import timeit
+from pathlib import Path
+from typing import Any, ClassVar
+
+from carfeel.realtime import session
+from carfeel.realtime.session import RealtimeRun, run_realtime
+from carfeel.telemetry import formats, source
+from carfeel.telemetry.formats import encode_carfeel
+from carfeel.telemetry.receiver import Receiver, Source
+from carfeel.telemetry.state import VehicleState
+
+DATA = Path("/work/shared/data/telemetry")
+
+
+def packets_per_format() -> dict[str, bytes]:
+    out = {
+        "carfeel": encode_carfeel(VehicleState(20.0, 2.0, 0.1, 3000.0, 3, 0.0, 0.5, 0.0, 0.1)),
+        "codemasters": struct.pack("<66f", *([1.0] * 66)),
+        "outgauge": struct.pack(
+            "<I4sHBB7f2I3f16s16s",
+            0,
+            b"XRT",
+            0,
+            3,
+            0,
+            20.0,
+            5000.0,
+            *([0.0] * 5),
+            0,
+            0,
+            0.5,
+            0.0,
+            0.0,
+            b"",
+            b"",
+        ),
+        "outsim": struct.pack("<I3f3f3f3f3i", 0, *([0.1] * 12), 0, 0, 0),
+        "beamng": struct.pack("<4s21f", b"BNG1", *([0.5] * 21)),
+        "f1 (car telemetry)": struct.pack(
+            "<HBBBBBQfIIBB", 2023, 23, 1, 0, 1, 6, 1, 0.0, 0, 0, 0, 255
+        )
+        + bytes(22 * 60 + 3),
+    }
+    ac, fz = DATA / "assetto-corsa-rtcarinfo-monza.raw", DATA / "forza-motorsport-2023-dash.raw"
+    if ac.is_file():
+        out["assetto (capture)"] = ac.read_bytes()[328 * 3000 : 328 * 3001]
+    if fz.is_file():
+        out["forza FM2023 (capture)"] = fz.read_bytes()[331 * 500 : 331 * 501]
+    return out
+
+
+def decode_costs() -> None:
+    by_name = {f.name: f for f in formats.FORMATS.values()}
+    print("decode, us a packet (struct unpack + conversion to SI; best of 5 x 20000):")
+    for label, packet in packets_per_format().items():
+        decode, last = by_name[label.split()[0]].decode, VehicleState()
+        timer = timeit.Timer("decode(packet, last)", globals={"decode": decode, "packet": packet,
+                                                              "last": last})  # fmt: skip
+        best = min(timer.repeat(number=20000, repeat=5))
+        print(f"  {label:26s} {best / 20000 * 1e6:6.2f}")
+    with (
+        Receiver(Source.parse("carfeel:127.0.0.1:0")) as receiver,
+        socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s,
+    ):
+        n = 20000
+        t0 = time.perf_counter()
+        for _ in range(n):
+            receiver.poll()
+        empty = (time.perf_counter() - t0) / n
+        packet = packets_per_format()["carfeel"]
+        total = 0.0
+        for _ in range(200):
+            for _ in range(50):
+                s.sendto(packet, receiver.address)
+            t0 = time.perf_counter()
+            receiver.poll()
+            total += time.perf_counter() - t0
+        print(f"receiver poll: empty {empty * 1e6:.2f} us; {total / 10000 * 1e6:.2f} us a "
+              "datagram (recv_into + decode + checks, 50 waiting)")  # fmt: skip
+
+
+def sender(port: int, seconds: float, rate_hz: float) -> None:
+    """The game: carfeel packets at rate_hz, each stamped with its send time (monotonic)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        start = time.monotonic()
+        k = 0
+        while (now := time.monotonic()) - start < seconds:
+            state = VehicleState(20.0, 2.0 + (k % 100) / 100, 0.1, 3000.0, 3, 0.0, 0.5, 0.0, 0.1)
+            s.sendto(encode_carfeel(state, k, now), ("127.0.0.1", port))
+            k += 1
+            delay = start + k / rate_hz - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+
+
+FLOOD_PER_MS = 20
+
+
+def flooder(port: int, seconds: float) -> None:
+    """Garbage on the port, 20 datagrams every millisecond (20 times the good stream): paced, so
+    the flooding process does not itself take the loop's core on this 2-core machine (an unpaced
+    flooder spinning a core starves the loop through the scheduler, not through the receiver)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        start = time.monotonic()
+        junk = [bytes([i]) * (i * 7 % 1400 + 1) for i in range(64)]
+        k = 0
+        while (now := time.monotonic()) - start < seconds:
+            for _ in range(FLOOD_PER_MS):
+                s.sendto(junk[k % 64], ("127.0.0.1", port))
+                k += 1
+            delay = start + k / FLOOD_PER_MS / 1000.0 - now
+            if delay > 0:
+                time.sleep(delay)
+
+
+class StampedSource(source.VehicleSource):
+    """Notes the send stamp of the newest packet each time a fresh one arrives."""
+
+    pending: ClassVar[list[float]] = []
+
+    def update(self, t_s: float) -> Any:
+        before = self.receiver.packets
+        out = super().update(t_s)
+        if self.receiver.packets != before and self.receiver._buffer[:4] == b"CRFL":
+            # The newest datagram is still in the receiver's buffer: its time_s field (when the
+            # newest one was a good packet; under the flood it is often garbage: not counted).
+            StampedSource.pending.append(struct.unpack_from("<d", self.receiver._buffer, 12)[0])
+        return out
+
+
+def run(seconds: float, telemetry: str | None) -> Any:
+    run = RealtimeRun(model="steering", device="virtual:wheel", duration_s=seconds,
+                      calibrate=False, telemetry=telemetry)  # fmt: skip
+    return run_realtime(run)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=10.0)
+    args = parser.parse_args()
+    print(f"CPython {platform.python_version()} on {platform.machine()}")
+    decode_costs()
+
+    ref = run(args.seconds, None).summary
+    latencies: list[float] = []
+    opened = session.open_device
+
+    def open_stamped(*a: Any, **kw: Any) -> Any:
+        device = opened(*a, **kw)
+        command = device.command
+
+        def stamped(commands: Any, t: float) -> Any:
+            now = time.monotonic()
+            latencies.extend(now - sent for sent in StampedSource.pending)
+            StampedSource.pending.clear()
+            return command(commands, t)
+
+        setattr(device, "command", stamped)  # noqa: B010 - the probe
+        return device
+
+    setattr(session, "open_device", open_stamped)  # noqa: B010 - a benchmark's probe
+    setattr(source, "VehicleSource", StampedSource)  # noqa: B010
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    game = multiprocessing.Process(target=sender, args=(port, args.seconds + 30.0, 1000.0))
+    game.start()
+    try:
+        with_telemetry = run(args.seconds, f"carfeel:127.0.0.1:{port}")
+    finally:
+        game.terminate()
+        game.join()
+    tel = with_telemetry.summary
+    StampedSource.pending.clear()
+    flood_latencies = len(latencies)
+    game = multiprocessing.Process(target=sender, args=(port, args.seconds + 30.0, 1000.0))
+    junk = multiprocessing.Process(target=flooder, args=(port, args.seconds + 30.0))
+    game.start()
+    junk.start()
+    try:
+        flooded = run(args.seconds, f"carfeel:127.0.0.1:{port}")
+    finally:
+        for process in (game, junk):
+            process.terminate()
+            process.join()
+    flood = flooded.summary
+    flood_used = latencies[flood_latencies:]
+    del latencies[flood_latencies:]
+    print(f"loop, steering on the virtual wheel, 1 kHz, {args.seconds:g} s each:")
+    runs = (("without telemetry", ref), ("with 1 kHz telemetry", tel),
+            ("1 kHz + 20 kHz garbage", flood))  # fmt: skip
+    for label, s in runs:
+        print(f"  {label:22s} {s.periods} periods, stopped by {s.stopped} {s.faults}")
+        print(f"  {'':22s} overruns {s.overruns:4d}   period error p50 "
+              f"{s.period_error_p50_us:7.2f} us   p99 {s.period_error_p99_us:8.2f} us   max "
+              f"{s.period_error_max_us:9.1f} us")  # fmt: skip
+    ordered = sorted(latencies)
+    if ordered:
+        p50 = ordered[len(ordered) // 2] * 1e6
+        p99 = ordered[int(0.99 * (len(ordered) - 1))] * 1e6
+        print(f"send to force command: {len(ordered)} packets used, p50 {p50:.0f} us, "
+              f"p99 {p99:.0f} us, max {ordered[-1] * 1e6:.0f} us")  # fmt: skip
+    print("notes: " + "; ".join(n for n in tel.notes if "telemetry" in n))
+    print("flood notes: " + "; ".join(n for n in flood.notes if "telemetry" in n))
+    if flood_used:
+        ordered = sorted(flood_used)
+        print(f"under the flood, send to force command: p50 {ordered[len(ordered) // 2] * 1e6:.0f}"
+              f" us, p99 {ordered[int(0.99 * (len(ordered) - 1))] * 1e6:.0f} us")  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,153 @@
+"""Telemetry into the renderers: a wrapper the session puts around the H-pattern or steering
+renderer. Each tick it polls the `VehicleSource` and, blended by its weight with the renderer's
+own values (the passive fallback), sets what the model takes from the game:
+  steering  speed and Ay (tau0's Ay is the game's, or speed x yaw rate if the game has no Ay);
+            with no telemetry tau0 fades to zero and the wheel keeps its friction, damping, stop;
+  hpattern  vehicle speed, engine speed and the clutch pedal for the synchronizer (a shift
+            without the clutch balks and grinds, a rev-matched one goes through); with no
+            telemetry the clutch counts as pressed and the speeds go back to the run's.
+It adds the engine's vibration to the renderer's `effect` (the additive vibrations the
+oscillation guard looks past) and drives the gear output from the H-pattern's state.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from carfeel.realtime.devices.base import DeviceSample
+from carfeel.telemetry.gearout import GearDriver
+from carfeel.telemetry.source import VehicleSource
+from carfeel.telemetry.state import VehicleState
+
+DEFAULT_CYLINDERS = 4
+LIMITER_HZ = 12.0
+"""The rev limiter's cut felt as an on-off pulse at 12 Hz (a fuel cut's typical rate)."""
+LIMITER_FRACTION = 0.97
+
+
+class EngineVibration:
+    """The engine's firing frequency, rpm / 60 * cylinders / 2 (four-stroke), as a sine on the
+    first axis: scaled by load (0.3 + 0.7 * throttle), kept below a quarter of the loop rate
+    (an octave down at a time) so that it cannot alias; plus the rev limiter's pulse."""
+
+    def __init__(self, rate_hz: float, amplitude: float, limiter_amplitude: float) -> None:
+        self.ceiling_hz = rate_hz / 4.0
+        self.amplitude, self.limiter_amplitude = amplitude, limiter_amplitude
+        self.phase = 0.0
+        self.limiter_phase = 0.0
+        self.frequency_hz = 0.0
+
+    def step(self, state: VehicleState, weight: float, dt_s: float) -> float:
+        rpm = state.engine_speed_rpm
+        if weight <= 0.0 or not rpm > 0.0:
+            self.frequency_hz = 0.0
+            return 0.0
+        f = rpm / 60.0 * (state.cylinders or DEFAULT_CYLINDERS) / 2.0
+        while f >= self.ceiling_hz:
+            f *= 0.5
+        self.frequency_hz = f
+        self.phase = (self.phase + 2.0 * math.pi * f * dt_s) % (2.0 * math.pi)
+        throttle = state.throttle if 0.0 <= state.throttle <= 1.0 else 0.5
+        out = self.amplitude * (0.3 + 0.7 * throttle) * math.sin(self.phase)
+        if rpm >= LIMITER_FRACTION * state.engine_max_rpm:  # False when the max is NaN
+            self.limiter_phase = (self.limiter_phase + LIMITER_HZ * dt_s) % 1.0
+            out += self.limiter_amplitude * (1.0 if self.limiter_phase < 0.5 else -1.0)
+        return weight * out
+
+
+class _Pedal:
+    __slots__ = ("clutch_pedal",)
+
+    def __init__(self) -> None:
+        self.clutch_pedal = 1.0
+
+
+def steering_needs(state: VehicleState) -> bool:
+    ay_or_yaw = not (math.isnan(state.lateral_accel_m_s2) and math.isnan(state.yaw_rate_rad_s))
+    return not math.isnan(state.speed_m_s) and ay_or_yaw
+
+
+def hpattern_needs(state: VehicleState) -> bool:
+    return not (math.isnan(state.speed_m_s) or math.isnan(state.engine_speed_rpm))
+
+
+class TelemetryDriven:
+    """A renderer driven by telemetry (see the module); the `Renderer` protocol, passed through."""
+
+    EXTRA = (
+        "telemetry_weight", "game_speed_m_s", "game_lateral_accel_m_s2", "game_engine_speed_rpm",
+        "game_gear", "game_clutch_pedal", "engine_vibration", "model_speed_m_s",
+        "model_engine_speed_rad_s", "model_clutch_pedal",
+    )  # fmt: skip
+
+    def __init__(
+        self,
+        inner: Any,
+        source: VehicleSource,
+        model: str,
+        vibration: EngineVibration | None = None,
+        gear_driver: GearDriver | None = None,
+    ) -> None:
+        self.inner, self.source, self.model = inner, source, model
+        self.axes: int = inner.axes
+        self.columns: tuple[str, ...] = (*inner.columns, *self.EXTRA)
+        self.vibration, self.gear_driver = vibration, gear_driver
+        self.effect = 0.0
+        self.fallback_speed = float(inner.speed)
+        self.fallback_engine = float(getattr(inner, "engine", 0.0))
+        self.hand = getattr(inner, "clutch", None)
+        self.pedal = _Pedal()
+
+    @property
+    def gears(self) -> list[str]:
+        gears: list[str] = self.inner.gears
+        return gears
+
+    @property
+    def substeps(self) -> int:
+        return int(self.inner.substeps)
+
+    @substeps.setter
+    def substeps(self, value: int) -> None:
+        self.inner.substeps = value
+
+    def tick(
+        self, sample: DeviceSample, dt_s: float
+    ) -> tuple[tuple[float, ...], tuple[object, ...]]:
+        state, w = self.source.update(sample.time_s)
+        inner = self.inner
+        speed = state.speed_m_s if w > 0.0 else self.fallback_speed
+        inner.speed = w * speed + (1.0 - w) * self.fallback_speed
+        if self.model == "steering":
+            ay = state.lateral_accel_m_s2
+            if math.isnan(ay):
+                ay = state.speed_m_s * state.yaw_rate_rad_s
+            inner.lateral_accel_m_s2 = w * ay if w > 0.0 else 0.0
+        else:
+            engine = state.engine_speed_rpm * math.pi / 30.0 if w > 0.0 else self.fallback_engine
+            inner.engine = w * engine + (1.0 - w) * self.fallback_engine
+            hand_pedal = float(getattr(self.hand, "clutch_pedal", 1.0))
+            game_pedal = state.clutch_pedal if 0.0 <= state.clutch_pedal <= 1.0 else hand_pedal
+            self.pedal.clutch_pedal = w * game_pedal + (1.0 - w) * 1.0
+            inner.clutch = self.pedal
+        commands, row = inner.tick(sample, dt_s)
+        vibration = self.vibration.step(state, w, dt_s) if self.vibration is not None else 0.0
+        self.effect = inner.effect + vibration
+        if vibration:
+            commands = (commands[0] + vibration, *commands[1:])
+        if self.gear_driver is not None:
+            self.gear_driver.update(inner.state)
+        extra = (w, state.speed_m_s, state.lateral_accel_m_s2, state.engine_speed_rpm,
+                 state.gear, state.clutch_pedal, vibration, inner.speed,
+                 getattr(inner, "engine", math.nan), self.pedal.clutch_pedal)  # fmt: skip
+        return commands, (*row, *extra)
+
+    def close(self) -> None:
+        """Release the gear output's buttons and the socket (stop, fault or exit)."""
+        try:
+            if self.gear_driver is not None:
+                self.gear_driver.release()
+                self.gear_driver.output.close()
+        finally:
+            self.source.close()

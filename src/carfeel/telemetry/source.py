@@ -1,0 +1,70 @@
+"""Telemetry as the loop sees it: the latest vehicle state and a weight that fades it out.
+
+Stale or bad telemetry (no good packet for `stale_after_s`, or a needed field NaN) fades the
+weight linearly to 0 over `fade_s`; good packets bring it back at the same rate. The renderers
+blend the telemetry-driven values with their passive fallbacks by this weight, so from the last
+good packet the telemetry-driven forces are gone within stale_after_s + fade_s (0.3 s by default).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+from carfeel.telemetry.receiver import Receiver
+from carfeel.telemetry.state import VehicleState
+
+STALE_AFTER_S = 0.1
+"""Six missed packets of a 60 Hz game; 100 of a 1 kHz simulator."""
+FADE_S = 0.2
+
+
+class VehicleSource:
+    """Polled once a tick with the loop's time; `weight` is 1 with fresh good data, 0 without."""
+
+    def __init__(
+        self,
+        receiver: Receiver,
+        needs: Callable[[VehicleState], bool] = lambda s: not math.isnan(s.speed_m_s),
+        stale_after_s: float = STALE_AFTER_S,
+        fade_s: float = FADE_S,
+    ) -> None:
+        self.receiver = receiver
+        self.needs = needs
+        self.stale_after_s, self.fade_s = stale_after_s, fade_s
+        self.state = VehicleState()
+        self.weight = 0.0
+        self.healthy = False
+        self._last_good_s = -math.inf
+        self._t = 0.0
+        self.events: list[str] = []
+        """What happened, with the loop's time: telemetry lost, back, bad packets."""
+        self._bad_seen = 0
+        self._started = False
+
+    def update(self, t_s: float) -> tuple[VehicleState, float]:
+        dt = max(0.0, t_s - self._t)
+        self._t = t_s
+        receiver = self.receiver
+        if not self._started:  # what queued while the run was being set up is old news
+            receiver.flush()
+            self._started = True
+        if receiver.poll():
+            state = receiver.latest
+            if self.needs(state):
+                self.state = state
+                self._last_good_s = t_s
+        healthy = t_s - self._last_good_s <= self.stale_after_s
+        if healthy != self.healthy:
+            what = "back" if healthy else f"stale (no good packet for {self.stale_after_s:g} s)"
+            self.events.append(f"telemetry {what} at t = {t_s:.3f} s")
+            self.healthy = healthy
+        if receiver.bad > self._bad_seen and (not self.events or "bad" not in self.events[-1]):
+            self.events.append(f"bad packets from t = {t_s:.3f} s")
+        self._bad_seen = receiver.bad
+        step = dt / self.fade_s if self.fade_s > 0 else 1.0
+        self.weight = min(1.0, self.weight + step) if healthy else max(0.0, self.weight - step)
+        return self.state, self.weight
+
+    def close(self) -> None:
+        self.receiver.close()

@@ -1,0 +1,68 @@
+"""The vehicle state every format decodes to (SI units; NaN where a format does not carry it).
+
+Signs (ISO 8855, as the single-track model): lateral acceleration, yaw rate and steering angle are
+positive to the left. Gear: -1 reverse, 0 neutral, 1.. forward.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+NAN = math.nan
+REVERSE, NEUTRAL = -1, 0
+
+
+class VehicleState(NamedTuple):
+    speed_m_s: float = NAN
+    lateral_accel_m_s2: float = NAN
+    yaw_rate_rad_s: float = NAN
+    engine_speed_rpm: float = NAN
+    gear: int = NEUTRAL
+    clutch_pedal: float = NAN
+    """0 released .. 1 pressed to the floor."""
+    throttle: float = NAN
+    """0 .. 1."""
+    brake: float = NAN
+    """0 .. 1."""
+    steering_angle_rad: float = NAN
+    """The steering wheel's angle (NaN where a format gives only a normalized input)."""
+    engine_max_rpm: float = NAN
+    """Where the format gives it: the rev limiter's speed."""
+    car: str = ""
+    """The car, where the format names it (Forza's ordinal, AC's name, LFS's short name)."""
+    cylinders: int = 0
+    """Where the format gives it (Forza): for the firing frequency."""
+    lateral_derived: bool = False
+    """True where Ay was derived (speed x yaw rate, or world acceleration rotated by heading)."""
+
+
+FIELDS = (
+    "speed_m_s", "lateral_accel_m_s2", "yaw_rate_rad_s", "engine_speed_rpm", "gear",
+    "clutch_pedal", "throttle", "brake", "steering_angle_rad",
+)  # fmt: skip
+"""The fields recorded and printed (the common state of issue 14)."""
+
+
+def gear_name(gear: int) -> str:
+    return "R" if gear < 0 else "N" if gear == 0 else str(gear)
+
+
+def plausible(state: VehicleState) -> bool:
+    """The check every decoded packet passes once, at the boundary: finite where present and within
+    what a car can do (speed < 150 m/s, |Ay| < 60 m/s^2, rpm < 30000, gear -1..12, pedals 0..1
+    with a little slack for float noise)."""
+    s = state
+    for value, bound in (
+        (s.speed_m_s, 150.0),
+        (s.lateral_accel_m_s2, 60.0),
+        (s.yaw_rate_rad_s, 20.0),
+        (s.engine_speed_rpm, 30_000.0),
+        (s.steering_angle_rad, 30.0),
+    ):
+        if not (abs(value) <= bound or math.isnan(value)):
+            return False  # inf, or out of range
+    for pedal in (s.clutch_pedal, s.throttle, s.brake):
+        if not (-0.01 <= pedal <= 1.01 or math.isnan(pedal)):
+            return False
+    return -1 <= s.gear <= 12 and (s.engine_speed_rpm >= 0.0 or math.isnan(s.engine_speed_rpm))
