@@ -300,12 +300,23 @@ def _circle(radius_m: float, direction: float, distance_m: float) -> Path:
     return Path(tuple(float(v) for v in x), tuple(float(v) for v in y), PATH_SPACING_M)
 
 
-def iso4138(vehicle: VehicleParams, radius_m: float = 40.0) -> Manoeuvre:
-    steps = tuple(0.5 * i for i in range(1, 11))
-    speed, duration = iso4138_speed_profile(radius_m, steps, ramp_s=2.0, hold_s=3.0)
+def iso4138(
+    vehicle: VehicleParams,
+    radius_m: float = 40.0,
+    *,
+    max_lateral_accel_m_s2: float = 5.0,
+    ramp_s: float = 2.0,
+    hold_s: float = 3.0,
+    sides: tuple[str, ...] = ("left", "right"),
+) -> Manoeuvre:
+    """Steps of 0.5 m/s^2 up to `max_lateral_accel_m_s2` (10: to the limit of a dry road)."""
+    steps = tuple(0.5 * i for i in range(1, round(max_lateral_accel_m_s2 / 0.5) + 1))
+    speed, duration = iso4138_speed_profile(radius_m, steps, ramp_s=ramp_s, hold_s=hold_s)
     distance = sum(speed(t) * 0.01 for t in np.arange(0.0, duration, 0.01))
     segments = []
     for label, direction in (("left", 1.0), ("right", -1.0)):
+        if label not in sides:
+            continue
         start_angle = direction * steady_state_steering_wheel_angle(speed(0.0), steps[0], vehicle)
         segments.append(
             Segment(
@@ -318,6 +329,6 @@ def iso4138(vehicle: VehicleParams, radius_m: float = 40.0) -> Manoeuvre:
         )
     description = (
         f"ISO 4138 constant radius {radius_m:g} m, Ay steps of 0.5 up to {steps[-1]:g} m/s^2 "
-        "(2 s ramp + 3 s hold each), left then right"
+        f"({ramp_s:g} s ramp + {hold_s:g} s hold each), {' then '.join(sides)}"
     )
     return Manoeuvre("iso4138", description, tuple(segments), circle_radius_m=radius_m)
