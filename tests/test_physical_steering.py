@@ -1,0 +1,162 @@
+"""The physical steering model (issue 13): the acceptance points, in simulated time.
+
+Each test runs the shipped B-segment car; tolerances say why they are that wide.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import cache
+
+import numpy as np
+import pytest
+
+from carfeel.analysis.steering_feel import steering_feel
+from carfeel.io.presets import load_steering
+from carfeel.models.steering import physical
+from carfeel.models.steering.physical import SLIDING_GRIP, PhysicalInputs, PhysicalParams
+from carfeel.models.vehicle.tyres import brush
+from carfeel.simulation import manoeuvres
+from carfeel.simulation.result import Result
+from carfeel.simulation.runner import run
+from carfeel.simulation.steering import PHYSICAL_TERMS, physical_start, simulate_steering
+
+G = 9.80665
+
+
+@cache
+def params() -> PhysicalParams:
+    return load_steering("b-segment").params.physical()
+
+
+def release(speed_kmh: float, angle_deg: float, after_s: float) -> tuple[Result, int]:
+    """Steer to `angle_deg` (0.5 s half-cosine), hold 1 s, let go; the run and the release index."""
+    v, a0, ramp, hold = speed_kmh / 3.6, math.radians(angle_deg), 0.5, 1.0
+
+    def inputs(t: float) -> PhysicalInputs:
+        if t < ramp:
+            rate = a0 * 0.5 * math.pi / ramp * math.sin(math.pi * t / ramp)
+            return PhysicalInputs(v, a0 * 0.5 * (1 - math.cos(math.pi * t / ramp)), rate, 0.0, 1.0)
+        if t < ramp + hold:
+            return PhysicalInputs(v, a0, 0.0, 0.0, 1.0)
+        return PhysicalInputs(v, 0.0, 0.0, 0.0, 0.0)
+
+    result, _ = run(
+        physical.step, physical_start(params(), v, 0.0), params(), duration_s=ramp + hold + after_s,
+        inputs=inputs,
+    )  # fmt: skip
+    return result, round((ramp + hold) / 1e-3)
+
+
+def test_brush_trail_collapses_so_the_aligning_moment_peaks_first():
+    slips = np.linspace(1e-4, 0.3, 600)
+    fy, mz = zip(*(brush(float(s), 3000.0, 40e3, 1.0, 0.035)[:2] for s in slips), strict=True)
+    assert mz[0] / fy[0] == pytest.approx(0.035, rel=1e-3)  # trail t0 at zero slip
+    # Analytic: Mz peaks at a quarter of the sliding slip 3 mu Fz / C, Fy saturates at it.
+    assert slips[int(np.argmax(mz))] == pytest.approx(0.25 * 3 * 3000 / 40e3, abs=1e-3)
+    assert max(fy) == pytest.approx(3000.0) and mz[-1] == 0.0
+
+
+def test_terms_sum_to_the_torque():
+    result, _ = release(100.0, 90.0, 1.0)
+    total = sum(result[name] for name in PHYSICAL_TERMS)
+    assert np.max(np.abs(total - result["torque_Nm"])) < 1e-9
+
+
+@cache
+def limit_run() -> Result:
+    car = load_steering("b-segment").params
+    # Only the left circle, 1 s ramps and 1 s holds: the car's modes settle within 0.3 s.
+    m = manoeuvres.iso4138(
+        car.vehicle, max_lateral_accel_m_s2=11.0, ramp_s=1.0, hold_s=1.0, sides=("left",)
+    )
+    return simulate_steering(car, m, model="physical")
+
+
+def ramp_means(result: Result, name: str) -> np.ndarray:
+    """A signal's mean over the middle of each 1 s speed ramp (from 0.5 up to 11 m/s^2), where
+    the driver steers in: the friction has one sign there (in the holds it flips as the driver
+    eases off, and 2 Nm of its band would hide the cue)."""
+    values = result[name]
+    return np.array([values[k * 2000 + 600 : k * 2000 + 1000].mean() for k in range(1, 22)])
+
+
+def test_iso4138_to_the_limit_ay_saturates_and_the_wheel_goes_light_first():
+    result = limit_run()
+    ay = ramp_means(result, "lateral_accel_m_s2") / G
+    torque = ramp_means(result, "torque_Nm")
+    assert 0.8 <= ay.max() <= 1.0  # the acceptance range
+    peak = int(np.argmax(torque))
+    # The torque peaks at a lower Ay than the car reaches and then falls while Ay still rises:
+    # at least 0.05 g more Ay (a tenth of the 0.4 g between the trail's and the force's peaks)
+    # and 0.2 Nm less torque (the damping of the driver's faster steering near the limit adds
+    # up to 0.5 Nm; the cue must stand above that).
+    assert ay.max() - ay[peak] > 0.05
+    later = slice(peak + 1, None)
+    assert np.any((torque[later] < torque[peak] - 0.2) & (ay[later] > ay[peak] + 0.05))
+    assert result["front_grip_used"].max() > SLIDING_GRIP
+
+
+def test_iso4138_understeer_gradient_at_low_ay_is_the_linear_cars():
+    result = limit_run()
+    car = load_steering("b-segment").params.vehicle
+    ay = ramp_means(result, "lateral_accel_m_s2")[:4]  # 1 .. 2.5 m/s^2
+    wheels = ramp_means(result, "front_wheel_angle_rad")[:4]
+    gradient = np.polyfit(ay, wheels, 1)[0]  # L/R is constant on the circle
+    # 10 %: the brush's cubic term adds about 3 % at 0.25 g, the ramps leave a little lag.
+    assert gradient == pytest.approx(car.understeer_gradient_rad_s2_m, rel=0.1)
+
+
+def test_release_at_100_kmh_returns_overshoots_and_settles():
+    result, i0 = release(100.0, 90.0, 4.0)
+    angle = np.degrees(result["steering_angle_rad"][i0:])
+    overshoot = -angle.min() / 90.0
+    # Production cars overshoot the centre by about 10-50 % of the release angle when released
+    # at speed (see DESIGN.md, issue 13: our stated range, not a measured figure of ours).
+    assert 0.1 <= overshoot <= 0.5
+    last = angle[-1000:]
+    assert np.ptp(last) < 0.5 and abs(last.mean()) < 5.0  # settled, within the friction's band
+
+
+def test_release_at_10_kmh_jacking_returns_it_partly():
+    result, i0 = release(10.0, 270.0, 4.0)
+    angle = np.degrees(result["steering_angle_rad"])
+    assert 0.1 * 270.0 < angle[-1] < 0.8 * 270.0  # partly: neither stuck nor centred
+    # The kingpin's jacking torque is the largest returning torque at that speed.
+    sl = slice(i0, i0 + 2000)
+    assert result["torque_jacking_Nm"][sl].mean() > result["torque_aligning_Nm"][sl].mean()
+
+
+def test_parking_torque_in_the_assisted_range_and_growing_with_wind_up():
+    rate = math.radians(90.0)
+    result, _ = run(
+        physical.step, physical.initial_state(params()), params(), duration_s=2.5,
+        inputs=lambda t: PhysicalInputs(0.0, rate * t, rate, 0.0, 1.0),
+    )  # fmt: skip
+    angle = np.degrees(result["steering_angle_rad"])
+    torque = result["torque_Nm"]
+    at = {deg: torque[np.searchsorted(angle, deg)] for deg in (20, 45, 70, 180)}
+    assert at[20] < at[45] < at[70] - 0.5  # wind-up: the patches twist before they slide
+    # Assisted cars at parking: 2.5-6 Nm at the rim (DESIGN.md, issue 13).
+    assert 2.5 <= at[180] <= 6.0
+    assert result["torque_park_Nm"][-1] == pytest.approx(params().park_moment_Nm / 16.0)
+
+
+@pytest.mark.parametrize("name", ["iso3888", "weave"])
+def test_on_centre_torque_gradient_in_the_published_range(name):
+    car = load_steering("b-segment").params
+    m = manoeuvres.build(name, car.vehicle, 80.0 if name == "iso3888" else None)
+    r = simulate_steering(car, m, model="physical")
+    feel = steering_feel(
+        r.time_s, r["speed_m_s"], r["steering_angle_rad"], r["lateral_accel_m_s2"],
+        r["torque_Nm"], steering_ratio=16.0, wheelbase_m=2.46,
+    )  # fmt: skip
+    assert 15.0 <= feel.torque_gradient_Nm_per_g <= 30.0
+
+
+def test_lane_change_at_250_kmh_slides_instead_of_4_g():
+    car = load_steering("b-segment").params
+    r = simulate_steering(car, manoeuvres.build("iso3888", car.vehicle, 250.0), model="physical")
+    assert np.abs(r["lateral_accel_m_s2"]).max() < 1.05 * G  # mu = 1 and load sensitivity
+    grip = np.maximum(r["front_grip_used"], r["rear_grip_used"])
+    assert grip.max() > SLIDING_GRIP
