@@ -256,6 +256,15 @@ def build_parser() -> argparse.ArgumentParser:
         "--substeps", type=_positive_int, default=1, metavar="N",
         help="model steps per output sample (default: 1)",
     )  # fmt: skip
+    steering.add_argument(
+        "--steering-model", choices=("paper", "physical"), default="paper",
+        help="paper: the linear car and the paper's law (default); physical: brush tyres, "
+        "nonlinear car, EPS steering system with assist, friction, jacking and stops",
+    )  # fmt: skip
+    steering.add_argument(
+        "--road", choices=("dry", "wet", "snow"), default="dry",
+        help="road under the physical model's tyres (mu 1.0, 0.7, 0.3; default dry)",
+    )  # fmt: skip
     steering.add_argument("--out", required=True, metavar="FILE.csv", help="CSV file to write")
     steering.add_argument("--plot", metavar="FILE.png", help="also write a PNG plot")
 
@@ -483,6 +492,8 @@ def _simulate_steering(args: argparse.Namespace) -> int:
         preset=args.preset,
         dt_s=args.dt,
         substeps=args.substeps,
+        steering_model=args.steering_model,
+        road=args.road,
     )
     print(run_steering(config, out, plot).text())
     return 0

@@ -18,6 +18,7 @@ from carfeel.io.force_profile import read_force_profile
 from carfeel.io.presets import load_hpattern, load_shift, load_steering
 from carfeel.models.drivers.hpattern import Script
 from carfeel.models.gearshift.hpattern import NEUTRAL_GEAR, Layout
+from carfeel.models.steering.physical import SLIDING_GRIP
 from carfeel.simulation import manoeuvres
 from carfeel.simulation.hpattern import MAX_STEP_S as HPATTERN_MAX_STEP_S
 from carfeel.simulation.hpattern import HPatternRun, simulate_hpattern
@@ -194,6 +195,10 @@ class SteeringRun:
     preset: str = "b-segment"
     dt_s: float = 1e-3
     substeps: int = 1
+    steering_model: str = "paper"
+    """paper (the linear car and eqs. 1-7) or physical (brush tyres, EPS steering system)."""
+    road: str = "dry"
+    """Road of the physical model's tyres: dry, wet or snow."""
 
 
 REQUIRED_STEERING_COLUMNS = (
@@ -266,9 +271,19 @@ def run_steering(
         "dt_s": repr(config.dt_s),
         "substeps": str(config.substeps),
     }
+    physical = config.steering_model == "physical"
+    if physical and not car.has_physical:
+        raise InputError(
+            f"preset {preset.name} has no [tyres] and [steering_system] tables; the physical "
+            "steering model needs them (see the b-segment preset)"
+        )
+    metadata["steering_model"] = config.steering_model
+    if physical:
+        metadata["road"] = config.road
     result = simulate_steering(
-        car, manoeuvre, dt_s=config.dt_s, substeps=config.substeps, metadata=metadata
-    )
+        car, manoeuvre, dt_s=config.dt_s, substeps=config.substeps, metadata=metadata,
+        model=config.steering_model, road=config.road if physical else None,
+    )  # fmt: skip
     check_finite(result, "steering")
     feel = feel_of(result, car.vehicle.steering_ratio, car.vehicle.wheelbase_m)
     result.to_csv(csv_path)
@@ -279,7 +294,18 @@ def run_steering(
         plot_steering(result, plot_path, f"{preset.name}: {manoeuvre.description}", manoeuvre.lanes)
     ay = result["lateral_accel_m_s2"]
     peak_g = float(abs(ay).max()) / 9.80665
-    if peak_g > LINEAR_TYRE_LIMIT_G:
+    if physical:
+        sliding = np.maximum(result["front_grip_used"], result["rear_grip_used"]) > SLIDING_GRIP
+        if sliding.any():
+            feel = replace(
+                feel,
+                notes=(
+                    *feel.notes,
+                    f"the car slides: an axle uses over {SLIDING_GRIP:.0%} of its grip for "
+                    f"{float(sliding.mean()) * 100:.0f} % of the run (Ay peaks at {peak_g:.2f} g)",
+                ),
+            )
+    elif peak_g > LINEAR_TYRE_LIMIT_G:
         feel = replace(
             feel,
             notes=(

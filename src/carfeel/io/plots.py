@@ -132,6 +132,12 @@ TERM_COLOURS = {
     "torque_tire_spin_Nm": ("#ff7f0e", "tire spin (tau1)"),
     "torque_friction_Nm": ("#2ca02c", "friction (tau2)"),
     "torque_damping_Nm": ("#9467bd", "damping (tau3)"),
+    # The physical model's terms (issue 13); a run has either the paper's or these.
+    "torque_jacking_Nm": ("#8c564b", "jacking"),
+    "torque_park_Nm": ("#e377c2", "dry-park wind-up"),
+    "torque_inertia_Nm": ("#7f7f7f", "inertia"),
+    "torque_stop_Nm": ("#bcbd22", "end stop"),
+    "torque_assist_Nm": ("#17becf", "assist (EPS)"),
 }
 
 
@@ -161,7 +167,9 @@ def plot_steering(
 
     ax_t.plot(t, torque, color="k", lw=1.5, label="total")
     for name, (colour, label) in TERM_COLOURS.items():
-        ax_t.plot(t, result[name], color=colour, lw=1.0, label=label)
+        if name in result.names:
+            ax_t.plot(t, result[name], color=colour, lw=1.0, label=label.split(" (tau")[0]
+                      if "torque_assist_Nm" in result.names else label)  # fmt: skip
     ax_t.set_xlabel("time [s]")
     ax_t.set_ylabel("steering wheel torque [Nm]")
     ax_t.grid(alpha=0.3)
