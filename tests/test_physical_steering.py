@@ -160,3 +160,49 @@ def test_lane_change_at_250_kmh_slides_instead_of_4_g():
     assert np.abs(r["lateral_accel_m_s2"]).max() < 1.05 * G  # mu = 1 and load sensitivity
     grip = np.maximum(r["front_grip_used"], r["rear_grip_used"])
     assert grip.max() > SLIDING_GRIP
+
+
+def energy_J(state: physical.PhysicalState, p: PhysicalParams) -> float:
+    """Kinetic and spring energy of the steering system at standstill (assist off), J."""
+    s, sr = p.system, p.vehicle.steering_ratio
+    kf = s.friction_stiffness_Nm_rad
+    lam = s.kingpin_inclination_rad
+    delta = state.pinion_angle_rad / sr
+    return (
+        0.5 * s.hand_wheel_inertia_kg_m2 * state.hand_rate_rad_s**2
+        + 0.5 * s.rack_inertia_kg_m2 * state.pinion_rate_rad_s**2
+        + 0.5
+        * s.torsion_bar_stiffness_Nm_rad
+        * (state.hand_angle_rad - state.pinion_angle_rad) ** 2
+        + 0.5 * kf * (state.hand_angle_rad - state.column_anchor_rad) ** 2
+        + 0.5 * kf * (state.pinion_angle_rad - state.rack_anchor_rad) ** 2
+        + 0.5 * p.tyres.wind_up_stiffness_Nm_rad * (delta - state.park_anchor_rad) ** 2
+        + p.front_load_N
+        * s.kingpin_offset_m
+        * math.sin(lam)
+        * math.cos(lam)
+        * (1 - math.cos(delta))
+    )
+
+
+def test_released_at_standstill_without_assist_the_system_is_passive():
+    """With the motor off (the assist is the only source), a twisted, released steering system
+    at standstill never gains energy: springs, stick elements, dampers and jacking only."""
+    import dataclasses
+
+    p = params()
+    off = dataclasses.replace(
+        p.system, assist_gain_standstill_1_Nm=0.0, assist_gain_high_speed_1_Nm=0.0,
+        active_return_Nm_rad=0.0,
+    )  # fmt: skip
+    p = dataclasses.replace(p, system=off)
+    state = physical.initial_state(p)._replace(hand_angle_rad=1.0, column_anchor_rad=1.0)
+    energies = [energy_J(state, p)]
+    for _ in range(1000):
+        state, _ = physical.step(state, PhysicalInputs(0.0, 0.0, 0.0, 0.0, 0.0), p, 1e-3)
+        energies.append(energy_J(state, p))
+    e = np.array(energies)
+    # Semi-implicit Euler keeps a shadow energy within h*w/2 of the true one (the torsion bar's
+    # relative mode, w = 72 rad/s: 4 %); 5 % bounds that, far below a real gain of energy.
+    assert np.all(e[1:] <= e[0] * 1.05)
+    assert e[-1] < 0.5 * e[0]  # and the dampers and frictions take it away

@@ -25,8 +25,9 @@ slip - alpha), implicit Euler), small angles as in the linear car (so its unders
 this car's at low Ay), semi-implicit Euler for sideslip and yaw rate. Below the kinematic speed
 the kinematic bicycle takes over as in `single_track`.
 
-Hand wheel: imposed (a driver's or a device's angle and rate, `hands_on` = 1) or free with the
-hand's torque applied (`hands_on` = 0: hands off with zero torque). Frictions are position-based
+Hand wheel: imposed (a driver's or a device's angle and rate, `hands_on` = 1; the output is then
+the torque into the column, the rim's own inertia left to what moves it) or free with the hand's
+torque applied (`hands_on` = 0: hands off with zero torque; the rim's inertia integrated). Frictions are position-based
 stick elements (a spring of bounded stiffness to an anchor that slides at the friction level),
 dissipative, with no velocity slope.
 
@@ -292,9 +293,11 @@ def step(
 
     # EPS: boost on the torsion-bar torque, scheduled on speed; damping; active return.
     if inputs.hands_on > 0.5:
+        # The rim's own inertia is left to what moves it (a device has its own; a driver's
+        # rate, differenced, would be noise): the output is the torque into the column.
         hand = inputs.steering_angle_rad
         hand_rate = inputs.steering_rate_rad_s
-        hand_accel = (hand_rate - state.hand_rate_rad_s) / dt_s
+        hand_accel = 0.0
     else:
         hand, hand_rate, hand_accel = state.hand_angle_rad, state.hand_rate_rad_s, 0.0
     theta, omega = state.pinion_angle_rad, state.pinion_rate_rad_s
