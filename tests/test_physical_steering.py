@@ -224,3 +224,43 @@ def test_released_at_standstill_without_assist_the_system_is_passive():
     # relative mode, w = 72 rad/s: 4 %); 5 % bounds that, far below a real gain of energy.
     assert np.all(e[1:] <= e[0] * 1.05)
     assert e[-1] < 0.5 * e[0]  # and the dampers and frictions take it away
+
+
+def _b_segment_text() -> str:
+    from importlib import resources
+
+    return resources.files("carfeel.presets").joinpath("steering", "b-segment.toml").read_text()
+
+
+def test_the_physical_tables_are_optional_but_come_together():
+    from carfeel.errors import PresetError
+    from carfeel.io.presets import from_toml
+
+    text = _b_segment_text()
+    paper_only = text[: text.index("[tyres]")]
+    car = from_toml("steering", "paper-only", paper_only).params
+    assert not car.has_physical and car.tyres is None
+    half = text[: text.index("[steering_system]")]
+    with pytest.raises(PresetError, match=r"both tables \[tyres\] and \[steering_system\]"):
+        from_toml("steering", "half", half)
+
+
+def test_a_rack_too_light_for_1_ms_steps_is_rejected():
+    from carfeel.errors import PresetError
+    from carfeel.io.presets import from_toml
+
+    text = _b_segment_text().replace("rack_inertia_kg_m2 = 0.06", "rack_inertia_kg_m2 = 0.005")
+    with pytest.raises(PresetError, match="rack_inertia_kg_m2 = 0.005 kg.m.2 is too light"):
+        from_toml("steering", "light", text)
+
+
+def test_cli_simulates_the_physical_model_and_reports_the_sliding_car(tmp_path, capsys):
+    from carfeel.cli import main
+
+    out = tmp_path / "dlc.csv"
+    args = ["simulate", "steering", "--manoeuvre", "iso3888", "--speed-kmh", "250"]
+    assert main([*args, "--steering-model", "physical", "--out", str(out)]) == 0
+    result = Result.from_csv(out)
+    assert "torque_assist_Nm" in result.names
+    assert np.abs(result["lateral_accel_m_s2"]).max() < 1.05 * G
+    assert "the car slides" in capsys.readouterr().out

@@ -526,6 +526,39 @@ def check_steering(car: SteeringCar) -> list[str]:
             f"constant is {min(lateral, yaw) * 1e3:.3g} ms, under the 1 ms the model steps with; "
             "raise kinematic_speed_m_s or check the mass, inertia and cornering stiffnesses"
         )
+    if (car.tyres is None) != (car.steering_system is None):
+        problems.append(
+            "the physical steering model needs both tables [tyres] and [steering_system] (or "
+            "neither: the car then runs the paper's law only)"
+        )
+    elif car.steering_system is not None:
+        problems.extend(_check_steering_system(car.steering_system))
+    return problems
+
+
+STEERING_STEP_S = 1e-3
+"""The step the physical steering model must be accurate at (the 1 kHz loop)."""
+
+
+def _check_steering_system(s: Any) -> list[str]:
+    """Its semi-implicit Euler step must resolve the stiffest and most damped modes at 1 ms."""
+    problems = []
+    h = STEERING_STEP_S
+    stiff = s.stop_stiffness_Nm_rad + s.torsion_bar_stiffness_Nm_rad + s.friction_stiffness_Nm_rad
+    for name, inertia, stiffness, damping in (
+        ("rack_inertia_kg_m2", s.rack_inertia_kg_m2, stiff,
+         s.compensation_damping_Nm_s_rad + s.rack_damping_Nm_s_rad + s.stop_damping_Nm_s_rad
+         + max(s.eps_damping_Nm_s_rad, s.eps_damping_high_speed_Nm_s_rad)),
+        ("hand_wheel_inertia_kg_m2", s.hand_wheel_inertia_kg_m2,
+         s.torsion_bar_stiffness_Nm_rad + s.friction_stiffness_Nm_rad,
+         s.compensation_damping_Nm_s_rad),
+    ):  # fmt: skip
+        if math.sqrt(stiffness / inertia) * h > 0.5 or damping * h / inertia > 0.5:
+            problems.append(
+                f"steering_system.{name} = {inertia:g} kg*m^2 is too light for its springs "
+                f"({stiffness:g} Nm/rad) and dampers ({damping:g} Nm*s/rad) at 1 ms steps: "
+                "w*h and c*h/J must stay under 0.5; raise the inertia or soften the springs"
+            )
     return problems
 
 
