@@ -250,7 +250,7 @@ def test_a_rack_too_light_for_1_ms_steps_is_rejected():
     from carfeel.io.presets import from_toml
 
     text = _b_segment_text().replace("rack_inertia_kg_m2 = 0.06", "rack_inertia_kg_m2 = 0.005")
-    with pytest.raises(PresetError, match="rack_inertia_kg_m2 = 0.005 kg.m.2 is too light"):
+    with pytest.raises(PresetError, match=r"rack_inertia_kg_m2 = 0.005 kg\*m\^2 is too light"):
         from_toml("steering", "light", text)
 
 
