@@ -227,7 +227,8 @@ def build_parser() -> argparse.ArgumentParser:
         "lateral_accel_m_s2, torque_Nm and its four terms, yaw_rate_rad_s, sideslip_rad, x_m, "
         "y_m, yaw_rad, cross_track_m, segment. Signs: positive to the left (counter-clockwise).",
         epilog="manoeuvres: iso4138 (steady-state circle, R 40 m, Ay in 0.5 m/s^2 steps, both "
-        "ways), iso3888 (ISO 3888-1 double lane change, 80 km/h), iso7401-step / iso7401-sine / "
+        "ways), iso4138-limit (the same up to 1.1 g: the physical model's tyres saturate), "
+        "iso3888 (ISO 3888-1 double lane change, 80 km/h), iso7401-step / iso7401-sine / "
         "iso7401-sweep (lateral transient response, 60 km/h), steer-cycle (lock to lock and back "
         "at standstill), weave (ISO 13674-1 on-centre, 0.2 Hz, 0.2 g, 100 km/h).",
     )

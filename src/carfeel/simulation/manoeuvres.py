@@ -7,6 +7,9 @@ Every manoeuvre starts from straight driving unless said otherwise.
   holds a circle (default R = 40 m, the paper's Fig. 1) while the speed steps up so that the
   steady-state Ay rises by 0.5 m/s^2 per step (0.5 .. 5 m/s^2; each step a 2 s speed ramp and a 3 s
   hold); once to the left (counter-clockwise) and once to the right, as two segments.
+- iso4138-limit: the same circle driven to the limit of a dry road: steps up to 11 m/s^2 (1.1 g,
+  beyond what the physical model's tyres give, so Ay saturates and the car drifts out), each a
+  1 s ramp and a 2 s hold, left then right. With the paper's linear car Ay keeps rising.
 - iso3888: ISO 3888-1 double lane change (default 80 km/h, the standard's test speed). Sections of
   15/30/25/25/15 m (+15 m run-out); lane widths 1.1b+0.25, 1.2b+0.25, 1.3b+0.25 m for car width b.
   Lateral offset of lane 3: its near (right) boundary lies 3.5 m left of lane 1's centre line, and
@@ -40,6 +43,7 @@ from carfeel.models.vehicle.single_track import VehicleParams, steady_state_stee
 
 MANOEUVRES = (
     "iso4138",
+    "iso4138-limit",
     "iso3888",
     "iso7401-step",
     "iso7401-sine",
@@ -117,11 +121,14 @@ def build(name: str, vehicle: VehicleParams, speed_kmh: float | None = None) -> 
     """The manoeuvre `name` (one of MANOEUVRES) for a car, at `speed_kmh` or its default."""
     if name not in MANOEUVRES:
         raise InputError(f"unknown manoeuvre {name!r}; choose one of {', '.join(MANOEUVRES)}")
-    if name == "iso4138":
+    if name in ("iso4138", "iso4138-limit"):
         if speed_kmh is not None:
             raise InputError(
-                "iso4138 steps its own speed on a 40 m circle (Ay 0.5 .. 5 m/s^2); drop --speed-kmh"
+                f"{name} steps its own speed on a 40 m circle (Ay from 0.5 m/s^2 up); drop "
+                "--speed-kmh"
             )
+        if name == "iso4138-limit":
+            return iso4138(vehicle, max_lateral_accel_m_s2=11.0, ramp_s=1.0, hold_s=2.0)
         return iso4138(vehicle)
     v = _check_speed(name, speed_kmh) / 3.6
     if name == "iso3888":
