@@ -181,7 +181,8 @@ def plot_steering(
         _stack_terms(ax_t, t, result)
     else:
         for name, (colour, label) in TERM_COLOURS.items():
-            ax_t.plot(t, result[name], color=colour, lw=1.0, label=label)
+            if name in result.names:
+                ax_t.plot(t, result[name], color=colour, lw=1.0, label=label)
     ax_t.plot(t, torque, color="k", lw=1.5, label="total")
     ax_t.set_xlabel("time [s]")
     ax_t.set_ylabel("steering wheel torque [Nm]")
