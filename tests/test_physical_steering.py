@@ -264,3 +264,16 @@ def test_cli_simulates_the_physical_model_and_reports_the_sliding_car(tmp_path, 
     assert "torque_assist_Nm" in result.names
     assert np.abs(result["lateral_accel_m_s2"]).max() < 1.05 * G
     assert "the car slides" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(("road", "mu"), [("wet", 0.7), ("snow", 0.3)])
+def test_the_road_sets_the_limit(road, mu):
+    car = load_steering("b-segment").params
+    r = simulate_steering(
+        car, manoeuvres.build("iso3888", car.vehicle, 120.0), model="physical", road=road
+    )
+    # The lane change at 120 km/h asks for more than mu g: the car slides at the road's limit
+    # (within 5 %: load sensitivity takes a little, the relaxation's transients add a little).
+    peak = np.abs(r["lateral_accel_m_s2"]).max() / G
+    assert 0.8 * mu < peak < 1.05 * mu
+    assert np.maximum(r["front_grip_used"], r["rear_grip_used"]).max() > SLIDING_GRIP
