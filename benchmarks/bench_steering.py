@@ -3,7 +3,10 @@
 - the law per sample in CPython (median and p99 per call),
 - the same law vectorized over numpy arrays (samples per second),
 - the car + torque step per 1 ms (imposed steering) and with the path driver,
-- the wall time of a complete ISO 3888-1 double lane change simulation (7 s at 1 kHz).
+- the physical model's step per 1 ms (brush tyres, nonlinear car, EPS steering system), imposed
+  and hands off, beside the paper's law on the linear car,
+- the wall time of a complete ISO 3888-1 double lane change simulation (7 s at 1 kHz), with
+  either model.
     python benchmarks/bench_steering.py
 """
 
@@ -20,6 +23,7 @@ import numpy as np
 from carfeel.io.presets import load_steering
 from carfeel.models.drivers import steering as path_driver
 from carfeel.models.drivers.steering import PathFollowing
+from carfeel.models.steering import physical
 from carfeel.models.steering.torque import torque_terms
 from carfeel.models.vehicle import single_track
 from carfeel.simulation import manoeuvres
@@ -92,15 +96,35 @@ def main() -> None:
 
     report("car + torque + path driver, 1 ms", per_call(follow, 6000))
 
-    walls = []
-    for _ in range(5):
-        t0 = time.perf_counter()
-        simulate_steering(car, manoeuvres.build("iso3888", car.vehicle))
-        walls.append(time.perf_counter() - t0)
-    print(
-        f"{'ISO 3888-1 run, 7 s at 1 kHz':40s} median {statistics.median(walls) * 1e3:6.1f} ms "
-        f"wall ({7.0 / statistics.median(walls):.0f}x real time)"
-    )
+    params = car.physical()
+    model = physical.initial_state(params)
+
+    def physical_imposed(i: int) -> None:
+        nonlocal model
+        inputs = physical.PhysicalInputs(20.0, rates[i], rates[i], 0.0, 1.0)
+        model, _ = physical.step(model, inputs, params, 1e-3)
+
+    report("physical model, imposed steering, 1 ms", per_call(physical_imposed, 100_000))
+    model = physical.initial_state(params)._replace(hand_angle_rad=1.0, column_anchor_rad=1.0)
+
+    def physical_free(i: int) -> None:
+        nonlocal model
+        model, _ = physical.step(model, physical.PhysicalInputs(20.0, 0.0, 0.0, 0.0, 0.0),
+                                 params, 1e-3)  # fmt: skip
+
+    report("physical model, hands off, 1 ms", per_call(physical_free, 100_000))
+
+    for name in ("paper", "physical"):
+        walls = []
+        for _ in range(5):
+            t0 = time.perf_counter()
+            simulate_steering(car, manoeuvres.build("iso3888", car.vehicle), model=name)
+            walls.append(time.perf_counter() - t0)
+        print(
+            f"{'ISO 3888-1 run, 7 s at 1 kHz, ' + name:40s} median "
+            f"{statistics.median(walls) * 1e3:6.1f} ms wall "
+            f"({7.0 / statistics.median(walls):.0f}x real time)"
+        )
 
 
 if __name__ == "__main__":

@@ -27,6 +27,7 @@ from carfeel.io.force_profile import read_force_profile
 from carfeel.io.presets import load_hpattern, load_shift, load_steering
 from carfeel.models.drivers.hpattern import Script
 from carfeel.models.gearshift.hpattern import NEUTRAL_GEAR, Layout
+from carfeel.models.steering.physical import SLIDING_GRIP
 from carfeel.simulation import manoeuvres
 from carfeel.simulation.hpattern import MAX_STEP_S as HPATTERN_MAX_STEP_S
 from carfeel.simulation.hpattern import HPatternRun, simulate_hpattern
@@ -223,6 +224,10 @@ class SteeringRun:
     preset: str = "b-segment"
     dt_s: float = 1e-3
     substeps: int = 1
+    steering_model: str = "paper"
+    """paper (the linear car and eqs. 1-7) or physical (brush tyres, EPS steering system)."""
+    road: str = "dry"
+    """Road of the physical model's tyres: dry, wet or snow."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -266,9 +271,19 @@ def run_steering(
         "dt_s": repr(config.dt_s),
         "substeps": str(config.substeps),
     }
+    physical = config.steering_model == "physical"
+    if physical and not car.has_physical:
+        raise InputError(
+            f"preset {preset.name} has no [tyres] and [steering_system] tables; the physical "
+            "steering model needs them (see the b-segment preset)"
+        )
+    metadata["steering_model"] = config.steering_model
+    if physical:
+        metadata["road"] = config.road
     result = simulate_steering(
-        car, manoeuvre, dt_s=config.dt_s, substeps=config.substeps, metadata=metadata
-    )
+        car, manoeuvre, dt_s=config.dt_s, substeps=config.substeps, metadata=metadata,
+        model=config.steering_model, road=config.road if physical else None,
+    )  # fmt: skip
     check_finite(result, "steering")
     feel = feel_of(result, car.vehicle.steering_ratio, car.vehicle.wheelbase_m)
     result.to_csv(csv_path)
@@ -279,7 +294,18 @@ def run_steering(
         plot_steering(result, plot_path, f"{preset.name}: {manoeuvre.description}", manoeuvre.lanes)
     ay = result["lateral_accel_m_s2"]
     peak_g = float(abs(ay).max()) / 9.80665
-    if peak_g > LINEAR_TYRE_LIMIT_G:
+    if physical:
+        sliding = np.maximum(result["front_grip_used"], result["rear_grip_used"]) > SLIDING_GRIP
+        if sliding.any():
+            feel = replace(
+                feel,
+                notes=(
+                    *feel.notes,
+                    f"the car slides: an axle uses over {SLIDING_GRIP:.0%} of its grip for "
+                    f"{float(sliding.mean()) * 100:.0f} % of the run (Ay peaks at {peak_g:.2f} g)",
+                ),
+            )
+    elif peak_g > LINEAR_TYRE_LIMIT_G:
         feel = replace(
             feel,
             notes=(
@@ -642,7 +668,8 @@ def register(commands: Any) -> None:
         "lateral_accel_m_s2, torque_Nm and its four terms, yaw_rate_rad_s, sideslip_rad, x_m, "
         "y_m, yaw_rad, cross_track_m, segment. Signs: positive to the left (counter-clockwise).",
         epilog="manoeuvres: iso4138 (steady-state circle, R 40 m, Ay in 0.5 m/s^2 steps, both "
-        "ways), iso3888 (ISO 3888-1 double lane change, 80 km/h), iso7401-step / iso7401-sine / "
+        "ways), iso4138-limit (the same up to 1.1 g: the physical model's tyres saturate), "
+        "iso3888 (ISO 3888-1 double lane change, 80 km/h), iso7401-step / iso7401-sine / "
         "iso7401-sweep (lateral transient response, 60 km/h), steer-cycle (lock to lock and back "
         "at standstill), weave (ISO 13674-1 on-centre, 0.2 Hz, 0.2 g, 100 km/h).",
     )
@@ -670,6 +697,15 @@ def register(commands: Any) -> None:
     steering.add_argument(
         "--substeps", type=positive_int, default=1, metavar="N",
         help="model steps per output sample (default: 1)",
+    )  # fmt: skip
+    steering.add_argument(
+        "--steering-model", choices=("paper", "physical"), default="paper",
+        help="paper: the linear car and the paper's law (default); physical: brush tyres, "
+        "nonlinear car, EPS steering system with assist, friction, jacking and stops",
+    )  # fmt: skip
+    steering.add_argument(
+        "--road", choices=("dry", "wet", "snow"), default="dry",
+        help="road under the physical model's tyres (mu 1.0, 0.7, 0.3; default dry)",
     )  # fmt: skip
     steering.add_argument("--out", required=True, metavar="FILE.csv", help="CSV file to write")
     steering.add_argument("--plot", metavar="FILE.png", help="also write a PNG plot")
@@ -710,6 +746,8 @@ def _simulate_steering(args: argparse.Namespace) -> int:
         preset=args.preset,
         dt_s=args.dt,
         substeps=args.substeps,
+        steering_model=args.steering_model,
+        road=args.road,
     )
     with staging.outputs:
         summary = run_steering(config, staging.out, staging.plot)

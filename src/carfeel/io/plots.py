@@ -135,7 +135,25 @@ TERM_COLOURS = {
     "torque_tire_spin_Nm": ("#ff7f0e", "tire spin (tau1)"),
     "torque_friction_Nm": ("#2ca02c", "friction (tau2)"),
     "torque_damping_Nm": ("#9467bd", "damping (tau3)"),
+    # The physical model's terms (issue 13); a run has either the paper's or these.
+    "torque_jacking_Nm": ("#8c564b", "jacking"),
+    "torque_park_Nm": ("#e377c2", "dry-park wind-up"),
+    "torque_inertia_Nm": ("#7f7f7f", "inertia"),
+    "torque_stop_Nm": ("#bcbd22", "end stop"),
+    "torque_assist_Nm": ("#17becf", "assist (EPS)"),
 }
+
+
+def _stack_terms(ax: Any, t: np.ndarray, result: Result) -> None:
+    """The physical model's terms as stacked areas: positive parts upward from 0, negative parts
+    downward, so the total is the top of one stack plus the bottom of the other."""
+    names = [n for n in TERM_COLOURS if n in result.names and n != "torque_tire_spin_Nm"]
+    values = [np.nan_to_num(result[n]) for n in names]
+    colours = [TERM_COLOURS[n][0] for n in names]
+    labels = [TERM_COLOURS[n][1].split(" (tau")[0] for n in names]
+    ax.stackplot(t, *[np.maximum(v, 0.0) for v in values], colors=colours, labels=labels,
+                 alpha=0.7)  # fmt: skip
+    ax.stackplot(t, *[np.minimum(v, 0.0) for v in values], colors=colours, alpha=0.7)
 
 
 def plot_steering(
@@ -162,9 +180,13 @@ def plot_steering(
     ax_t, ax_loop, ax_in, ax_extra = axes[0, 0], axes[0, 1], axes[1, 0], axes[1, 1]
     fig.suptitle(title)
 
+    if "torque_assist_Nm" in result.names:
+        _stack_terms(ax_t, t, result)
+    else:
+        for name, (colour, label) in TERM_COLOURS.items():
+            if name in result.names:
+                ax_t.plot(t, result[name], color=colour, lw=1.0, label=label)
     ax_t.plot(t, torque, color="k", lw=1.5, label="total")
-    for name, (colour, label) in TERM_COLOURS.items():
-        ax_t.plot(t, result[name], color=colour, lw=1.0, label=label)
     ax_t.set_xlabel("time [s]")
     ax_t.set_ylabel("steering wheel torque [Nm]")
     ax_t.grid(alpha=0.3)

@@ -151,6 +151,40 @@ RANGES: dict[str, tuple[float, float, bool, bool]] = {
     "select_stiffness_N_m": (0.0, 1e6, False, True),
     "select_damping_N_s_m": (0.0, 1e4, True, True),
     "select_tolerance_m": (0.0, 0.02, False, True),
+    # steering: physical model, tyres (tables [tyres], [steering_system]; optional)
+    "friction_coefficient": (0.05, 2.0, True, True),
+    "load_sensitivity": (0.0, 0.5, True, True),
+    "pneumatic_trail_m": (0.0, 0.1, True, True),
+    "relaxation_length_m": (0.05, 2.0, True, True),
+    "cg_height_m": (0.1, 2.0, True, True),
+    "track_m": (0.5, 3.0, True, True),
+    "front_roll_share": (0.0, 1.0, True, True),
+    "patch_radius_m": (0.0, 0.3, True, True),
+    "wind_up_stiffness_Nm_rad": (1.0, 1e6, True, True),
+    # steering: physical model, steering system (hand-wheel units)
+    "hand_wheel_inertia_kg_m2": (1e-3, 1.0, True, True),
+    "rack_inertia_kg_m2": (1e-3, 2.0, True, True),
+    "torsion_bar_stiffness_Nm_rad": (1.0, 1e4, True, True),
+    "compensation_damping_Nm_s_rad": (0.0, 20.0, True, True),
+    "mechanical_trail_m": (-0.05, 0.1, True, True),
+    "kingpin_inclination_rad": (0.0, 0.5, True, True),
+    "kingpin_offset_m": (0.0, 0.3, True, True),
+    "column_friction_Nm": (0.0, 10.0, True, True),
+    "rack_friction_Nm": (0.0, 20.0, True, True),
+    "friction_stiffness_Nm_rad": (1.0, 1e4, True, True),
+    "rack_damping_Nm_s_rad": (0.0, 10.0, True, True),
+    "assist_deadband_Nm": (0.0, 10.0, True, True),
+    "assist_gain_standstill_1_Nm": (0.0, 20.0, True, True),
+    "assist_gain_high_speed_1_Nm": (0.0, 20.0, True, True),
+    "assist_fade_speed_m_s": (0.1, 100.0, True, True),
+    "max_assist_Nm": (0.0, 200.0, True, True),
+    "eps_damping_Nm_s_rad": (0.0, 10.0, True, True),
+    "eps_damping_high_speed_Nm_s_rad": (0.0, 10.0, True, True),
+    "active_return_Nm_rad": (0.0, 100.0, True, True),
+    "active_return_max_Nm": (0.0, 20.0, True, True),
+    "active_return_fade_speed_m_s": (0.1, 100.0, True, True),
+    "stop_stiffness_Nm_rad": (10.0, 1e5, True, True),
+    "stop_damping_Nm_s_rad": (0.0, 100.0, True, True),
     # steering: path driver
     "preview_time_s": (0.0, 10.0, False, True),
     "min_preview_m": (0.0, 100.0, False, True),
@@ -161,6 +195,7 @@ RANGES: dict[str, tuple[float, float, bool, bool]] = {
 # Unit of a parameter from the suffix of its name, longest suffix first.
 _UNITS = [
     ("_Nm_s2_m", "Nm/(m/s^2)"),
+    ("_Nm_rad", "Nm/rad"),
     ("_kg_m2", "kg*m^2"),
     ("_rad_s", "rad/s"),
     ("_Nm_s_rad", "Nm*s/rad"),
@@ -262,18 +297,33 @@ def build(cls: type[T], table: Mapping[str, Any], where: str, problems: list[str
                 f"{', '.join(fields)}"
             )
     values: dict[str, Any] = {}
+    optional = {
+        f.name
+        for f in dataclasses.fields(cls)  # type: ignore[arg-type]
+        if f.default is not dataclasses.MISSING
+    }
     for name in fields:
-        kind = hints[name]
+        kind = _optional_of(hints[name])
         full = f"{where}{name}"
+        if name not in table and name in optional:
+            continue
         if name not in table:
             problems.append(f"{full}: missing; expected {_expected(full, kind)}")
             continue
         value = _convert(kind, table[name], full, problems)
         if value is not _MISSING:
             values[name] = value
-    if len(values) < len(fields):
+    if len(values) < len(fields) - len(optional & (set(fields) - set(table))):
         return None
     return cls(**values)
+
+
+def _optional_of(kind: Any) -> Any:
+    """X for `X | None` (an optional table), else `kind`."""
+    args = typing.get_args(kind)
+    if type(None) in args and len(args) == 2:
+        return args[0] if args[1] is type(None) else args[1]
+    return kind
 
 
 def _convert(kind: Any, value: Any, full: str, problems: list[str]) -> Any:
@@ -476,12 +526,49 @@ def check_steering(car: SteeringCar) -> list[str]:
             f"constant is {min(lateral, yaw) * 1e3:.3g} ms, under the 1 ms the model steps with; "
             "raise kinematic_speed_m_s or check the mass, inertia and cornering stiffnesses"
         )
+    if (car.tyres is None) != (car.steering_system is None):
+        problems.append(
+            "the physical steering model needs both tables [tyres] and [steering_system] (or "
+            "neither: the car then runs the paper's law only)"
+        )
+    elif car.steering_system is not None:
+        problems.extend(_check_steering_system(car.steering_system))
+    return problems
+
+
+STEERING_STEP_S = 1e-3
+"""The step the physical steering model must be accurate at (the 1 kHz loop)."""
+
+
+def _check_steering_system(s: Any) -> list[str]:
+    """Its semi-implicit Euler step must resolve the stiffest and most damped modes at 1 ms."""
+    problems = []
+    h = STEERING_STEP_S
+    stiff = s.stop_stiffness_Nm_rad + s.torsion_bar_stiffness_Nm_rad + s.friction_stiffness_Nm_rad
+    for name, inertia, stiffness, damping in (
+        ("rack_inertia_kg_m2", s.rack_inertia_kg_m2, stiff,
+         s.compensation_damping_Nm_s_rad + s.rack_damping_Nm_s_rad + s.stop_damping_Nm_s_rad
+         + max(s.eps_damping_Nm_s_rad, s.eps_damping_high_speed_Nm_s_rad)),
+        ("hand_wheel_inertia_kg_m2", s.hand_wheel_inertia_kg_m2,
+         s.torsion_bar_stiffness_Nm_rad + s.friction_stiffness_Nm_rad,
+         s.compensation_damping_Nm_s_rad),
+    ):  # fmt: skip
+        if math.sqrt(stiffness / inertia) * h > 0.5 or damping * h / inertia > 0.5:
+            problems.append(
+                f"steering_system.{name} = {inertia:g} kg*m^2 is too light for its springs "
+                f"({stiffness:g} Nm/rad) and dampers ({damping:g} Nm*s/rad) at 1 ms steps: "
+                "w*h and c*h/J must stay under 0.5; raise the inertia or soften the springs"
+            )
     return problems
 
 
 _KINDS: dict[str, tuple[type[Any], tuple[str, ...], Callable[[Any], list[str]]]] = {
     "shift": (ShiftParams, ("gearbox", "driver"), check_shift),
-    "steering": (SteeringCar, ("vehicle", "torque", "driver"), check_steering),
+    "steering": (
+        SteeringCar,
+        ("vehicle", "torque", "driver", "tyres", "steering_system"),
+        check_steering,
+    ),
 }
 
 

@@ -7,6 +7,9 @@ Every manoeuvre starts from straight driving unless said otherwise.
   holds a circle (default R = 40 m, the paper's Fig. 1) while the speed steps up so that the
   steady-state Ay rises by 0.5 m/s^2 per step (0.5 .. 5 m/s^2; each step a 2 s speed ramp and a 3 s
   hold); once to the left (counter-clockwise) and once to the right, as two segments.
+- iso4138-limit: the same circle driven to the limit of a dry road: steps up to 11 m/s^2 (1.1 g,
+  beyond what the physical model's tyres give, so Ay saturates and the car drifts out), each a
+  1 s ramp and a 2 s hold, left then right. With the paper's linear car Ay keeps rising.
 - iso3888: ISO 3888-1 double lane change (default 80 km/h, the standard's test speed). Sections of
   15/30/25/25/15 m (+15 m run-out); lane widths 1.1b+0.25, 1.2b+0.25, 1.3b+0.25 m for car width b.
   Lateral offset of lane 3: its near (right) boundary lies 3.5 m left of lane 1's centre line, and
@@ -40,6 +43,7 @@ from carfeel.models.vehicle.single_track import VehicleParams, steady_state_stee
 
 MANOEUVRES = (
     "iso4138",
+    "iso4138-limit",
     "iso3888",
     "iso7401-step",
     "iso7401-sine",
@@ -117,11 +121,14 @@ def build(name: str, vehicle: VehicleParams, speed_kmh: float | None = None) -> 
     """The manoeuvre `name` (one of MANOEUVRES) for a car, at `speed_kmh` or its default."""
     if name not in MANOEUVRES:
         raise InputError(f"unknown manoeuvre {name!r}; choose one of {', '.join(MANOEUVRES)}")
-    if name == "iso4138":
+    if name in ("iso4138", "iso4138-limit"):
         if speed_kmh is not None:
             raise InputError(
-                "iso4138 steps its own speed on a 40 m circle (Ay 0.5 .. 5 m/s^2); drop --speed-kmh"
+                f"{name} steps its own speed on a 40 m circle (Ay from 0.5 m/s^2 up); drop "
+                "--speed-kmh"
             )
+        if name == "iso4138-limit":
+            return iso4138(vehicle, max_lateral_accel_m_s2=11.0, ramp_s=1.0, hold_s=2.0)
         return iso4138(vehicle)
     v = _check_speed(name, speed_kmh) / 3.6
     if name == "iso3888":
@@ -300,12 +307,23 @@ def _circle(radius_m: float, direction: float, distance_m: float) -> Path:
     return Path(tuple(float(v) for v in x), tuple(float(v) for v in y), PATH_SPACING_M)
 
 
-def iso4138(vehicle: VehicleParams, radius_m: float = 40.0) -> Manoeuvre:
-    steps = tuple(0.5 * i for i in range(1, 11))
-    speed, duration = iso4138_speed_profile(radius_m, steps, ramp_s=2.0, hold_s=3.0)
+def iso4138(
+    vehicle: VehicleParams,
+    radius_m: float = 40.0,
+    *,
+    max_lateral_accel_m_s2: float = 5.0,
+    ramp_s: float = 2.0,
+    hold_s: float = 3.0,
+    sides: tuple[str, ...] = ("left", "right"),
+) -> Manoeuvre:
+    """Steps of 0.5 m/s^2 up to `max_lateral_accel_m_s2` (10: to the limit of a dry road)."""
+    steps = tuple(0.5 * i for i in range(1, round(max_lateral_accel_m_s2 / 0.5) + 1))
+    speed, duration = iso4138_speed_profile(radius_m, steps, ramp_s=ramp_s, hold_s=hold_s)
     distance = sum(speed(t) * 0.01 for t in np.arange(0.0, duration, 0.01))
     segments = []
     for label, direction in (("left", 1.0), ("right", -1.0)):
+        if label not in sides:
+            continue
         start_angle = direction * steady_state_steering_wheel_angle(speed(0.0), steps[0], vehicle)
         segments.append(
             Segment(
@@ -318,6 +336,6 @@ def iso4138(vehicle: VehicleParams, radius_m: float = 40.0) -> Manoeuvre:
         )
     description = (
         f"ISO 4138 constant radius {radius_m:g} m, Ay steps of 0.5 up to {steps[-1]:g} m/s^2 "
-        "(2 s ramp + 3 s hold each), left then right"
+        f"({ramp_s:g} s ramp + {hold_s:g} s hold each), {' then '.join(sides)}"
     )
     return Manoeuvre("iso4138", description, tuple(segments), circle_radius_m=radius_m)

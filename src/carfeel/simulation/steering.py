@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -10,6 +11,14 @@ import numpy as np
 
 from carfeel.models.drivers import steering as path_driver
 from carfeel.models.drivers.steering import PathDriverParams, PathFollowing
+from carfeel.models.steering import physical
+from carfeel.models.steering.physical import (
+    PhysicalInputs,
+    PhysicalParams,
+    PhysicalState,
+    SystemParams,
+    TyreParams,
+)
 from carfeel.models.steering.torque import SteeringTorqueParams, torque_terms
 from carfeel.models.vehicle import single_track
 from carfeel.models.vehicle.single_track import VehicleInputs, VehicleParams, VehicleState
@@ -24,14 +33,41 @@ integrated explicitly and stays accurate to a tenth of it or better at 5 ms."""
 LINEAR_TYRE_LIMIT_G = 0.6
 """Beyond about this lateral acceleration real tyres saturate; the linear model does not."""
 
+STEERING_MODELS = ("paper", "physical")
+"""paper: the linear car and the paper's algebraic law; physical: brush tyres on a nonlinear car
+and an EPS steering system (`carfeel.models.steering.physical`)."""
+
+ROAD_FRICTION = {"dry": 1.0, "wet": 0.7, "snow": 0.3}
+"""Friction coefficient of each road surface for the physical model's tyres (typical peak values
+of passenger-car tyres: dry asphalt 0.9-1.1, wet 0.5-0.8, packed snow 0.2-0.4)."""
+
 
 @dataclass(frozen=True, slots=True)
 class SteeringCar:
-    """A car for steering runs: the vehicle, its torque law and the driver who steers paths."""
+    """A car for steering runs: the vehicle, its torque law and the driver who steers paths.
+
+    `tyres` and `steering_system` (optional preset tables) give the physical model; a car
+    without them runs the paper's law only.
+    """
 
     vehicle: VehicleParams
     torque: SteeringTorqueParams
     driver: PathDriverParams
+    tyres: TyreParams | None = None
+    steering_system: SystemParams | None = None
+
+    @property
+    def has_physical(self) -> bool:
+        return self.tyres is not None and self.steering_system is not None
+
+    def physical(self, road: str | None = None) -> PhysicalParams:
+        """The physical model's parameters, on `road` (a ROAD_FRICTION key) if given."""
+        if self.tyres is None or self.steering_system is None:
+            raise ValueError("this car has no [tyres] and [steering_system] tables")
+        tyres = self.tyres
+        if road is not None:
+            tyres = dataclasses.replace(tyres, friction_coefficient=ROAD_FRICTION[road])
+        return PhysicalParams(self.vehicle, tyres, self.steering_system)
 
 
 class SteeringOutputs(NamedTuple):
@@ -115,6 +151,123 @@ def path_step(
     )  # fmt: skip
 
 
+class PhysicalRunOutputs(NamedTuple):
+    speed_m_s: float
+    steering_angle_rad: float
+    steering_rate_rad_s: float
+    lateral_accel_m_s2: float
+    torque_Nm: float
+    torque_aligning_Nm: float
+    torque_jacking_Nm: float
+    torque_park_Nm: float
+    torque_friction_Nm: float
+    torque_damping_Nm: float
+    torque_inertia_Nm: float
+    torque_stop_Nm: float
+    torque_assist_Nm: float
+    torsion_bar_torque_Nm: float
+    front_wheel_angle_rad: float
+    front_grip_used: float
+    rear_grip_used: float
+    yaw_rate_rad_s: float
+    sideslip_rad: float
+    x_m: float
+    y_m: float
+    yaw_rad: float
+    cross_track_m: float
+
+
+PHYSICAL_TERMS = (
+    "torque_aligning_Nm",
+    "torque_jacking_Nm",
+    "torque_park_Nm",
+    "torque_friction_Nm",
+    "torque_damping_Nm",
+    "torque_inertia_Nm",
+    "torque_stop_Nm",
+    "torque_assist_Nm",
+)
+"""The physical model's contributions to `torque_Nm` (they sum to it exactly)."""
+
+
+def _physical_outputs(
+    speed: float, out: physical.PhysicalOutputs, cross_track: float
+) -> PhysicalRunOutputs:
+    return PhysicalRunOutputs(speed, *out[:3], *out[3:], cross_track)
+
+
+class PhysicalPathState(NamedTuple):
+    model: PhysicalState
+    driver: path_driver.PathDriverState
+
+
+@dataclass(frozen=True, slots=True)
+class PhysicalPathRun:
+    params: PhysicalParams
+    following: PathFollowing
+
+
+def physical_imposed_step(
+    state: PhysicalState, inputs: ImposedInputs, params: PhysicalParams, dt_s: float
+) -> tuple[PhysicalState, PhysicalRunOutputs]:
+    """The physical model with the rim's angle and rate imposed."""
+    new, out = physical.step(
+        state,
+        PhysicalInputs(inputs.speed_m_s, inputs.steering_angle_rad, inputs.steering_rate_rad_s,
+                       0.0, 1.0),
+        params,
+        dt_s,
+    )  # fmt: skip
+    return new, _physical_outputs(inputs.speed_m_s, out, 0.0)
+
+
+def as_vehicle_state(state: PhysicalState, steering_ratio: float) -> VehicleState:
+    """The physical model's car as the linear car's state (what the path driver reads)."""
+    return VehicleState(
+        state.sideslip_rad, state.yaw_rate_rad_s, state.x_m, state.y_m, state.yaw_rad,
+        state.lateral_accel_m_s2, state.pinion_angle_rad / steering_ratio,
+    )  # fmt: skip
+
+
+def physical_path_step(
+    state: PhysicalPathState, speed_m_s: float, params: PhysicalPathRun, dt_s: float
+) -> tuple[PhysicalPathState, PhysicalRunOutputs]:
+    """A driver steers the physical model's rim along a path at the imposed speed."""
+    car = as_vehicle_state(state.model, params.params.vehicle.steering_ratio)
+    driver, steer = path_driver.step(state.driver, (car, speed_m_s), params.following, dt_s)
+    model, out = physical.step(
+        state.model,
+        PhysicalInputs(speed_m_s, steer.steering_angle_rad, steer.steering_rate_rad_s, 0.0, 1.0),
+        params.params,
+        dt_s,
+    )
+    return PhysicalPathState(model, driver), _physical_outputs(speed_m_s, out, steer.cross_track_m)
+
+
+def physical_start(
+    params: PhysicalParams,
+    speed_m_s: float,
+    steering_angle_rad: float,
+    pose: tuple[float, float, float] = (0.0, 0.0, 0.0),
+) -> PhysicalState:
+    """Steady cornering of the linear car at this speed and angle (the low-Ay start of a path)."""
+    x0, y0, yaw0 = pose
+    start = physical.initial_state(params, x0, y0, yaw0, steering_angle_rad)
+    if speed_m_s < params.vehicle.kinematic_speed_m_s:
+        return start
+    linear = single_track.steady_state(speed_m_s, steering_angle_rad, params.vehicle, x0, y0, yaw0)
+    a, b = params.vehicle.cg_to_front_axle_m, params.vehicle.cg_to_rear_axle_m
+    beta, r = linear.sideslip_rad, linear.yaw_rate_rad_s
+    return start._replace(
+        front_slip_rad=linear.front_wheel_angle_rad - beta - a * r / speed_m_s,
+        rear_slip_rad=b * r / speed_m_s - beta,
+        sideslip_rad=beta,
+        yaw_rate_rad_s=r,
+        yaw_rad=linear.yaw_rad,
+        lateral_accel_m_s2=linear.lateral_accel_m_s2,
+    )
+
+
 def simulate_steering(
     car: SteeringCar,
     manoeuvre: Manoeuvre,
@@ -122,11 +275,18 @@ def simulate_steering(
     dt_s: float = 1e-3,
     substeps: int = 1,
     metadata: Mapping[str, str] | None = None,
+    model: str = "paper",
+    road: str | None = None,
 ) -> Result:
     """Run every segment of a manoeuvre; one Result, time running on across segments.
 
     The column `segment` names the segment of each sample (e.g. left / right for ISO 4138).
+    `model` is one of STEERING_MODELS; `road` (physical model only) a ROAD_FRICTION key.
     """
+    if model == "physical":
+        return _simulate_physical(car.physical(road), car, manoeuvre, dt_s, substeps, metadata)
+    if model != "paper":
+        raise ValueError(f"unknown steering model {model!r}; one of {STEERING_MODELS}")
     parts: list[Result] = []
     for segment in manoeuvre.segments:
         x0, y0, yaw0 = segment.start_pose
@@ -153,6 +313,46 @@ def simulate_steering(
             result, _ = run(
                 path_step, state, PathRun(car, following), duration_s=segment.duration_s,
                 dt_s=dt_s, substeps=substeps, inputs=segment.speed,
+            )  # fmt: skip
+        else:  # pragma: no cover - a Segment is built with one or the other
+            raise ValueError(f"segment {segment.label} has neither steering nor path")
+        parts.append(result)
+    return _concatenate(parts, [s.label for s in manoeuvre.segments], metadata)
+
+
+def _simulate_physical(
+    params: PhysicalParams,
+    car: SteeringCar,
+    manoeuvre: Manoeuvre,
+    dt_s: float,
+    substeps: int,
+    metadata: Mapping[str, str] | None,
+) -> Result:
+    parts: list[Result] = []
+    for segment in manoeuvre.segments:
+        speed = segment.speed
+        if segment.steering is not None:
+            steering = segment.steering
+            angle0 = steering(0.0)[0]
+
+            def inputs(t: float) -> ImposedInputs:
+                angle, rate = steering(t)  # noqa: B023 - used within this iteration only
+                return ImposedInputs(speed(t), angle, rate)  # noqa: B023
+
+            start = physical_start(params, speed(0.0), angle0, segment.start_pose)
+            result, _ = run(
+                physical_imposed_step, start, params, duration_s=segment.duration_s, dt_s=dt_s,
+                substeps=substeps, inputs=inputs,
+            )  # fmt: skip
+        elif segment.path is not None:
+            start = physical_start(
+                params, speed(0.0), segment.start_steering_rad, segment.start_pose
+            )
+            following = PathFollowing(car.driver, car.vehicle, segment.path)
+            state = PhysicalPathState(start, path_driver.initial_state(segment.start_steering_rad))
+            result, _ = run(
+                physical_path_step, state, PhysicalPathRun(params, following),
+                duration_s=segment.duration_s, dt_s=dt_s, substeps=substeps, inputs=speed,
             )  # fmt: skip
         else:  # pragma: no cover - a Segment is built with one or the other
             raise ValueError(f"segment {segment.label} has neither steering nor path")
