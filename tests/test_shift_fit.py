@@ -431,7 +431,7 @@ def test_positions_in_mm_and_exactly_200_hz():
 
 
 def test_a_fit_carfeel_would_refuse_is_not_written(tmp_path):
-    from carfeel.identification.workflows import write_checked_preset
+    from carfeel.identification.common import write_checked_preset
     from carfeel.io.presets import to_toml
 
     params = load_shift().params

@@ -258,6 +258,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     feel.add_argument("csv", metavar="FILE.csv", help="run or log to analyse")
     feel.add_argument("--json", action="store_true", help="print one JSON object")
+    _source_options(feel)
     feel.add_argument(
         "--preset",
         default=None,
@@ -330,6 +331,13 @@ def build_parser() -> argparse.ArgumentParser:
     fit_steer.add_argument("--fit-vehicle", action="store_true",
                            help="also fit the understeer gradient (logs without Ay)")  # fmt: skip
     fit_steer.add_argument("--report", metavar="DIR", help="write a report (HTML + PNG)")
+    fit_steer.add_argument("--drift", type=_positive_float, metavar="SECONDS",
+                           help="let the torque offset drift: knots this far apart (road crown, "
+                           "sensor drift); default one constant offset per log")  # fmt: skip
+    fit_steer.add_argument("--holdout", type=float, default=0.0, metavar="FRACTION",
+                           help="validate on the last FRACTION of each log, fit on the rest; "
+                           "both figures side by side")  # fmt: skip
+    _source_options(fit_steer)
     fit_steer.add_argument("--json", action="store_true", help="print the fit as one JSON object")
     fit_shift = fit_kinds.add_parser(
         "shift",
@@ -342,6 +350,7 @@ def build_parser() -> argparse.ArgumentParser:
     fit_shift.add_argument("--base", default="paper-first-gear", metavar="NAME|PATH",
                            help="shift preset the fit starts from")  # fmt: skip
     fit_shift.add_argument("--report", metavar="DIR", help="write a report (HTML + PNG)")
+    _source_options(fit_shift)
     fit_shift.add_argument("--json", action="store_true", help="print the fit as one JSON object")
 
     validate = commands.add_parser(
@@ -355,6 +364,19 @@ def build_parser() -> argparse.ArgumentParser:
     validate.add_argument("--preset", required=True, metavar="PRESET.toml")
     validate.add_argument("--report", required=True, metavar="DIR")
     validate.add_argument("--json", action="store_true", help="print the figures as JSON")
+    validate.add_argument("--drift", type=_positive_float, metavar="SECONDS",
+                          help="remove each log's own drifting torque offset (knots this far "
+                          "apart) before the figures; default a constant one")  # fmt: skip
+    _source_options(validate)
+    channels = commands.add_parser(
+        "channels",
+        help="list the signals of a log (name, unit, samples, rate, range)",
+        description="List what a log holds (CSV, Parquet, MDF4, or a CAN log with --dbc), so a "
+        "channel map (--channels MAP.toml) can be written for it.",
+    )
+    channels.add_argument("file", metavar="FILE")
+    channels.add_argument("--dbc", metavar="FILE.dbc", help="DBC to decode a CAN log with")
+    channels.add_argument("--json", action="store_true", help="print one JSON object")
 
     devices = commands.add_parser(
         "devices",
@@ -371,6 +393,17 @@ def build_parser() -> argparse.ArgumentParser:
     )
     presets.add_argument("--json", action="store_true", help="print one JSON object")
     return parser
+
+
+def _source_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--channels", metavar="MAP.toml",
+                        help="channel map: which signal of the logs is which channel, with units "
+                        "(README, 'Channel maps')")  # fmt: skip
+    parser.add_argument("--dbc", metavar="FILE.dbc", help="DBC to decode CAN logs with")
+
+
+def _sources(args: argparse.Namespace) -> tuple[Path | None, Path | None]:
+    return (Path(args.channels) if args.channels else None, Path(args.dbc) if args.dbc else None)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -396,6 +429,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _fit(args)
         if args.command == "validate":
             return _validate(args)
+        if args.command == "channels":
+            return _channels(args)
         return _presets(args)
     except CarfeelError as exc:
         print(f"carfeel: error: {exc}", file=sys.stderr)
@@ -535,11 +570,12 @@ def _fit(args: argparse.Namespace) -> int:
     _check_writable(out, ".toml")
     report_dir = Path(args.report) if args.report else None
     if args.kind == "steering":
-        from carfeel.identification.workflows import fit_steering_logs, fit_summary
+        from carfeel.identification.workflows import Sources, fit_steering_logs, fit_summary
 
         fit = fit_steering_logs(
             [Path(p) for p in args.logs], out, base=args.base, fit_vehicle=args.fit_vehicle,
-            report_dir=report_dir, show_progress=not args.json,
+            report_dir=report_dir, show_progress=not args.json, sources=Sources(*_sources(args)),
+            drift_s=args.drift, holdout=args.holdout,
         )  # fmt: skip
         if args.json:
             print(_json(fit.as_dict()))
@@ -555,15 +591,18 @@ def _fit(args: argparse.Namespace) -> int:
         base=args.base,
         report_dir=report_dir,
         show_progress=not args.json,
+        channels=_sources(args)[0],
+        dbc=_sources(args)[1],
     )
     print(_json(result) if args.json else shift_workflows.summary_text(result, out))
     return 0
 
 
 def _validate(args: argparse.Namespace) -> int:
-    from carfeel.identification.workflows import validate
+    from carfeel.identification.workflows import Sources, validate
 
-    figures = validate(args.preset, [Path(p) for p in args.logs], Path(args.report))
+    figures = validate(args.preset, [Path(p) for p in args.logs], Path(args.report),
+                       Sources(*_sources(args)), args.drift)  # fmt: skip
     if args.json:
         print(_json(figures))
     else:
@@ -586,13 +625,27 @@ def _devices(args: argparse.Namespace) -> int:
 def _metrics_steering(args: argparse.Namespace) -> int:
     from carfeel.runs import feel_lines, steering_metrics
 
-    feel = steering_metrics(Path(args.csv), args.preset)
+    feel = steering_metrics(Path(args.csv), args.preset, *_sources(args))
     if args.json:
         values = {k: (None if math.isnan(v) else v) for k, v in feel.as_dict().items()}
         print(_json({**values, "notes": list(feel.notes)}))
     else:
         print(f"steering feel of {args.csv}:")
         print("\n".join(feel_lines(feel)))
+    return 0
+
+
+def _channels(args: argparse.Namespace) -> int:
+    from carfeel.io.logs import describe
+
+    rows = describe(Path(args.file), Path(args.dbc) if args.dbc else None)
+    if args.json:
+        print(_json({"file": args.file, "signals": rows}))
+        return 0
+    print(f"{args.file}: {len(rows)} signal(s)")
+    for r in rows:
+        print(f"  {r['signal']:48s} {r['unit'] or '-':8s} {r['samples']:8d} samples "
+              f"{r['rate_hz']:8.1f} Hz  {r['min']:.4g} .. {r['max']:.4g}")  # fmt: skip
     return 0
 
 

@@ -287,13 +287,29 @@ def feel_of(
     )
 
 
-def steering_metrics(csv_path: Path, preset: str | None = None) -> SteeringFeel:
-    """The feel metrics of a steering CSV (a run of carfeel's or a measured log).
+def steering_metrics(
+    csv_path: Path,
+    preset: str | None = None,
+    channels: Path | None = None,
+    dbc: Path | None = None,
+) -> SteeringFeel:
+    """The feel metrics of a steering CSV (a run of carfeel's or a measured log; other formats
+    and a channel map through `carfeel.io.logs`).
 
     The understeer gradient needs the steering ratio and wheelbase: from `preset` if given, else
     from the run's metadata file beside the CSV, else the default car preset.
     """
-    result = Result.from_csv(csv_path)
+    from carfeel.identification.common import read_results
+
+    result = read_results([csv_path], channels, dbc)[0]
+    if "torque_Nm" not in result.names and "steering_torque_Nm" in result.names:
+        result = Result(
+            result.time_s,
+            {
+                ("torque_Nm" if k == "steering_torque_Nm" else k): v
+                for k, v in result.signals.items()
+            },
+        )
     missing = [c for c in REQUIRED_STEERING_COLUMNS if c not in result.names]
     if missing:
         raise InputError(
