@@ -10,11 +10,11 @@ standard deviations on long logs; noise on the torque does not):
           below that); when not measured, the transient single-track car driven by the logged
           angle and speed (`transient_ay`), not its steady state, whose phase error would land
           in K7..K9,
-  rate    as logged (a low-pass at 8 or 20 Hz rounded off the edges of quick steers and moved
-          K6, K9 by 3-6 %, more than the noise of a good rate channel does), else a
-          Savitzky-Golay derivative of the angle (quadratic, 81 ms) on each gap-free stretch.
-          A coarse rate channel still biases the friction K7, K8: ISO 4138's slow ramps keep the
-          rate within a few K8 for minutes.
+  rate    as logged (a low-pass, even at 80 Hz, rounded off the edges of quick steers and moved
+          K5..K9 by 1-6 %, more than 0.05 deg/s of rate noise does), else a Savitzky-Golay
+          derivative of the angle (quadratic, 81 ms) on each gap-free stretch. A coarse rate
+          channel still biases the friction K7, K8: ISO 4138's slow ramps keep the rate within a
+          few K8 for minutes.
 The filters run per gap-free stretch (forward and back: no phase lag).
 
 The fit is `scipy.optimize.least_squares` with an analytic Jacobian, bounds that keep each term
@@ -74,8 +74,6 @@ UPPER = (50.0, 10.0, 3.0, 100.0, 100.0, 10.0, 20.0, 5.0, 5.0)
 SAVGOL_WINDOW_S = 0.081
 CUTOFF_HZ = {"speed_m_s": 1.0, "lateral_accel_m_s2": 4.0}
 """Zero-phase low-pass corners of the regressors (see the module docstring)."""
-RATE_CUTOFF_HZ = 1000.0
-"""A logged rate is low-passed only at 40 % of the sample rate (the `lowpass` ceiling)."""
 BLOCK_S = 2.0
 """Block length of the sandwich covariance: residuals of one manoeuvre phase hang together."""
 MAX_DELAY_S = 0.25
@@ -177,13 +175,14 @@ def _stretches(time_s: FloatArray) -> list[tuple[int, int]]:
 
 
 def lowpass(time_s: FloatArray, values: FloatArray, cutoff_hz: float) -> FloatArray:
-    """Zero-phase 2nd-order Butterworth low-pass (forward and back), per gap-free stretch; the
+    """Zero-phase 4th-order Butterworth low-pass (forward and back: 8th-order magnitude, 0.4 %
+    down at half the corner), per gap-free stretch; the
     corner is kept under 40 % of the sample rate. Stretches too short to filter pass as they are."""
     from scipy.signal import butter, sosfiltfilt
 
     out = np.array(values, dtype=float, copy=True)
     dt = float(np.median(np.diff(time_s)))
-    sos = butter(2, min(cutoff_hz, 0.4 / dt), fs=1.0 / dt, output="sos")
+    sos = butter(4, min(cutoff_hz, 0.4 / dt), fs=1.0 / dt, output="sos")
     for a, b in _stretches(time_s):
         if b - a > 30:
             out[a:b] = sosfiltfilt(sos, values[a:b])
@@ -275,7 +274,7 @@ def read_log(result: Result, name: str) -> SteeringLog:
         )
     t = time[keep]
     rate = (
-        lowpass(t, result["steering_rate_rad_s"][keep], RATE_CUTOFF_HZ)
+        result["steering_rate_rad_s"][keep]
         if "steering_rate_rad_s" in result.names
         else savgol_rate(t, angle)
     )
