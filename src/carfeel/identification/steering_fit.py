@@ -79,6 +79,9 @@ RATE_CUTOFF_HZ = 20.0
 BLOCK_S = 2.0
 """Block length of the sandwich covariance: residuals of one manoeuvre phase hang together."""
 MAX_DELAY_S = 0.25
+MIN_DELAY_STEP_S = 0.0025
+"""A scanned delay closer than this to the current one is not applied: below it the damping
+K9 trades with the delay and the scan wanders (it found 1 ms on the benchmark's undelayed log)."""
 PARKING_SPEED_M_S = 2.0
 MAX_SAMPLE_PERIOD_S = 0.05
 """20 Hz: slower logs cannot show the friction and damping terms (and ms read as s land here)."""
@@ -455,6 +458,7 @@ def fit_steering(
     k_us = vehicle.understeer_gradient_rad_s2_m
     evaluations = [0]
     delay = 0.0
+    warm: FloatArray | None = None
     passes = 2 if fit_vehicle else 1
     for _ in range(passes):  # with fit_vehicle: Ay simulated again at the fitted K_us
         ays = [
@@ -470,16 +474,17 @@ def fit_steering(
         ]
         data = _data(logs, ays, drift_s)
         ku = k_us if fit_vehicle else None
-        result = _solve(data, base, law, ku, delay, evaluations, progress)
+        result = _solve(data, base, law, ku, delay, evaluations, progress, warm)
         # The delay by a scan with the law fixed, then the law again at it (a joint fit stalled
         # on the kinks that interpolating sharp steers puts into the cost at each sample).
         period = min(float(np.median(np.diff(log.time_s))) for log in logs)
         for _ in range(4 if estimate_delay else 0):
             found = _scan_delay(data, law, result.x, ku, base.vehicle.wheelbase_m)
-            if abs(found - delay) < 0.5 * period:
+            if abs(found - delay) < max(0.5 * period, MIN_DELAY_STEP_S):
                 break
             delay = found
-            result = _solve(data, base, law, ku, delay, evaluations, progress)
+            result = _solve(data, base, law, ku, delay, evaluations, progress, result.x)
+        warm = result.x
         if fit_vehicle:
             k_us = result.x[len(law.names)]
     x, free, notes, covariance, r = (
@@ -559,6 +564,7 @@ def _solve(
     delay_s: float,
     evaluations: list[int],
     progress: Callable[[int, float], None] | None,
+    warm: FloatArray | None = None,
 ) -> _Solution:
     """Two passes: fit what the excitation can identify; then keep at the base's value what
     stopped at a bound or in an unconstrained direction, and fit again."""
@@ -606,6 +612,9 @@ def _solve(
     for i in range(n_law):
         if free[i]:
             x_all[i] = start[i]
+    if warm is not None:  # from a previous pass: only the held parameters may differ
+        x_all[:n_law] = warm[:n_law]
+        x_all[delay_index + 1 :] = warm[delay_index + 1 :]
     x_all = np.clip(x_all, np.array(lower) + 1e-9, np.array(upper) - 1e-9)
     for kept in np.flatnonzero(~free[:n_law]):
         x_all[kept] = base_x[kept]
