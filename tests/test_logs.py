@@ -158,3 +158,60 @@ def test_mdf4_and_parquet_of_a_run_fit_to_the_same_parameters_as_its_csv(tmp_pat
         for other in fits[1:]:
             # km/h and degrees back to SI cost a rounding: 1e-6 relative.
             assert other[name]["value"] == pytest.approx(value["value"], rel=1e-6), name
+
+
+def test_bad_input_on_the_command_line_exits_2_and_writes_nothing(tmp_path, capsys):
+    from tests.test_steering_fit import write_logs
+
+    paths = write_logs(tmp_path, logs_from=("weave",))
+    out = tmp_path / "p.toml"
+    bad_map = tmp_path / "map.toml"
+    bad_map.write_text("[channels]\nsteering_torque = 'T'\n")
+    assert main(["fit", "steering", *paths, "--out", str(out), "--channels", str(bad_map)]) == 2
+    err = capsys.readouterr().err
+    assert "unknown channel 'steering_torque'" in err and "Traceback" not in err
+    assert not out.exists()
+    # A map naming a signal the file lacks: named, with the command that lists them.
+    wrong = tmp_path / "wrong.toml"
+    wrong.write_text("[channels]\nsteering_torque_Nm = 'Torque'\n")
+    assert main(["validate", "--preset", "b-segment", *paths, "--report", str(tmp_path / "r"),
+                 "--channels", str(wrong)]) == 2  # fmt: skip
+    assert "no signal 'Torque'" in capsys.readouterr().err
+    assert (
+        main(["fit", "steering", *paths, "--out", str(out), "--dbc", str(tmp_path / "no.dbc")]) == 2
+    )
+    assert "--dbc" in capsys.readouterr().err and not out.exists()
+
+
+def test_metrics_read_a_parquet_log_through_a_map(tmp_path, capsys):
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from tests.test_steering_fit import clean_runs
+
+    _, r = next(run for run in clean_runs() if run[0].startswith("weave"))
+    pq.write_table(pa.table({
+        "t": r.time_s, "v_kmh": r["speed_m_s"] * 3.6,
+        "swa_deg": np.degrees(r["steering_angle_rad"]),
+        "ay_g": r["lateral_accel_m_s2"] / 9.80665, "swt": r["torque_Nm"],
+    }), tmp_path / "weave.parquet")  # fmt: skip
+    channel_map = tmp_path / "map.toml"
+    channel_map.write_text(
+        "[channels]\nspeed_m_s = { signal = 'v_kmh', unit = 'km/h' }\n"
+        "steering_angle_rad = { signal = 'swa_deg', unit = 'deg' }\n"
+        "lateral_accel_m_s2 = { signal = 'ay_g', unit = 'g' }\n"
+        "steering_torque_Nm = { signal = 'swt', unit = 'Nm' }\n"
+    )
+    csv_path = tmp_path / "weave.csv"
+    from carfeel.simulation.result import Result
+
+    Result(r.time_s, {k: r[k] for k in ("speed_m_s", "steering_angle_rad", "lateral_accel_m_s2",
+                                         "torque_Nm")}).to_csv(csv_path)  # fmt: skip
+    assert main(["metrics", "steering", str(csv_path), "--json"]) == 0
+    from_csv = json.loads(capsys.readouterr().out)
+    assert main(["metrics", "steering", str(tmp_path / "weave.parquet"), "--channels",
+                 str(channel_map), "--json"]) == 0  # fmt: skip
+    from_parquet = json.loads(capsys.readouterr().out)
+    # The same run in km/h, degrees and g: the same feel figures after the units are converted.
+    for key in ("torque_gradient_Nm_per_g", "torque_at_0_1g_Nm", "hysteresis_Nm"):
+        assert from_parquet[key] == pytest.approx(from_csv[key], rel=1e-6), key

@@ -232,6 +232,10 @@ def test_fit_and_validate_from_the_command_line(tmp_path, capsys):
                  "--json"]) == 0  # fmt: skip
     figures = json.loads(capsys.readouterr().out)
     assert figures["r2"] > 0.99 and figures["rms_error"] < 0.2
+    # The correlations of the fitted parameters: a symmetric matrix with a unit diagonal.
+    names, matrix = figures["correlation"]["parameters"], np.array(figures["correlation"]["matrix"])
+    assert "k1_Nm_s2_m" in names and matrix.shape == (len(names), len(names))
+    assert np.allclose(np.diag(matrix), 1.0, atol=1e-3) and np.allclose(matrix, matrix.T)
     fitted = load(str(preset)).params.torque
     assert fitted.k1_Nm_s2_m == pytest.approx(TRUE["k1_Nm_s2_m"], rel=0.1)
     assert (fit_report / "index.html").is_file()
