@@ -36,6 +36,7 @@ bench: $(VENV)/.installed
 	$(BIN)/python benchmarks/bench_hpattern_step.py
 	$(BIN)/python benchmarks/bench_loop.py
 	$(BIN)/python benchmarks/bench_fit.py
+	$(BIN)/python benchmarks/bench_fit_bias.py
 	$(BIN)/python benchmarks/bench_shift_fit.py
 
 clean:
