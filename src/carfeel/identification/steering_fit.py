@@ -22,7 +22,8 @@ physically signed (every K >= 0 and the scales > 0), and the robust 'soft_l1' lo
 K1..K9 it fits nuisances that are reported, never written to a preset: a torque offset per log
 (constant, or with `drift_s` a piecewise-linear one with knots that far apart: road crown, bank
 and sensor drift wander along a drive), and one delay of the torque behind the other channels
-(CAN messages arrive with their own latencies), applied by shifting the regressors.
+(CAN messages arrive with their own latencies), applied by shifting the regressors, found by a
+scan with the law held and the law refitted at it (`_scan_delay`).
 Starting values come from the data: K1 from the slope of torque on Ay while the wheel barely
 turns, K9 from the slope on the rate while it turns fast, the friction level from the rest, the
 tyre-spin scale from parking (V < 2 m/s) if there is any.
