@@ -16,7 +16,7 @@ $(VENV)/.installed: pyproject.toml | $(BIN)/python
 	touch $@
 
 $(VENV)/.installed-test: pyproject.toml | $(BIN)/python
-	$(BIN)/python -m pip install --quiet -e '.[test]'
+	$(BIN)/python -m pip install --quiet -e '.[test,logs]'
 	touch $(VENV)/.installed $@
 
 demo: $(VENV)/.installed
@@ -37,6 +37,7 @@ bench: $(VENV)/.installed
 	$(BIN)/python benchmarks/bench_loop.py
 	$(BIN)/python benchmarks/bench_stability.py
 	$(BIN)/python benchmarks/bench_fit.py
+	$(BIN)/python benchmarks/bench_fit_bias.py
 	$(BIN)/python benchmarks/bench_shift_fit.py
 
 # Mutation testing (mutmut) of the models, the rendering and the safety chain ([tool.mutmut] in

@@ -54,7 +54,8 @@ def main() -> None:
     print(f"checks and rate derivation {t1 - t0:6.2f} s")
     print(f"fit (K1..K9 + offset)      {t2 - t1:6.2f} s, {fit.iterations} evaluations")
     print(f"total                      {t2 - t0:6.2f} s   (target under 5 s)")
-    print(f"rms error {fit.rms_error_Nm:.3f} Nm, r2 {fit.r2:.4f}")
+    print(f"rms error {fit.rms_error_Nm:.3f} Nm, r2 {fit.r2:.4f}, torque delay found "
+          f"{fit.torque_delay_s * 1e3:.2g} ms")  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -438,7 +438,7 @@ def test_positions_in_mm_and_exactly_200_hz():
 
 
 def test_a_fit_carfeel_would_refuse_is_not_written(tmp_path):
-    from carfeel.identification.workflows import write_checked_preset
+    from carfeel.identification.common import write_checked_preset
     from carfeel.io.presets import to_toml
 
     params = load_shift().params
@@ -466,3 +466,57 @@ def test_a_trace_without_an_engagement_is_still_validated(tmp_path, capsys):
     assert main(["validate", "--preset", "paper-first-gear", str(path),
                  "--report", str(tmp_path / "r")]) == 0  # fmt: skip
     assert "rms_error_m" in capsys.readouterr().out
+
+
+def test_a_truth_away_from_the_base_with_a_biased_drifting_force_is_found():
+    """The teeth's sliding friction, their spread and the stop's damping of this truth are not
+    the base preset's (12 N, 10 N, 40 N*s/m), so a fit that returned the base would fail; the
+    force sensor reads 1.5 N high and drifts 2 N more over each trace."""
+    g = truth().gearbox
+    other = ShiftParams(
+        dataclasses.replace(
+            g, tooth_force_spread_N=6.0,
+            engagement=dataclasses.replace(g.engagement, sliding_friction_N=16.0,
+                                           static_friction_N=18.0),
+            stop=dataclasses.replace(g.stop, damping_N_s_m=90.0),
+        ),
+        truth().driver,
+    )  # fmt: skip
+    traces = []
+    for seed in SEEDS:
+        result, _ = run(push_again(), shift.initial_state(seed), other, duration_s=DURATION_S,
+                        dt_s=1e-3, substeps=10)  # fmt: skip
+        m = measured(result, seed)
+        t = m.time_s
+        drift = 1.5 + 2.0 * (t - t[0]) / (t[-1] - t[0])
+        traces.append(Result(t, {"position_m": m["position_m"], "force_N": m["force_N"] + drift}))
+    fit = fit_shift(traces)
+    got = fit.params.gearbox
+    # Measured 15.95 N and 6.1 N: the bounds of a uniform law from 6 draws scatter by about
+    # spread / 6 (1 N) and the drift adds up to 3.5 N to a resistance at worst: 2.5 N on each.
+    assert got.engagement.sliding_friction_N == pytest.approx(16.0, abs=2.5)
+    assert got.tooth_force_spread_N == pytest.approx(6.0, abs=2.5)
+    # Measured 112: the damping rests on ~10 ms of overshoot per engagement; the base's 40 is
+    # out of this band, as is twice the truth.
+    assert 60.0 < got.stop.damping_N_s_m < 150.0
+    # The bias lands in the push force (the plateau is the driver's F_max plus the bias).
+    assert fit.params.driver.push_force_N == pytest.approx(70.0 + 2.5, abs=1.5)
+
+
+def test_the_lever_mass_from_noise_free_free_travel():
+    """The free stretches' output-error fit on traces without noise recovers a lever mass that
+    is not the base's (1.6 vs 1.2 kg) within 3 %; with the noise of the other tests it reads
+    10-17 % high, which is why it is reported and not yet written (DESIGN, issue 12)."""
+    g = truth().gearbox
+    names = ("neutral", "gate_open", "engagement", "free_travel", "stop", "in_gear", "returning")
+    heavy = ShiftParams(
+        dataclasses.replace(g, **{n: dataclasses.replace(getattr(g, n), mass_kg=1.6)
+                                  for n in names}),
+        truth().driver,
+    )  # fmt: skip
+    result, _ = run(push_again(), shift.initial_state(11), heavy, duration_s=DURATION_S,
+                    dt_s=1e-3, substeps=10)  # fmt: skip
+    fit = fit_shift([Result(result.time_s, {"position_m": result["position_m"],
+                                            "force_N": result["force_N"]})])  # fmt: skip
+    assert fit.figures["free_mass_kg"] == pytest.approx(1.6, rel=0.03)
+    assert fit.figures["free_damping_N_s_m"] == pytest.approx(15.0, rel=0.15)

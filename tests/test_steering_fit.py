@@ -21,8 +21,10 @@ TRUE = dict(
     k1_Nm_s2_m=1.9, k2=0.25, k3=1.0, k4_1_Nm=0.5, k5_s_m_Nm=0.2, k6_rad_s=0.7, k7_Nm=0.6,
     k8_rad_s=0.08, k9_Nm_s_rad=0.12,
 )  # fmt: skip
-# Sensor noise (1 sigma) and errors as a test rig would have them.
-NOISE = {"speed": 0.05, "angle_deg": 0.02, "torque": 0.05, "ay": 0.05}
+# Sensor noise (1 sigma) and errors as an instrumented car would have them: a measurement
+# steering wheel (torque 0.05 Nm, encoder angle 0.02 deg, its rate 0.05 deg/s), a GPS/IMU speed
+# (0.05 m/s, about 0.2 km/h) and an IMU's lateral acceleration (0.05 m/s^2, 5 mg).
+NOISE = {"speed": 0.05, "angle_deg": 0.02, "torque": 0.05, "ay": 0.05, "rate_deg_s": 0.05}
 ANGLE_OFFSET_DEG, TORQUE_BIAS_NM, RATE_DIVIDER = 0.3, 0.05, 5  # 1 kHz model -> 200 Hz logs
 
 
@@ -45,8 +47,9 @@ def clean_runs(names=("weave", "steer-cycle", "iso4138", "iso7401-step", "iso388
     return tuple(runs)
 
 
-def measured(runs, seed=0, with_ay=True, spikes=0, gap=False):
-    """The runs as a logger would give them: 200 Hz, noise, an angle offset, a torque bias."""
+def measured(runs, seed=0, with_ay=True, spikes=0, gap=False, rate=False, delay_s=0.0):
+    """The runs as a logger would give them: 200 Hz, noise on every channel, an angle offset, a
+    torque bias; with `rate` a logged rate channel; with `delay_s` the torque logged late."""
     rng = np.random.default_rng(seed)
     logs = []
     for name, r in runs:
@@ -54,7 +57,8 @@ def measured(runs, seed=0, with_ay=True, spikes=0, gap=False):
         if gap:
             idx = np.concatenate([idx[: len(idx) // 3], idx[len(idx) // 3 + 40 :]])
         n = idx.size
-        torque = r["torque_Nm"][idx] + TORQUE_BIAS_NM + rng.normal(0, NOISE["torque"], n)
+        late = np.interp(r.time_s[idx] - delay_s, r.time_s, r["torque_Nm"])
+        torque = late + TORQUE_BIAS_NM + rng.normal(0, NOISE["torque"], n)
         if spikes:
             torque[rng.choice(n, spikes, replace=False)] += rng.choice([-8.0, 8.0], spikes)
         signals = {
@@ -63,6 +67,10 @@ def measured(runs, seed=0, with_ay=True, spikes=0, gap=False):
             + np.radians(ANGLE_OFFSET_DEG + rng.normal(0, NOISE["angle_deg"], n)),
             "steering_torque_Nm": torque,
         }
+        if rate:
+            signals["steering_rate_rad_s"] = r["steering_rate_rad_s"][idx] + np.radians(
+                rng.normal(0, NOISE["rate_deg_s"], n)
+            )
         if with_ay:
             signals["lateral_accel_m_s2"] = r["lateral_accel_m_s2"][idx] + rng.normal(
                 0, NOISE["ay"], n
@@ -75,23 +83,50 @@ def by_name(fit):
     return {e.name: e for e in fit.estimates}
 
 
-def test_a_round_trip_recovers_the_parameters_and_the_torque():
+@functools.cache
+def excitation_runs():
+    """clean_runs and what pins the tyre spin's speed term K5 and the damping K9: a parking
+    cycle at 6 km/h beside the one at standstill, and an ISO 7401 frequency sweep at 60 km/h."""
+    _, truth = car()
+    extra = []
+    for name, kmh in (("steer-cycle", 6.0), ("iso7401-sweep", None)):
+        full = simulate_steering(truth, manoeuvres.build(name, truth.vehicle, kmh))
+        extra.append((f"{name}-{kmh or 60:g}kmh", Result(full.time_s, {
+            k: v for k, v in full.signals.items() if k != "segment"})))  # fmt: skip
+    return (*clean_runs(), *extra)
+
+
+def test_noise_on_every_channel_leaves_each_k_within_3_percent_and_2_sigmas():
+    """The issue's acceptance: noise on torque, angle, rate, speed and Ay (levels above), an
+    angle offset and a torque bias. Before the regressors were conditioned, 0.05 m/s of speed
+    noise alone moved K5 by -19 % and K4 by -3.7 %, Ay noise K2 by -6 %. Measured over 4 seeds
+    with the new fit: every K within 1.3 %, the scatter matching the reported sigmas."""
     base, _ = car()
-    fit = fit_steering(measured(clean_runs()), base)
+    fit = fit_steering(measured(excitation_runs(), rate=True), base)
     got = by_name(fit)
-    # The rate is derived from an angle with 0.02 deg of noise: the friction's sharp scale K8
-    # and the tyre-spin speed term K5 take the brunt (noise blurs the rate near zero): 20 %;
-    # the others within 10 %.
+    within = 0
     for name, truth in TRUE.items():
-        tolerance = 0.2 if name in ("k5_s_m_Nm", "k8_rad_s") else 0.1
-        assert got[name].value == pytest.approx(truth, rel=tolerance), name
-    assert fit.torque_offset_Nm == pytest.approx(TORQUE_BIAS_NM, abs=0.01)
-    # The residual is the sensors' noise: 0.05 Nm of torque and 0.05 m/s^2 of Ay times K1
-    # (0.095 Nm) add to 0.107 Nm; allow 20 % for the rate's error.
-    noise_floor = np.hypot(NOISE["torque"], NOISE["ay"] * TRUE["k1_Nm_s2_m"])
-    assert fit.rms_error_Nm < 1.2 * noise_floor
+        assert got[name].status == "fitted", name
+        assert got[name].value == pytest.approx(truth, rel=0.03), name
+        within += abs(got[name].value - truth) <= 2 * got[name].sigma
+    assert within >= 8
+    assert fit.torque_offset_Nm == pytest.approx(TORQUE_BIAS_NM, abs=0.02)
+    # The residual is the sensors' noise: 0.05 Nm of torque and what is left of 0.05 m/s^2 of
+    # Ay times K1 after its 4 Hz low-pass (about 0.02 Nm); allow 30 % for the rest.
+    assert fit.rms_error_Nm < 1.3 * np.hypot(NOISE["torque"], 0.02)
     assert fit.r2 > 0.99
     assert fit.warnings == ()
+
+
+def test_a_rate_derived_from_a_noisy_angle_still_recovers_the_parameters():
+    base, _ = car()
+    got = by_name(fit_steering(measured(clean_runs()), base))
+    # The derived rate's noise (about 0.2 deg/s from 0.02 deg over 81 ms) blurs the rate near
+    # zero, where the friction's sharp scale K8 and the tyre spin's speed term K5 are seen: 30 %
+    # for those two (measured +23 % on K5), 10 % for the others.
+    for name, truth in TRUE.items():
+        tolerance = 0.3 if name in ("k5_s_m_Nm", "k8_rad_s") else 0.1
+        assert got[name].value == pytest.approx(truth, rel=tolerance), name
 
 
 def test_outliers_and_gaps_do_not_drag_the_fit():
@@ -104,12 +139,23 @@ def test_outliers_and_gaps_do_not_drag_the_fit():
     assert dirty["k7_Nm"].value == pytest.approx(clean["k7_Nm"].value, rel=0.1)
 
 
-def test_too_little_excitation_warns():
+def test_what_the_logs_cannot_identify_keeps_the_base_value_and_says_so():
     base, _ = car()
     weave_only = [run for run in clean_runs() if run[0].startswith("weave")]
     fit = fit_steering(measured(weave_only), base)
-    assert any("tyre spin (K4, K5, K6) is not identifiable" in w for w in fit.warnings)
-    assert any("saturation (K2, K3) is not identifiable" in w for w in fit.warnings)
+    got = by_name(fit)
+    # No parking, Ay under 3 m/s^2: K2..K6 are the base's (not the truth's, which differs).
+    for name in ("k2", "k3", "k4_1_Nm", "k5_s_m_Nm", "k6_rad_s"):
+        assert got[name].status == "kept", name
+        assert got[name].value == getattr(base.torque, name) != TRUE[name], name
+        assert math.isnan(got[name].sigma)
+    assert any("k4_1_Nm, k5_s_m_Nm, k6_rad_s not identifiable" in w for w in fit.warnings)
+    assert any("k2, k3 not identifiable" in w for w in fit.warnings)
+    # Nothing is left at a bound.
+    from carfeel.identification.steering_fit import LOWER, UPPER
+
+    for e, lo, hi in zip(fit.estimates, LOWER, UPPER, strict=False):
+        assert lo < e.value < hi, e.name
 
 
 def test_without_measured_ay_the_car_model_supplies_it_and_can_be_fitted():
@@ -186,6 +232,10 @@ def test_fit_and_validate_from_the_command_line(tmp_path, capsys):
                  "--json"]) == 0  # fmt: skip
     figures = json.loads(capsys.readouterr().out)
     assert figures["r2"] > 0.99 and figures["rms_error"] < 0.2
+    # The correlations of the fitted parameters: a symmetric matrix with a unit diagonal.
+    names, matrix = figures["correlation"]["parameters"], np.array(figures["correlation"]["matrix"])
+    assert "k1_Nm_s2_m" in names and matrix.shape == (len(names), len(names))
+    assert np.allclose(np.diag(matrix), 1.0, atol=1e-3) and np.allclose(matrix, matrix.T)
     fitted = load(str(preset)).params.torque
     assert fitted.k1_Nm_s2_m == pytest.approx(TRUE["k1_Nm_s2_m"], rel=0.1)
     assert (fit_report / "index.html").is_file()
@@ -226,7 +276,8 @@ def test_malformed_logs_exit_2_from_the_command_line(tmp_path, capsys):
     paths = write_logs(tmp_path, logs_from=("weave", "iso4138-left"))
     assert main(["fit", "steering", *paths, "--out", str(tmp_path / "p.toml")]) == 0
     summary = capsys.readouterr().out
-    assert "fitted 10 parameters" in summary and "k1_Nm_s2_m" in summary  # K1..K9 + offset
+    # weave + ISO 4138: no parking, so K4..K6 are kept (and what else the two cannot place)
+    assert "of 9 parameters" in summary and "kept from the base" in summary
 
 
 def weave_signals(degrees=False, km_h=False, flip_torque=False):
@@ -280,14 +331,16 @@ def test_carfeels_own_torque_column_is_accepted():
     assert np.array_equal(log.torque_Nm, signals["torque_Nm"])
 
 
-def test_a_parameter_the_data_cannot_see_gets_an_infinite_sigma_and_a_warning():
+def test_a_parameter_the_data_cannot_see_is_kept_from_the_base_and_marked():
     base, _ = car()
     time, signals = weave_signals()
     # No lateral acceleration at all: K1..K3 multiply zero, nothing in the data moves them.
     signals["lateral_accel_m_s2"] = np.zeros_like(time)
     fit = fit_steering([read_log(Result(time, signals), "no-ay.csv")], base)
-    assert math.isinf(by_name(fit)["k1_Nm_s2_m"].sigma)
-    assert any(w.startswith("k1_Nm_s2_m = ") for w in fit.warnings)
+    k1 = by_name(fit)["k1_Nm_s2_m"]
+    assert k1.status == "kept" and k1.value == base.torque.k1_Nm_s2_m
+    assert "do not constrain it" in k1.note
+    assert any(w.startswith("k1_Nm_s2_m not identifiable") for w in fit.warnings)
 
 
 def test_one_log_in_degrees_among_good_ones_is_refused_by_name():
@@ -316,7 +369,7 @@ def test_a_steady_circle_one_way_is_not_taken_for_a_flipped_sign():
         _check_units([flipped], base.vehicle)
 
 
-def test_json_has_null_for_an_infinite_sigma(tmp_path, capsys):
+def test_json_has_null_for_a_kept_parameters_sigma(tmp_path, capsys):
     import json
 
     from carfeel.cli import main
@@ -329,3 +382,153 @@ def test_json_has_null_for_an_infinite_sigma(tmp_path, capsys):
     printed = capsys.readouterr().out
     fitted = json.loads(printed, parse_constant=lambda token: pytest.fail(f"{token} in JSON"))
     assert fitted["parameters"]["k1_Nm_s2_m"]["sigma"] is None
+    assert fitted["parameters"]["k1_Nm_s2_m"]["status"] == "kept"
+
+
+def test_the_analytic_jacobian_matches_finite_differences():
+    from carfeel.identification.steering_fit import PAPER_LAW
+
+    rng = np.random.default_rng(4)
+    n = 400
+    speed, rate = rng.uniform(0, 40, n), rng.normal(0, 1.0, n)
+    ay = rng.normal(0, 4.0, n)
+    x = np.array(list(TRUE.values()))
+    analytic = PAPER_LAW.jacobian(x, speed, rate, ay)
+    for j in range(len(x)):
+        h = 1e-6 * max(abs(x[j]), 1e-3)
+        up, down = x.copy(), x.copy()
+        up[j] += h
+        down[j] -= h
+        numeric = PAPER_LAW.torque(up, speed, rate, ay) - PAPER_LAW.torque(down, speed, rate, ay)
+        numeric /= 2 * h
+        # Central differences are good to about h^2 and 1e-10 / h of rounding: 1e-5 of the scale.
+        assert np.allclose(analytic[:, j], numeric, rtol=1e-5, atol=1e-6 * np.abs(numeric).max())
+
+
+def test_a_torque_logged_late_is_found_and_corrected():
+    base, _ = car()
+    chosen = [r for r in clean_runs() if r[0].startswith(("weave", "steer-cycle", "iso3888",
+                                                          "iso7401"))]  # fmt: skip
+    fit = fit_steering(measured(chosen, rate=True, delay_s=0.04), base)
+    # 40 ms, as a CAN message queued behind others; found within 5 ms (a sample is 5 ms).
+    assert fit.torque_delay_s == pytest.approx(0.04, abs=0.005)
+    assert by_name(fit)["k1_Nm_s2_m"].value == pytest.approx(TRUE["k1_Nm_s2_m"], rel=0.03)
+
+
+def another_car(rear_scale=0.85, **torque):
+    """A base that is not the true car: a softer rear axle (less understeer) and other K's."""
+    base, _ = car()
+    vehicle = dataclasses.replace(
+        base.vehicle,
+        rear_cornering_stiffness_N_rad=base.vehicle.rear_cornering_stiffness_N_rad * rear_scale,
+    )
+    law = dataclasses.replace(base.torque, k1_Nm_s2_m=3.0, k7_Nm=1.0, k9_Nm_s_rad=0.3, **torque)
+    return dataclasses.replace(base, vehicle=vehicle, torque=law)
+
+
+def test_fit_vehicle_from_another_base_finds_the_true_understeer():
+    _, truth = car()
+    other = another_car()
+    k_us = truth.vehicle.understeer_gradient_rad_s2_m
+    assert other.vehicle.understeer_gradient_rad_s2_m < 0.8 * k_us  # a start away from it
+    chosen = [r for r in clean_runs() if r[0] != "iso4138-right"]  # the left turn suffices
+    fit = fit_steering(measured(chosen, with_ay=False, rate=True), other, fit_vehicle=True)
+    got = by_name(fit)
+    # Ay from the transient car (not its steady state), so the phase of the lane change and the
+    # step steer does not land in K7..K9; what is left is the angle offset of 0.3 deg (an Ay
+    # offset growing with V^2 that the per-log torque offset absorbs only in part): 5 % on
+    # K_us and K1, 10 % on the friction and damping.
+    assert got["understeer_gradient_rad_s2_m"].value == pytest.approx(k_us, rel=0.05)
+    assert got["k1_Nm_s2_m"].value == pytest.approx(TRUE["k1_Nm_s2_m"], rel=0.05)
+    for name in ("k7_Nm", "k9_Nm_s_rad"):
+        assert got[name].value == pytest.approx(TRUE[name], rel=0.1), name
+
+
+def test_base_another_car_from_the_command_line(tmp_path, capsys):
+    import json
+
+    from carfeel.cli import main
+    from carfeel.io.presets import load_steering as load
+    from carfeel.io.presets import to_toml
+
+    other = another_car(rear_scale=0.9)
+    base_path = tmp_path / "other-car.toml"
+    base_path.write_text(to_toml("other-car", "a test car", {
+        "vehicle": other.vehicle, "torque": other.torque, "driver": other.driver}))  # fmt: skip
+    paths = write_logs(tmp_path, logs_from=("weave", "iso4138-left"))  # no parking
+    out = tmp_path / "mine.toml"
+    assert main(["fit", "steering", *paths, "--base", str(base_path), "--out", str(out),
+                 "--json"]) == 0  # fmt: skip
+    printed = json.loads(capsys.readouterr().out)
+    written = load(str(out)).params
+    # The fitted K's are the logs' car, not the base's; what the logs cannot identify (tyre
+    # spin, no parking) is the base's, marked so; the car (ratio, wheelbase, K_us) is the base's.
+    assert written.torque.k1_Nm_s2_m == pytest.approx(TRUE["k1_Nm_s2_m"], rel=0.05)
+    for name in ("k4_1_Nm", "k5_s_m_Nm", "k6_rad_s"):
+        assert getattr(written.torque, name) == getattr(other.torque, name)
+        assert printed["parameters"][name]["status"] == "kept"
+    assert written.vehicle == other.vehicle
+    assert "kept from the base preset" in out.read_text()
+
+
+def test_drift_and_cross_validation_from_the_command_line(tmp_path, capsys):
+    """A torque offset wandering by +-0.4 Nm over a minute (road crown, a sensor's drift): fitted
+    with --drift on the first 70 % of each log, validated on the rest, both figures side by side."""
+    import json
+
+    from carfeel.cli import main
+
+    chosen = [r for r in clean_runs() if r[0].startswith(("weave", "steer-cycle", "iso3888"))]
+    paths = []
+    for log in measured(chosen, seed=9, rate=True):
+        wander = 0.4 * np.sin(2 * np.pi * (log.time_s - log.time_s[0]) / 60.0)
+        path = tmp_path / f"{log.name}.csv"
+        Result(log.time_s, {
+            "speed_m_s": log.speed_m_s, "steering_angle_rad": log.angle_rad,
+            "steering_rate_rad_s": log.rate_rad_s, "steering_torque_Nm": log.torque_Nm + wander,
+            "lateral_accel_m_s2": log.lateral_accel_m_s2,
+        }).to_csv(path)  # fmt: skip
+        paths.append(str(path))
+    out, report_dir = tmp_path / "p.toml", tmp_path / "report"
+    assert main(["fit", "steering", *paths, "--out", str(out), "--drift", "10", "--holdout",
+                 "0.3", "--report", str(report_dir), "--json"]) == 0  # fmt: skip
+    printed = json.loads(capsys.readouterr().out)
+    assert printed["parameters"]["k1_Nm_s2_m"]["value"] == pytest.approx(1.9, rel=0.03)
+    fitted, held = printed["cross_validation"]["fit"], printed["cross_validation"]["held_out"]
+    assert len(fitted) == len(held) == len(paths)
+    # Generalization: the held-out parts' rms within 2.5x of the fitted parts' (measured 1.4x on
+    # the weave and the lane change; 2.1x on the steer cycle, whose held-out end has the wheel
+    # leave lock at 5 rad/s, a phase its fitted part holds once). Not r2: the lane change's last
+    # 2 s hold little torque to explain. Each part's drifting offset is its own.
+    for a, b in zip(fitted.values(), held.values(), strict=True):
+        assert b["rms_error_Nm"] < 2.5 * a["rms_error_Nm"]
+    page = (report_dir / "index.html").read_text()
+    assert "Cross-validation" in page and "Parameter correlations" in page
+    assert "held-out rms" in page
+    # validate on the whole logs, with the logs' own drifting offset removed and reported.
+    assert main(["validate", "--preset", str(out), *paths, "--drift", "10", "--report",
+                 str(tmp_path / "v"), "--json"]) == 0  # fmt: skip
+    checked = json.loads(capsys.readouterr().out)
+    for name, figures in checked.items():
+        assert figures["rms_error_Nm"] <= figures["rms_error_without_offset_Nm"]
+        if "weave" in name:  # longer than 1.5 knots: a drifting offset
+            assert figures["offset_range_Nm"] > 0.1, name
+
+
+def test_reported_sigmas_match_the_errors_over_repeated_noisy_fits():
+    """Four noise draws of the acceptance logs: the scatter of each estimate against the sigma
+    the fit reports (a block sandwich). With 4 draws a sample spread is good to about 40 %, so
+    the check pools the parameters: the mean of (spread / sigma)^2 within 0.3..3, and 80 % of
+    the 36 errors within 2 reported sigmas (95 % expected of honest Gaussian sigmas; the margin
+    is for the biases left, under a sigma: measured 0.9 of them)."""
+    base, _ = car()
+    values, sigmas = [], []
+    for seed in range(20, 24):
+        fit = fit_steering(measured(excitation_runs(), seed=seed, rate=True), base)
+        values.append([e.value for e in fit.estimates])
+        sigmas.append([e.sigma for e in fit.estimates])
+    v, s = np.array(values), np.array(sigmas)
+    truth = np.array(list(TRUE.values()))
+    ratio = np.mean((np.std(v, axis=0, ddof=1) / np.median(s, axis=0)) ** 2)
+    assert 0.3 < ratio < 3.0
+    assert np.mean(np.abs(v - truth) <= 2 * s) >= 0.8

@@ -12,7 +12,17 @@ import sys
 from collections.abc import Sequence
 
 from carfeel import __version__
-from carfeel.commands import demo, devices, identify, metrics, presets, run, simulate, telemetry
+from carfeel.commands import (
+    channels,
+    demo,
+    devices,
+    identify,
+    metrics,
+    presets,
+    run,
+    simulate,
+    telemetry,
+)
 from carfeel.errors import CarfeelError
 
 DESCRIPTION = """\
@@ -46,7 +56,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"carfeel {__version__}")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
-    for family in (demo, simulate, metrics, run, identify, devices, presets, telemetry):
+    families = (demo, simulate, metrics, run, identify, channels, devices, presets, telemetry)
+    for family in families:
         family.register(commands)
     return parser
 

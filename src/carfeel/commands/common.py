@@ -98,3 +98,15 @@ def outputs_of(args: argparse.Namespace) -> Staging:
         plot = outputs.add(Path(args.plot), ".png")
         finals[str(plot)] = args.plot
     return Staging(outputs, staged, plot, finals)
+
+
+def source_options(parser: argparse.ArgumentParser) -> None:
+    """--channels and --dbc: how to read logs that are not carfeel's CSV (`carfeel.io.logs`)."""
+    parser.add_argument("--channels", metavar="MAP.toml",
+                        help="channel map: which signal of the logs is which channel, with units "
+                        "(README, 'Channel maps')")  # fmt: skip
+    parser.add_argument("--dbc", metavar="FILE.dbc", help="DBC to decode CAN logs with")
+
+
+def sources_of(args: argparse.Namespace) -> tuple[Path | None, Path | None]:
+    return (Path(args.channels) if args.channels else None, Path(args.dbc) if args.dbc else None)

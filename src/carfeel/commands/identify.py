@@ -8,6 +8,9 @@ from typing import Any
 
 from carfeel.commands.common import (
     check_writable,
+    positive_float,
+    source_options,
+    sources_of,
     to_json,
 )
 from carfeel.errors import InputError
@@ -36,6 +39,13 @@ def register(commands: Any) -> None:
     fit_steer.add_argument("--fit-vehicle", action="store_true",
                            help="also fit the understeer gradient (logs without Ay)")  # fmt: skip
     fit_steer.add_argument("--report", metavar="DIR", help="write a report (HTML + PNG)")
+    fit_steer.add_argument("--drift", type=positive_float, metavar="SECONDS",
+                           help="let the torque offset drift: knots this far apart (road crown, "
+                           "sensor drift); default one constant offset per log")  # fmt: skip
+    fit_steer.add_argument("--holdout", type=float, default=0.0, metavar="FRACTION",
+                           help="validate on the last FRACTION of each log, fit on the rest; "
+                           "both figures side by side")  # fmt: skip
+    source_options(fit_steer)
     fit_steer.add_argument("--json", action="store_true", help="print the fit as one JSON object")
     fit_shift = fit_kinds.add_parser(
         "shift",
@@ -48,6 +58,7 @@ def register(commands: Any) -> None:
     fit_shift.add_argument("--base", default="paper-first-gear", metavar="NAME|PATH",
                            help="shift preset the fit starts from")  # fmt: skip
     fit_shift.add_argument("--report", metavar="DIR", help="write a report (HTML + PNG)")
+    source_options(fit_shift)
     fit_shift.add_argument("--json", action="store_true", help="print the fit as one JSON object")
     fit.set_defaults(handler=_fit)
 
@@ -59,8 +70,14 @@ def register(commands: Any) -> None:
         "measured and modelled side by side.",
     )
     validate.add_argument("logs", nargs="+", metavar="LOG.csv")
-    validate.add_argument("--preset", required=True, metavar="PRESET.toml")
-    validate.add_argument("--report", required=True, metavar="DIR")
+    validate.add_argument("--preset", required=True, metavar="PRESET.toml",
+                          help="the preset to check against the logs")  # fmt: skip
+    validate.add_argument("--report", required=True, metavar="DIR",
+                          help="folder for the report (HTML + PNG)")  # fmt: skip
+    validate.add_argument("--drift", type=positive_float, metavar="SECONDS",
+                          help="remove each log's own drifting torque offset (knots this far "
+                          "apart) before the figures; default a constant one")  # fmt: skip
+    source_options(validate)
     validate.add_argument("--json", action="store_true", help="print the figures as JSON")
     validate.set_defaults(handler=_validate)
 
@@ -72,11 +89,12 @@ def _fit(args: argparse.Namespace) -> int:
     check_writable(out, ".toml")
     report_dir = Path(args.report) if args.report else None
     if args.kind == "steering":
-        from carfeel.identification.workflows import fit_steering_logs, fit_summary
+        from carfeel.identification.workflows import Sources, fit_steering_logs, fit_summary
 
         fit = fit_steering_logs(
             [Path(p) for p in args.logs], out, base=args.base, fit_vehicle=args.fit_vehicle,
-            report_dir=report_dir, show_progress=not args.json,
+            report_dir=report_dir, show_progress=not args.json, sources=Sources(*sources_of(args)),
+            drift_s=args.drift, holdout=args.holdout,
         )  # fmt: skip
         if args.json:
             print(to_json(fit.as_dict()))
@@ -92,15 +110,18 @@ def _fit(args: argparse.Namespace) -> int:
         base=args.base,
         report_dir=report_dir,
         show_progress=not args.json,
+        channels=sources_of(args)[0],
+        dbc=sources_of(args)[1],
     )
     print(to_json(result) if args.json else shift_workflows.summary_text(result, out))
     return 0
 
 
 def _validate(args: argparse.Namespace) -> int:
-    from carfeel.identification.workflows import validate
+    from carfeel.identification.workflows import Sources, validate
 
-    figures = validate(args.preset, [Path(p) for p in args.logs], Path(args.report))
+    figures = validate(args.preset, [Path(p) for p in args.logs], Path(args.report),
+                       Sources(*sources_of(args)), args.drift)  # fmt: skip
     if args.json:
         print(to_json(figures))
     else:

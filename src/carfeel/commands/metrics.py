@@ -12,9 +12,7 @@ from typing import Any
 import numpy as np
 
 from carfeel.analysis.steering_feel import SteeringFeel, steering_feel
-from carfeel.commands.common import (
-    to_json,
-)
+from carfeel.commands.common import source_options, sources_of, to_json
 from carfeel.errors import InputError
 from carfeel.io.presets import load_steering
 from carfeel.simulation.result import Result
@@ -62,13 +60,29 @@ def feel_of(
     )
 
 
-def steering_metrics(csv_path: Path, preset: str | None = None) -> SteeringFeel:
-    """The feel metrics of a steering CSV (a run of carfeel's or a measured log).
+def steering_metrics(
+    csv_path: Path,
+    preset: str | None = None,
+    channels: Path | None = None,
+    dbc: Path | None = None,
+) -> SteeringFeel:
+    """The feel metrics of a steering CSV (a run of carfeel's or a measured log; other formats
+    and a channel map through `carfeel.io.logs`).
 
     The understeer gradient needs the steering ratio and wheelbase: from `preset` if given, else
     from the run's metadata file beside the CSV, else the default car preset.
     """
-    result = Result.from_csv(csv_path)
+    from carfeel.identification.common import read_results
+
+    result = read_results([csv_path], channels, dbc)[0]
+    if "torque_Nm" not in result.names and "steering_torque_Nm" in result.names:
+        result = Result(
+            result.time_s,
+            {
+                ("torque_Nm" if k == "steering_torque_Nm" else k): v
+                for k, v in result.signals.items()
+            },
+        )
     missing = [c for c in REQUIRED_STEERING_COLUMNS if c not in result.names]
     if missing:
         raise InputError(
@@ -133,6 +147,7 @@ def register(commands: Any) -> None:
     )
     feel.add_argument("csv", metavar="FILE.csv", help="run or log to analyse")
     feel.add_argument("--json", action="store_true", help="print one JSON object")
+    source_options(feel)
     feel.add_argument(
         "--preset",
         default=None,
@@ -149,7 +164,7 @@ def _handle(args: argparse.Namespace) -> int:
 
 
 def _metrics_steering(args: argparse.Namespace) -> int:
-    feel = steering_metrics(Path(args.csv), args.preset)
+    feel = steering_metrics(Path(args.csv), args.preset, *sources_of(args))
     if args.json:
         values = {k: (None if math.isnan(v) else v) for k, v in feel.as_dict().items()}
         print(to_json({**values, "notes": list(feel.notes)}))

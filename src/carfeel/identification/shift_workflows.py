@@ -9,8 +9,8 @@ from typing import Any
 
 from carfeel import __version__
 from carfeel.identification import rms_r2
+from carfeel.identification.common import Progress, read_results, write_checked_preset
 from carfeel.identification.shift_fit import checked_columns, fit_shift, resimulate
-from carfeel.identification.workflows import Progress, write_checked_preset
 from carfeel.io import report
 from carfeel.io.presets import load_shift, to_toml
 from carfeel.simulation.result import Result
@@ -19,10 +19,12 @@ from carfeel.simulation.shift import ShiftParams
 COLUMNS = ("time_s", "position_m", "force_N")
 
 
-def read_traces(paths: Sequence[Path]) -> list[Result]:
+def read_traces(
+    paths: Sequence[Path], channels: Path | None = None, dbc: Path | None = None
+) -> list[Result]:
     traces = []
-    for path in paths:
-        t, x, f = checked_columns(Result.from_csv(path), str(path))
+    for path, result in zip(paths, read_results(paths, channels, dbc), strict=True):
+        t, x, f = checked_columns(result, str(path))
         traces.append(Result(t, {"position_m": x, "force_N": f}, {"name": Path(path).name}))
     return traces
 
@@ -67,10 +69,12 @@ def fit_shift_traces(
     base: str = "paper-first-gear",
     report_dir: Path | None = None,
     show_progress: bool = True,
+    channels: Path | None = None,
+    dbc: Path | None = None,
 ) -> dict[str, Any]:
     """Fit the engagement to the traces; write the preset (and the report); the fit as data."""
     preset = load_shift(base)
-    traces = read_traces(paths)
+    traces = read_traces(paths, channels, dbc)
     folder = report.prepare(report_dir) if report_dir is not None else None
     progress = Progress("fitting the shift", show_progress)
     fit = fit_shift(traces, preset.params, progress=progress)
@@ -109,8 +113,14 @@ def fit_shift_traces(
     return result
 
 
-def validate_traces(params: ShiftParams, paths: Sequence[Path], report_dir: Path) -> dict[str, Any]:
-    traces = read_traces(paths)
+def validate_traces(
+    params: ShiftParams,
+    paths: Sequence[Path],
+    report_dir: Path,
+    channels: Path | None = None,
+    dbc: Path | None = None,
+) -> dict[str, Any]:
+    traces = read_traces(paths, channels, dbc)
     folder = report.prepare(report_dir)
     sections, figures = _sections(params, traces, paths, folder)
     report.write(folder, "Validation of a shift preset", sections)

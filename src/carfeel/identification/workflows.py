@@ -3,9 +3,9 @@ reports. Functions over paths and small configs; the CLI only parses and prints.
 
 from __future__ import annotations
 
-import sys
-import time
+import dataclasses
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -15,12 +15,14 @@ from carfeel import __version__
 from carfeel.analysis.steering_feel import steering_feel
 from carfeel.errors import InputError, PresetError
 from carfeel.identification import rms_r2
+from carfeel.identification.common import Progress, read_results, write_checked_preset
 from carfeel.identification.steering_fit import (
     SteeringFit,
     SteeringLog,
     fit_steering,
+    offset_basis,
     read_log,
-    steady_ay,
+    transient_ay,
 )
 from carfeel.io import report
 from carfeel.io.presets import load_steering, to_toml
@@ -34,63 +36,70 @@ FEEL_KEYS = (
 )  # fmt: skip
 
 
-class Progress:
-    """A one-line progress display on stderr, for fits that take more than a moment."""
+@dataclass(frozen=True)
+class Sources:
+    """Where the logs come from: a channel map and a DBC for files other than carfeel's CSV."""
 
-    def __init__(self, label: str, enabled: bool) -> None:
-        self.label, self.enabled = label, enabled and sys.stderr.isatty()
-        self.start = time.monotonic()
-        self.shown = False
-
-    def __call__(self, evaluations: int, rms: float) -> None:
-        if self.enabled and time.monotonic() - self.start > 0.5:
-            self.shown = True
-            print(f"\r{self.label}: evaluation {evaluations}, rms {rms:.4g}", end="",
-                  file=sys.stderr, flush=True)  # fmt: skip
-
-    def done(self) -> None:
-        if self.shown:
-            print(file=sys.stderr)
+    channels: Path | None = None
+    dbc: Path | None = None
 
 
-def write_checked_preset(kind: str, out: Path, text: str) -> None:
-    """Write a fitted preset only if carfeel's own loader accepts it (ranges, cross-checks);
-    else InputError: a fit that leaves the physical ranges means the data, not the preset."""
-    from carfeel.io.presets import from_toml
-
-    try:
-        from_toml(kind, str(out), text)
-    except PresetError as exc:
-        raise InputError(
-            f"the fit gives a {kind} preset that carfeel would refuse, so {out} is not written:"
-            f"\n{exc}\ncheck the logs' units and sign conventions (README, 'From your own car's "
-            "logs') and that they hold the manoeuvres the fit needs"
-        ) from None
-    out.write_text(text)
-
-
-def load_logs(paths: Sequence[Path]) -> list[SteeringLog]:
-    logs = []
-    for path in paths:
-        logs.append(read_log(Result.from_csv(path), str(path)))
-    return logs
+def load_logs(
+    paths: Sequence[Path], sources: Sources = Sources(), holdout: float = 0.0
+) -> tuple[list[SteeringLog], list[SteeringLog]]:
+    """The logs to fit, and with `holdout` > 0 the last fraction of each (in time) kept apart
+    to validate on: a guard against over-fitting."""
+    if not 0.0 <= holdout < 0.9:
+        raise InputError(f"--holdout {holdout:g}: give a fraction of each log from 0 to 0.9")
+    fitted: list[SteeringLog] = []
+    held: list[SteeringLog] = []
+    for path, result in zip(paths, read_results(paths, sources.channels, sources.dbc), strict=True):
+        if holdout == 0.0:
+            fitted.append(read_log(result, str(path)))
+            continue
+        t = result.time_s
+        cut = t[0] + (1.0 - holdout) * (t[-1] - t[0])
+        for keep, into, label in ((t < cut, fitted, "fit part"), (t >= cut, held, "held out")):
+            part = Result(t[keep], {k: v[keep] for k, v in result.signals.items()})
+            into.append(read_log(part, f"{path} ({label})"))
+    return fitted, held
 
 
-def model_torque(car: SteeringCar, log: SteeringLog) -> tuple[np.ndarray, np.ndarray]:
-    """(Ay, model torque) for a log: its measured Ay, else the car's steady state."""
-    v = car.vehicle
+def model_torque(
+    car: SteeringCar, log: SteeringLog, delay_s: float = 0.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """(Ay, model torque) for a log: its measured Ay, else the transient car's from the logged
+    angle and speed; the regressors delayed by `delay_s` (the torque's logging delay)."""
     ay = (
         log.lateral_accel_m_s2
         if log.lateral_accel_m_s2 is not None
-        else steady_ay(log.speed_m_s, log.angle_rad, v.steering_ratio,
-                       v.understeer_gradient_rad_s2_m, v.wheelbase_m)
-    )  # fmt: skip
-    torque = torque_terms(log.speed_m_s, log.rate_rad_s, ay, car.torque, atan=np.arctan)[0]
+        else transient_ay(log.time_s, log.speed_m_s, log.angle_rad, car.vehicle)
+    )
+    speed, rate = log.speed_m_s, log.rate_rad_s
+    if delay_s != 0.0:
+        speed, rate, ay = (
+            np.interp(log.time_s - delay_s, log.time_s, v) for v in (speed, rate, ay)
+        )
+    torque = torque_terms(speed, rate, ay, car.torque, atan=np.arctan)[0]
     return np.asarray(ay), np.asarray(torque)
 
 
+def _own_offset(log: SteeringLog, residual: np.ndarray, drift_s: float | None) -> np.ndarray:
+    """The log's own torque offset (constant, or drifting with knots `drift_s` apart): a
+    nuisance of the sensor and the road, estimated from this log's residual alone."""
+    basis = offset_basis(log.time_s, drift_s)
+    coefficients = np.linalg.lstsq(basis, residual, rcond=None)[0]
+    return np.asarray(basis @ coefficients)
+
+
 def steering_sections(
-    car: SteeringCar, logs: Sequence[SteeringLog], folder: Path
+    car: SteeringCar,
+    logs: Sequence[SteeringLog],
+    folder: Path,
+    *,
+    drift_s: float | None = None,
+    delay_s: float = 0.0,
+    first: int = 1,
 ) -> tuple[list[report.Section], dict[str, dict[str, float]]]:
     """Per log: overlays, residuals and the feel metrics measured vs model; and the figures
     (rms_error_Nm, r2) by log name."""
@@ -98,10 +107,16 @@ def steering_sections(
 
     sections, figures = [], {}
     ratio, base = car.vehicle.steering_ratio, car.vehicle.wheelbase_m
-    for i, log in enumerate(logs):
-        ay, model = model_torque(car, log)
+    for i, log in enumerate(logs, start=first - 1):
+        ay, model = model_torque(car, log, delay_s)
+        offset = _own_offset(log, log.torque_Nm - model, drift_s)
+        raw_rms, _ = rms_r2(log.torque_Nm, model)
+        model = model + offset
         rms, r2 = rms_r2(log.torque_Nm, model)
-        figures[log.name] = {"rms_error_Nm": rms, "r2": r2}
+        figures[log.name] = {
+            "rms_error_Nm": rms, "r2": r2, "offset_Nm": float(np.mean(offset)),
+            "offset_range_Nm": float(np.ptp(offset)), "rms_error_without_offset_Nm": raw_rms,
+        }  # fmt: skip
         figure = plot_torque_validation(
             log.time_s, ay, log.torque_Nm, model, folder / f"steering-{i + 1}.png",
             f"{Path(log.name).name}: measured vs model",
@@ -115,11 +130,14 @@ def steering_sections(
             [key, report.number(getattr(measured, key)), report.number(getattr(simulated, key))]
             for key in FEEL_KEYS
         ]
-        source = "measured" if log.lateral_accel_m_s2 is not None else "from the car model"
+        source = (
+            "measured" if log.lateral_accel_m_s2 is not None else "from the transient car model"
+        )
         sections.append(report.Section(
             f"Log {i + 1}: {log.name}",
-            [f"rms error {rms:.4g} Nm, mean residual {np.mean(model - log.torque_Nm):.3g} Nm, "
-             f"r2 {r2:.4f}, {len(log.time_s)} samples, Ay {source}"],
+            [f"rms error {rms:.4g} Nm, r2 {r2:.4f}, with the log's own torque offset "
+             f"(mean {np.mean(offset):.3g} Nm, range {np.ptp(offset):.3g} Nm) removed; "
+             f"{raw_rms:.4g} Nm without it; {len(log.time_s)} samples, Ay {source}"],
             table, [figure],
         ))  # fmt: skip
     return sections, figures
@@ -133,55 +151,114 @@ def fit_steering_logs(
     fit_vehicle: bool = False,
     report_dir: Path | None = None,
     show_progress: bool = True,
+    sources: Sources = Sources(),
+    drift_s: float | None = None,
+    holdout: float = 0.0,
 ) -> SteeringFit:
-    """Fit the torque law to the logs; write the preset (and the report)."""
+    """Fit the torque law to the logs; write the preset (and the report). With `holdout`, the
+    last fraction of each log is validated on, and both figures are in `fit.per_log`."""
     preset = load_steering(base)
-    logs = load_logs(paths)
+    logs, held = load_logs(paths, sources, holdout)
     folder = report.prepare(report_dir) if report_dir is not None else None
     progress = Progress("fitting K1..K9", show_progress)
-    fit = fit_steering(logs, preset.params, fit_vehicle=fit_vehicle, progress=progress)
+    fit = fit_steering(logs, preset.params, fit_vehicle=fit_vehicle, drift_s=drift_s,
+                       progress=progress)  # fmt: skip
     progress.done()
+    held_figures: dict[str, dict[str, float]] = {}
+    held_sections: list[report.Section] = []
+    if held:
+        if folder is not None:
+            held_sections, held_figures = steering_sections(
+                fit.car, held, folder, drift_s=drift_s, delay_s=fit.torque_delay_s,
+                first=len(logs) + 1,
+            )  # fmt: skip
+        else:
+            held_figures = _figures_only(fit.car, held, drift_s, fit.torque_delay_s)
+        fit = dataclasses.replace(fit, holdout={"fit": fit.per_log, "held_out": held_figures})
     lines = [
         f"Fitted by carfeel {__version__} to {', '.join(Path(p).name for p in paths)}",
-        f"(rms error {fit.rms_error_Nm:.4g} Nm, r2 {fit.r2:.4f}; torque sensor offset "
-        f"{fit.torque_offset_Nm:.3g} Nm removed), from the base preset {preset.name}.",
-        *(f"{e.name} = {e.value:.6g} +- {e.sigma:.2g}" for e in fit.estimates),
+        f"(rms error {fit.rms_error_Nm:.4g} Nm, r2 {fit.r2:.4f}; torque offset "
+        f"{fit.torque_offset_Nm:.3g} Nm and torque delay {fit.torque_delay_s * 1e3:.3g} ms "
+        f"removed), from the base preset {preset.name}.",
+        *(f"{e.name} = {e.value:.6g} +- {e.sigma:.2g}" if e.status == "fitted"
+          else f"{e.name} = {e.value:.6g}: {e.note}" for e in fit.estimates),
         *(f"warning: {w}" for w in fit.warnings),
-    ]
+    ]  # fmt: skip
     car = fit.car
     tables = {"vehicle": car.vehicle, "torque": car.torque, "driver": car.driver}
     text = to_toml(out.stem, "\n".join(lines), tables)
     write_checked_preset("steering", out, text)
     if folder is not None:
-        table = [["parameter", "value", "1 sigma"]] + [
-            [e.name, report.number(e.value, 6), report.number(e.sigma, 2)] for e in fit.estimates
+        table = [["parameter", "value", "1 sigma", "status"]] + [
+            [e.name, report.number(e.value, 6), report.number(e.sigma, 2),
+             e.status if e.status == "fitted" else f"kept: {e.note}"]
+            for e in fit.estimates
+        ]  # fmt: skip
+        names, matrix = fit.correlation
+        correlation = [["", *names]] + [
+            [n, *(report.number(v, 2) for v in row)] for n, row in zip(names, matrix, strict=True)
         ]
         summary = report.Section(
             "Fit",
-            [f"rms error {fit.rms_error_Nm:.4g} Nm, r2 {fit.r2:.4f}, {fit.iterations} evaluations",
+            [f"rms error {fit.rms_error_Nm:.4g} Nm, r2 {fit.r2:.4f}, {fit.iterations} evaluations; "
+             f"torque logged {fit.torque_delay_s * 1e3:.3g} ms after the other channels "
+             "(corrected). One sigma from a block sandwich covariance (blocks of 2 s).",
              *(f"Warning: {w}" for w in fit.warnings)],
             table,
         )  # fmt: skip
-        sections, _ = steering_sections(car, logs, folder)
-        report.write(folder, f"Steering fit: {out.name}", [summary, *sections])
+        sections = [summary, report.Section("Parameter correlations", [], correlation)]
+        if held:
+            sections.append(report.Section(
+                "Cross-validation: the fitted part and the held-out part of each log",
+                ["Each log's last part was left out of the fit; the preset is validated on it. "
+                 "Figures with each part's own torque offset removed."],
+                [["log", "fit rms (Nm)", "fit r2", "held-out rms (Nm)", "held-out r2"]]
+                + [[a.removesuffix(" (fit part)"), report.number(fa["rms_error_Nm"]),
+                    report.number(fa["r2"]), report.number(fb["rms_error_Nm"]),
+                    report.number(fb["r2"])]
+                   for (a, fa), fb in zip(fit.per_log.items(), held_figures.values(), strict=True)],
+            ))  # fmt: skip
+        log_sections, _ = steering_sections(car, logs, folder, drift_s=drift_s,
+                                            delay_s=fit.torque_delay_s)  # fmt: skip
+        sections += log_sections
+        sections += held_sections
+        report.write(folder, f"Steering fit: {out.name}", sections)
     return fit
 
 
-def validate(preset: str, paths: Sequence[Path], report_dir: Path) -> dict[str, Any]:
+def _figures_only(
+    car: SteeringCar, logs: Sequence[SteeringLog], drift_s: float | None, delay_s: float
+) -> dict[str, dict[str, float]]:
+    figures = {}
+    for log in logs:
+        _, model = model_torque(car, log, delay_s)
+        model = model + _own_offset(log, log.torque_Nm - model, drift_s)
+        rms, r2 = rms_r2(log.torque_Nm, model)
+        figures[log.name] = {"rms_error_Nm": rms, "r2": r2}
+    return figures
+
+
+def validate(
+    preset: str,
+    paths: Sequence[Path],
+    report_dir: Path,
+    sources: Sources = Sources(),
+    drift_s: float | None = None,
+) -> dict[str, Any]:
     """Run a preset's model against logs; write the report; return the figures."""
     try:
         car = load_steering(preset).params
     except PresetError as steering_error:
-        return _validate_shift(preset, paths, report_dir, steering_error)
-    logs = load_logs(paths)
+        return _validate_shift(preset, paths, report_dir, steering_error, sources)
+    logs, _ = load_logs(paths, sources)
     folder = report.prepare(report_dir)
-    sections, figures = steering_sections(car, logs, folder)
+    sections, figures = steering_sections(car, logs, folder, drift_s=drift_s)
     report.write(folder, f"Validation of {Path(preset).name}", sections)
     return figures
 
 
 def _validate_shift(
-    preset: str, paths: Sequence[Path], report_dir: Path, why: Exception
+    preset: str, paths: Sequence[Path], report_dir: Path, why: Exception, sources: Sources
 ) -> dict[str, Any]:
     from carfeel.io.presets import load_shift
 
@@ -194,14 +271,33 @@ def _validate_shift(
         ) from None
     from carfeel.identification import shift_workflows
 
-    figures: dict[str, Any] = shift_workflows.validate_traces(params, paths, report_dir)
+    figures: dict[str, Any] = shift_workflows.validate_traces(
+        params, paths, report_dir, sources.channels, sources.dbc
+    )
     return figures
 
 
 def fit_summary(fit: SteeringFit) -> str:
-    lines = [f"fitted {len(fit.estimates)} parameters in {fit.iterations} evaluations: rms error "
+    fitted = sum(e.status == "fitted" for e in fit.estimates)
+    lines = [f"fitted {fitted} of {len(fit.estimates)} parameters (and a torque offset per log) in "
+             f"{fit.iterations} evaluations: rms error "
              f"{fit.rms_error_Nm:.4g} Nm, r2 {fit.r2:.4f}"]  # fmt: skip
-    lines += [f"  {e.name:30s} {e.value:10.5g} +- {e.sigma:.2g}" for e in fit.estimates]
+    lines += [
+        f"  {e.name:30s} {e.value:10.5g} +- {e.sigma:.2g}"
+        if e.status == "fitted"
+        else f"  {e.name:30s} {e.value:10.5g}   kept from the base"
+        for e in fit.estimates
+    ]
+    lines.append(f"  torque logged {fit.torque_delay_s * 1e3:.3g} ms after the other channels")
+    if fit.holdout:
+        lines.append("  cross-validation (rms Nm, r2): fitted part | held-out part")
+        lines += [
+            f"  {a}: {fa['rms_error_Nm']:.4g}, {fa['r2']:.4f} | {fb['rms_error_Nm']:.4g}, "
+            f"{fb['r2']:.4f}"
+            for (a, fa), fb in zip(
+                fit.holdout["fit"].items(), fit.holdout["held_out"].values(), strict=True
+            )
+        ]
     lines += [f"  {name}: rms {v['rms_error_Nm']:.4g} Nm, r2 {v['r2']:.4f}"
               for name, v in fit.per_log.items()]  # fmt: skip
     lines += [f"warning: {w}" for w in fit.warnings]

@@ -1,0 +1,217 @@
+"""Readers of measured logs (CAN + DBC, MDF4, Parquet, CSV) and channel maps."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from carfeel.cli import main
+from carfeel.errors import InputError
+from carfeel.io import logs
+
+CAN = Path("/work/shared/data/can")
+RAV4_LOG = CAN / "toyota-rav4-2017-highway.candump.log"
+RAV4_DBC = CAN / "toyota-rav4-2017.dbc"
+RAV4_MAP = """
+[resample]
+rate_hz = 50.0
+[channels]
+speed_m_s = { signal = "SPEED.SPEED" }
+steering_angle_rad = { signal = "STEER_ANGLE_SENSOR.STEER_ANGLE" }
+steering_rate_rad_s = { signal = "STEER_ANGLE_SENSOR.STEER_RATE" }
+lateral_accel_m_s2 = { signal = "KINEMATICS.ACCEL_Y" }
+# The DBC gives the driver torque in raw counts: the scale is the map's (assumed here).
+[channels.steering_torque_Nm]
+signal = "STEER_TORQUE_SENSOR.STEER_TORQUE_DRIVER"
+unit = "Nm"
+scale = 0.01
+"""
+needs_rav4 = pytest.mark.skipif(not RAV4_LOG.is_file(), reason="shared RAV4 data not here")
+
+
+@needs_rav4
+def test_the_rav4_can_log_decodes_into_carfeels_channels_in_si_units(tmp_path):
+    path = tmp_path / "rav4.toml"
+    path.write_text(RAV4_MAP)
+    result = logs.read_channels(RAV4_LOG, logs.load_map(path), RAV4_DBC)
+    # 60 s at the map's 50 Hz over the span all five channels share.
+    assert 2900 < len(result) <= 3000
+    assert np.allclose(np.diff(result.time_s), 0.02)
+    # The README: a highway drive at 30-73 km/h (the DBC's km/h -> m/s), the wheel within
+    # -4.5..3 deg (deg -> rad), |Ay| under 1.5 m/s^2 (already SI).
+    assert 29.0 / 3.6 < result["speed_m_s"].max() <= 73.1 / 3.6
+    assert np.radians(-4.6) <= result["steering_angle_rad"].min() < 0
+    assert 0 < result["steering_angle_rad"].max() <= np.radians(3.1)
+    assert np.abs(result["lateral_accel_m_s2"]).max() < 1.5
+    assert np.abs(result["steering_rate_rad_s"]).max() <= np.radians(29.0) + 1e-9
+    assert np.abs(result["steering_torque_Nm"]).max() == pytest.approx(1.49, abs=0.01)
+    # Passes the steering fit's unit and sign checks as a log.
+    from carfeel.identification.steering_fit import read_log
+
+    read_log(result, "rav4")
+
+
+@needs_rav4
+def test_carfeel_channels_lists_the_rav4_signals(capsys):
+    assert main(["channels", str(RAV4_LOG), "--dbc", str(RAV4_DBC), "--json"]) == 0
+    listed = {s["signal"]: s for s in json.loads(capsys.readouterr().out)["signals"]}
+    assert listed["SPEED.SPEED"]["unit"] == "km/h"
+    assert listed["STEER_ANGLE_SENSOR.STEER_ANGLE"]["unit"] == "deg"
+    assert 80 < listed["KINEMATICS.ACCEL_Y"]["rate_hz"] < 100  # about 89 Hz on this bus
+    assert main(["channels", str(RAV4_LOG)]) == 2
+    assert "needs its DBC" in capsys.readouterr().err
+
+
+def test_a_dbc_that_does_not_decode_the_log_is_named(tmp_path, capsys):
+    log = tmp_path / "x.log"
+    log.write_text("(1.000000) can0 7FF#0011223344556677\n(1.010000) can0 7FF#0011223344556677\n")
+    dbc = tmp_path / "other.dbc"
+    dbc.write_text('VERSION ""\n\nBO_ 100 OTHER: 8 XXX\n SG_ A : 7|8@0+ (1,0) [0|255] "" XXX\n')
+    assert main(["channels", str(log), "--dbc", str(dbc)]) == 2
+    assert "none of its 2 frames decodes with" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("[channels]\nspeed = 'V'\n", "unknown channel 'speed' (did you mean 'speed_m_s'?)"),
+        ("[channels]\nspeed_m_s = { signal = 'V', unit = 'deg' }\n", "is not a unit of m/s"),
+        ("[channels]\nspeed_m_s = { signal = 'V', gain = 2 }\n", "unknown key(s) gain"),
+        ("[chanels]\n", "unknown table(s) chanels"),
+        ("not toml [", "not valid TOML"),
+    ],
+)
+def test_bad_channel_maps_are_named(tmp_path, text, message):
+    path = tmp_path / "map.toml"
+    path.write_text(text)
+    with pytest.raises(InputError, match=re.escape(message)):
+        logs.load_map(path)
+
+
+def test_a_missing_extra_names_carfeel_logs(tmp_path, monkeypatch):
+    import builtins
+
+    real = builtins.__import__
+
+    def no_pyarrow(name, *args, **kwargs):
+        if name == "pyarrow":
+            raise ImportError(name)
+        return real(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", no_pyarrow)
+    path = tmp_path / "x.parquet"
+    path.write_bytes(b"PAR1")
+    with pytest.raises(InputError, match=r"pip install 'carfeel\[logs\]'"):
+        logs.list_signals(path)
+
+
+def test_mdf4_and_parquet_of_a_run_fit_to_the_same_parameters_as_its_csv(tmp_path, capsys):
+    """One run written three ways (MDF4 by asammdf, with the angle in degrees and the speed in
+    km/h as a logger would; Parquet; CSV): the same samples in SI after the readers, so the same
+    fit to the last digit."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    from asammdf import MDF, Signal
+
+    from tests.test_steering_fit import clean_runs, measured
+
+    chosen = [r for r in clean_runs() if r[0].startswith(("weave", "steer-cycle", "iso3888"))]
+    csvs, mdfs, parquets = [], [], []
+    for log in measured(chosen, seed=5):
+        columns = {"speed_m_s": log.speed_m_s, "steering_angle_rad": log.angle_rad,
+                   "steering_torque_Nm": log.torque_Nm,
+                   "lateral_accel_m_s2": log.lateral_accel_m_s2}  # fmt: skip
+        from carfeel.simulation.result import Result
+
+        csv = tmp_path / f"{log.name}.csv"
+        Result(log.time_s, columns).to_csv(csv)
+        back = Result.from_csv(csv)  # what the CSV holds, to 10 digits
+        t = back.time_s
+        mdf = MDF(version="4.10")
+        mdf.append([
+            Signal(back["speed_m_s"] * 3.6, t, name="VehSpd", unit="km/h"),
+            Signal(np.degrees(back["steering_angle_rad"]), t, name="SWA", unit="deg"),
+            Signal(back["steering_torque_Nm"], t, name="SWT", unit="Nm"),
+            Signal(back["lateral_accel_m_s2"], t, name="AccY", unit="m/s^2"),
+        ])  # fmt: skip
+        mdf.save(tmp_path / f"{log.name}.mf4", overwrite=True)
+        mdfs.append(str(tmp_path / f"{log.name}.mf4"))
+        pq.write_table(pa.table({"time_s": t, **{k: back[k] for k in columns}}),
+                       tmp_path / f"{log.name}.parquet")  # fmt: skip
+        parquets.append(str(tmp_path / f"{log.name}.parquet"))
+        csvs.append(str(csv))
+    channel_map = tmp_path / "logger.toml"
+    channel_map.write_text(
+        "[channels]\nspeed_m_s = 'VehSpd'\nsteering_angle_rad = 'SWA'\n"
+        "steering_torque_Nm = 'SWT'\nlateral_accel_m_s2 = 'AccY'\n"
+    )
+    fits: list[dict[str, dict[str, float]]] = []
+    for paths, extra in ((csvs, []), (mdfs, ["--channels", str(channel_map)]), (parquets, [])):
+        out = tmp_path / f"p{len(fits)}.toml"
+        assert main(["fit", "steering", *paths, "--out", str(out), "--json", *extra]) == 0
+        fits.append(json.loads(capsys.readouterr().out)["parameters"])
+    for name, value in fits[0].items():
+        for other in fits[1:]:
+            # km/h and degrees back to SI cost a rounding: 1e-6 relative.
+            assert other[name]["value"] == pytest.approx(value["value"], rel=1e-6), name
+
+
+def test_bad_input_on_the_command_line_exits_2_and_writes_nothing(tmp_path, capsys):
+    from tests.test_steering_fit import write_logs
+
+    paths = write_logs(tmp_path, logs_from=("weave",))
+    out = tmp_path / "p.toml"
+    bad_map = tmp_path / "map.toml"
+    bad_map.write_text("[channels]\nsteering_torque = 'T'\n")
+    assert main(["fit", "steering", *paths, "--out", str(out), "--channels", str(bad_map)]) == 2
+    err = capsys.readouterr().err
+    assert "unknown channel 'steering_torque'" in err and "Traceback" not in err
+    assert not out.exists()
+    # A map naming a signal the file lacks: named, with the command that lists them.
+    wrong = tmp_path / "wrong.toml"
+    wrong.write_text("[channels]\nsteering_torque_Nm = 'Torque'\n")
+    assert main(["validate", "--preset", "b-segment", *paths, "--report", str(tmp_path / "r"),
+                 "--channels", str(wrong)]) == 2  # fmt: skip
+    assert "no signal 'Torque'" in capsys.readouterr().err
+    assert (
+        main(["fit", "steering", *paths, "--out", str(out), "--dbc", str(tmp_path / "no.dbc")]) == 2
+    )
+    assert "--dbc" in capsys.readouterr().err and not out.exists()
+
+
+def test_metrics_read_a_parquet_log_through_a_map(tmp_path, capsys):
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from tests.test_steering_fit import clean_runs
+
+    _, r = next(run for run in clean_runs() if run[0].startswith("weave"))
+    pq.write_table(pa.table({
+        "t": r.time_s, "v_kmh": r["speed_m_s"] * 3.6,
+        "swa_deg": np.degrees(r["steering_angle_rad"]),
+        "ay_g": r["lateral_accel_m_s2"] / 9.80665, "swt": r["torque_Nm"],
+    }), tmp_path / "weave.parquet")  # fmt: skip
+    channel_map = tmp_path / "map.toml"
+    channel_map.write_text(
+        "[channels]\nspeed_m_s = { signal = 'v_kmh', unit = 'km/h' }\n"
+        "steering_angle_rad = { signal = 'swa_deg', unit = 'deg' }\n"
+        "lateral_accel_m_s2 = { signal = 'ay_g', unit = 'g' }\n"
+        "steering_torque_Nm = { signal = 'swt', unit = 'Nm' }\n"
+    )
+    csv_path = tmp_path / "weave.csv"
+    from carfeel.simulation.result import Result
+
+    Result(r.time_s, {k: r[k] for k in ("speed_m_s", "steering_angle_rad", "lateral_accel_m_s2",
+                                         "torque_Nm")}).to_csv(csv_path)  # fmt: skip
+    assert main(["metrics", "steering", str(csv_path), "--json"]) == 0
+    from_csv = json.loads(capsys.readouterr().out)
+    assert main(["metrics", "steering", str(tmp_path / "weave.parquet"), "--channels",
+                 str(channel_map), "--json"]) == 0  # fmt: skip
+    from_parquet = json.loads(capsys.readouterr().out)
+    # The same run in km/h, degrees and g: the same feel figures after the units are converted.
+    for key in ("torque_gradient_Nm_per_g", "torque_at_0_1g_Nm", "hysteresis_Nm"):
+        assert from_parquet[key] == pytest.approx(from_csv[key], rel=1e-6), key
