@@ -4,12 +4,20 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from pathlib import Path as _Path
 
 import pytest
 
 from carfeel.io.presets import load_shift
 from carfeel.simulation.result import Result
 from carfeel.simulation.shift import ShiftParams, simulate_shift
+
+_REPO = _Path(__file__).resolve().parents[1]
+SHARED = next(
+    (p for p in (_REPO.parent / "shared", _Path("/work/shared")) if (p / "data").is_dir()),
+    _REPO.parent / "shared",
+)
+"""The shared recordings (`../shared` beside the repository, as CI lays it out)."""
 
 
 @functools.cache

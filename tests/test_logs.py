@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import re
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,8 +11,9 @@ import pytest
 from carfeel.cli import main
 from carfeel.errors import InputError
 from carfeel.io import logs
+from tests.conftest import SHARED
 
-CAN = Path("/work/shared/data/can")
+CAN = SHARED / "data" / "can"
 RAV4_LOG = CAN / "toyota-rav4-2017-highway.candump.log"
 RAV4_DBC = CAN / "toyota-rav4-2017.dbc"
 RAV4_MAP = """

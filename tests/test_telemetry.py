@@ -18,8 +18,9 @@ from carfeel.telemetry.formats import FORMATS, G, encode_carfeel
 from carfeel.telemetry.receiver import MAX_PER_POLL, Receiver, Source
 from carfeel.telemetry.source import FADE_S, STALE_AFTER_S, VehicleSource
 from carfeel.telemetry.state import NEUTRAL, REVERSE, VehicleState
+from tests.conftest import SHARED
 
-DATA = Path("/work/shared/data/telemetry")
+DATA = SHARED / "data" / "telemetry"
 AC_CAPTURE = DATA / "assetto-corsa-rtcarinfo-monza.raw"
 FORZA_CAPTURE = DATA / "forza-motorsport-2023-dash.raw"
 CAPTURE_RATE_HZ = 60.0

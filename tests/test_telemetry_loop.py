@@ -23,8 +23,9 @@ from carfeel.realtime.session import RealtimeRun, run_realtime
 from carfeel.telemetry import gearout, replay, source
 from carfeel.telemetry.gearout import GearDriver, RecordingGearOutput
 from carfeel.telemetry.source import FADE_S, STALE_AFTER_S, VehicleSource
+from tests.conftest import SHARED
 
-FORZA_CAPTURE = Path("/work/shared/data/telemetry/forza-motorsport-2023-dash.raw")
+FORZA_CAPTURE = SHARED / "data" / "telemetry" / "forza-motorsport-2023-dash.raw"
 needs_capture = pytest.mark.skipif(not FORZA_CAPTURE.is_file(), reason="no shared capture")
 PACKET_S = 1.0 / 60.0
 STOP_S, RESTART_S = 1.5, 2.2
