@@ -67,7 +67,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -808,9 +808,14 @@ def _fit_mass(
     a fraction of a sample off the force turns that ringing into damping), and the velocities
     come from a Savitzky-Golay filter (cubic, FREE_WINDOW_S) of the position whose window lies in
     the stretch. The mass goes to every stage (one lever), the damping and friction to the free
-    stages."""
+    stages. The detents' force (the base preset's profile) acts along the stretches."""
     from scipy.optimize import least_squares
     from scipy.signal import savgol_filter
+
+    from carfeel.models.gearshift.engagement import detent_force_N
+
+    # The detents seat where these traces put neutral and the gear.
+    seats = replace(gb, in_gear_position_m=settled)
 
     stretches = []
     ends = [(e.trace.index, e.plateau_end_s) for e in found]
@@ -865,7 +870,9 @@ def _fit_mass(
             pos, vel = x0 + z[4 + 2 * i] * 1e-3, v0 + z[5 + 2 * i] * 0.1
             out = [pos]
             for k in range(len(xs) - 1):
-                drive = 0.5 * (fs[k] + fs[k + 1]) - bias - friction * sign
+                # The spring-ball detents act in the free stages too (the base's profile).
+                detent = detent_force_N(pos, seats)
+                drive = 0.5 * (fs[k] + fs[k + 1]) + detent - bias - friction * sign
                 new = vel * decay + gain * drive
                 pos += 0.5 * (vel + new) * dt
                 vel = new
