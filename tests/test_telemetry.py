@@ -35,14 +35,21 @@ def _packets(path: Path, size: int) -> list[bytes]:
 
 
 def _drain(receiver: Receiver, until: float, expected: int) -> list[VehicleState]:
-    """Poll in a tight, bounded loop; keep every good state (one per datagram here)."""
+    """Poll in a tight, bounded loop; keep the latest state after each poll that had news (on a
+    loaded machine two datagrams may arrive between polls: the receiver's `packets` counts them
+    all, the list then skips one)."""
     states: list[VehicleState] = []
-    while time.monotonic() < until and len(states) < expected:
-        # One datagram a poll at most at these rates: poll, then keep the latest if fresh.
+    while time.monotonic() < until and receiver.packets < expected:
         if receiver.poll():
             states.append(receiver.latest)
         time.sleep(0.0002)
     return states
+
+
+def _in_order(states: list[VehicleState], expected: list[VehicleState]) -> bool:
+    """Every kept state is one of the expected ones, in the same order."""
+    it = iter(expected)
+    return all(any(s == e for e in it) for s in states)
 
 
 # --- the real captures ------------------------------------------------------------------------
@@ -134,9 +141,12 @@ def test_assetto_replayed_over_loopback_handshake_subscribe_dismiss() -> None:
         assert receiver.car == "ks_audi_r8_lms"
     thread.join(5.0)
     assert not thread.is_alive()
-    assert len(states) == len(packets)  # none dropped at 60 Hz
+    assert receiver.packets == len(packets)  # none dropped at 60 Hz
     expected = [formats.decode_assetto(p, VehicleState()) for p in packets]
-    assert [s.speed_m_s for s in states] == [e.speed_m_s for e in expected if e is not None]
+    speeds = [e.speed_m_s for e in expected if e is not None]
+    kept = [s.speed_m_s for s in states]
+    it = iter(speeds)
+    assert len(kept) >= 0.9 * len(speeds) and all(any(k == v for v in it) for k in kept)
     assert all(s.car == "ks_audi_r8_lms" for s in states)
 
 
@@ -163,10 +173,11 @@ def test_forza_replayed_over_loopback_no_packet_dropped() -> None:
         sender.start()
         states = _drain(receiver, time.monotonic() + 6.0, len(packets))
         sender.join(5.0)
-    assert len(states) == len(packets)
+    assert receiver.packets == len(packets)  # none dropped
     assert receiver.bad == 0
     expected = [formats.decode_forza(p, VehicleState()) for p in packets]
-    assert states == expected
+    known = [e for e in expected if e is not None]
+    assert len(states) >= 0.9 * len(expected) and _in_order(states, known)
 
 
 @needs_captures
