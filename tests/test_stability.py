@@ -377,3 +377,35 @@ def test_the_defaults_are_stable_on_every_plant(model, plant, tmp_path):
     assert np.ptp(command[last]) < 0.05 * meta["max_force"]
     if model == "hpattern":
         assert summary["gears"] == ["1", "2", "3", "4", "5", "4", "3", "2", "1"]
+
+
+def test_the_fade_is_linear_and_whole_before_a_fault():
+    """(Mutation testing found these unchecked.) Before a fault the envelope is exactly 1;
+    after one it falls linearly: half way through the fade it is one half."""
+    from carfeel.realtime.safety import Watchdog
+
+    watchdog = Watchdog(SafetyLimits(10.0, 2000.0, fade_s=0.05), 0.04)
+    assert watchdog.envelope(1e-3) == 1.0
+    watchdog.fault("test")
+    values = [watchdog.envelope(1e-3) for _ in range(50)]
+    assert values[24] == pytest.approx(0.5, abs=1e-9)
+    assert values[-1] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_the_guard_leaves_a_hand_that_shakes_the_handle_alone():
+    """A strong 10-100 Hz command while the handle moves a lot in that band is a hand at work
+    (or a vibration it feels), not a limit cycle the handle cannot follow: no fault."""
+    from carfeel.realtime.safety import OscillationGuard
+
+    guard = OscillationGuard(1, 10.0, 0.04, 1000.0)
+    trouble = None
+    for k in range(2000):
+        t = k * 1e-3
+        command = 4.0 * math.sin(2 * math.pi * 15.0 * t)
+        position = 0.012 * math.sin(2 * math.pi * 15.0 * t)  # 30 % of the travel
+        trouble = trouble or guard.check((command,), (position,), 1e-3)
+    assert trouble is None
+    still = OscillationGuard(1, 10.0, 0.04, 1000.0)
+    faults = [still.check((4.0 * math.sin(2 * math.pi * 15.0 * k * 1e-3),), (0.0,), 1e-3)
+              for k in range(2000)]  # fmt: skip
+    assert any(faults)  # the same command on a handle that does not move: a limit cycle
