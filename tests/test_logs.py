@@ -215,3 +215,35 @@ def test_metrics_read_a_parquet_log_through_a_map(tmp_path, capsys):
     # The same run in km/h, degrees and g: the same feel figures after the units are converted.
     for key in ("torque_gradient_Nm_per_g", "torque_at_0_1g_Nm", "hysteresis_Nm"):
         assert from_parquet[key] == pytest.approx(from_csv[key], rel=1e-6), key
+
+
+def test_impossible_values_duplicates_and_ay_at_a_standstill_are_refused(tmp_path, capsys):
+    """Issue 11: one 1e300 torque sample gave 1.25e297 Nm/g; the same log twice shrank the
+    sigmas; speed 0 with 2 m/s^2 of Ay fitted. Each is bad input now, with its line and fix."""
+    from carfeel.cli import main
+
+    log = tmp_path / "weave.csv"
+    assert main(["simulate", "steering", "--manoeuvre", "weave", "--out", str(log)]) == 0
+    lines = log.read_text().splitlines()
+    header = lines[0].split(",")
+    bad = tmp_path / "bad.csv"
+    row = lines[100].split(",")
+    row[header.index("torque_Nm")] = "1e300"
+    bad.write_text("\n".join([*lines[:100], ",".join(row), *lines[101:]]) + "\n")
+    capsys.readouterr()
+    assert main(["metrics", "steering", str(bad)]) == 2
+    assert "line 101: torque_Nm = 1e+300" in capsys.readouterr().err
+    out = tmp_path / "fit.toml"
+    assert main(["fit", "steering", str(log), str(log), "--out", str(out)]) == 2
+    assert "hold the same log" in capsys.readouterr().err
+    assert not out.exists()
+    parked = tmp_path / "parked.csv"
+    speed, ay = header.index("speed_m_s"), header.index("lateral_accel_m_s2")
+    rows = [lines[0]]
+    for line in lines[1:]:
+        fields = line.split(",")
+        fields[speed], fields[ay] = "0.0", "2.0"
+        rows.append(",".join(fields))
+    parked.write_text("\n".join(rows) + "\n")
+    assert main(["fit", "steering", str(parked), "--out", str(out)]) == 2
+    assert "yet Ay is 2 m/s^2" in capsys.readouterr().err

@@ -3,10 +3,13 @@ reading logs of any format (through `carfeel.io.logs`)."""
 
 from __future__ import annotations
 
+import hashlib
 import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
+
+import numpy as np
 
 from carfeel.errors import InputError, PresetError
 from carfeel.simulation.result import Result
@@ -57,10 +60,68 @@ def read_results(
     channel_map = logs.load_map(channels) if channels is not None else None
     if dbc is not None and not dbc.is_file():
         raise InputError(f"--dbc {dbc}: no such file")
+    seen: dict[bytes, Path] = {}
+    for path in paths:
+        try:
+            digest = hashlib.sha256(path.read_bytes()).digest()
+        except OSError:
+            continue  # the reader below names the problem
+        if digest in seen:
+            raise InputError(
+                f"{path} and {seen[digest]} hold the same log: given twice it would count twice "
+                "and shrink the uncertainties by the square root of two; give each log once"
+            )
+        seen[digest] = path
     results = []
     for path in paths:
         if channel_map is None and path.suffix.lower() == ".csv":
-            results.append(Result.from_csv(path))
+            result = Result.from_csv(path)
         else:
-            results.append(logs.read_channels(path, channel_map, dbc))
+            result = logs.read_channels(path, channel_map, dbc)
+        check_physical(result, path)
+        results.append(result)
     return results
+
+
+PHYSICAL_LIMITS = {
+    "torque_Nm": 200.0,
+    "steering_torque_Nm": 200.0,
+    "steering_angle_rad": 20.0,
+    "steering_rate_rad_s": 100.0,
+    "speed_m_s": 150.0,
+    "lateral_accel_m_s2": 50.0,
+    "force_N": 2000.0,
+    "position_m": 1.0,
+}
+"""Magnitudes no car's steering or gearshift reaches (about 3 turns of a wheel either way, 540
+km/h, 5 g, 200 kgf at a knob): beyond them a sample is a logging error, not a measurement."""
+
+
+def check_physical(result: Result, path: Path) -> None:
+    """Refuse values no car produces, and Ay at a standstill (a speed in the wrong unit or
+    column): each named with its line and the fix."""
+    for name, limit in PHYSICAL_LIMITS.items():
+        if name not in result.names:
+            continue
+        values = np.asarray(result[name])
+        if values.dtype.kind != "f":
+            continue
+        beyond = np.flatnonzero(np.abs(values) > limit)
+        if len(beyond):
+            i = int(beyond[0])
+            raise InputError(
+                f"{path}, line {i + 2}: {name} = {float(values[i]):.4g}, beyond the {limit:g} no "
+                "car reaches: a logging error or a unit (check the channel map's scale), not a "
+                "measurement; remove the sample or fix the column"
+            )
+    if "speed_m_s" in result.names and "lateral_accel_m_s2" in result.names:
+        speed = np.asarray(result["speed_m_s"])
+        ay = np.asarray(result["lateral_accel_m_s2"])
+        if speed.dtype.kind == "f" and ay.dtype.kind == "f" and len(speed):
+            parked = np.abs(speed) < 0.5
+            if parked.mean() > 0.9 and np.median(np.abs(ay[parked])) > 1.0:
+                raise InputError(
+                    f"{path}: the car stands (speed under 0.5 m/s in {parked.mean():.0%} of the "
+                    f"samples) yet Ay is {float(np.median(np.abs(ay[parked]))):.2g} m/s^2: a car "
+                    "at rest has none; check the speed column (its unit, or the wrong signal)"
+                )
