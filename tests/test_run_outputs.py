@@ -158,3 +158,16 @@ def test_bad_simulate_options_exit_2(tmp_path, capsys, args, message):
         args = [*args, "--out", str(tmp_path / "x.csv")]
     assert main([*base, *args]) == 2
     assert message in capsys.readouterr().err
+
+
+def test_validate_prints_its_figures_without_a_report(tmp_path, capsys, monkeypatch):
+    """`validate --json` needed --report; now the figures alone, and no files left behind."""
+    log = tmp_path / "weave.csv"
+    assert main(["simulate", "steering", "--manoeuvre", "weave", "--out", str(log)]) == 0
+    monkeypatch.chdir(tmp_path)
+    before = sorted(p.name for p in tmp_path.iterdir())
+    capsys.readouterr()
+    assert main(["validate", "--preset", "b-segment", str(log), "--json"]) == 0
+    figures = json.loads(capsys.readouterr().out)
+    assert figures  # per log, the rms and r2 of the torque
+    assert sorted(p.name for p in tmp_path.iterdir()) == before

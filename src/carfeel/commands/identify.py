@@ -72,8 +72,9 @@ def register(commands: Any) -> None:
     validate.add_argument("logs", nargs="+", metavar="LOG.csv")
     validate.add_argument("--preset", required=True, metavar="PRESET.toml",
                           help="the preset to check against the logs")  # fmt: skip
-    validate.add_argument("--report", required=True, metavar="DIR",
-                          help="folder for the report (HTML + PNG)")  # fmt: skip
+    validate.add_argument("--report", default=None, metavar="DIR",
+                          help="folder for the report (HTML + PNG); without it only the "
+                          "figures are printed")  # fmt: skip
     validate.add_argument("--drift", type=positive_float, metavar="SECONDS",
                           help="remove each log's own drifting torque offset (knots this far "
                           "apart) before the figures; default a constant one")  # fmt: skip
@@ -113,19 +114,28 @@ def _fit(args: argparse.Namespace) -> int:
         channels=sources_of(args)[0],
         dbc=sources_of(args)[1],
     )
-    print(to_json(result) if args.json else shift_workflows.summary_text(result, out))
+    text = shift_workflows.summary_text(result, out)
+    if report_dir is not None:
+        text += f"\nwrote the report {report_dir / 'index.html'}"
+    print(to_json(result) if args.json else text)
     return 0
 
 
 def _validate(args: argparse.Namespace) -> int:
+    import tempfile
+
     from carfeel.identification.workflows import Sources, validate
 
-    figures = validate(args.preset, [Path(p) for p in args.logs], Path(args.report),
-                       Sources(*sources_of(args)), args.drift)  # fmt: skip
+    logs = [Path(p) for p in args.logs]
+    with tempfile.TemporaryDirectory() as scratch:
+        # Without --report the report is drawn in a scratch folder and thrown away.
+        folder = Path(args.report) if args.report else Path(scratch) / "report"
+        figures = validate(args.preset, logs, folder, Sources(*sources_of(args)), args.drift)
     if args.json:
         print(to_json(figures))
     else:
         for name, values in figures.items():
             print(f"{name}: " + ", ".join(f"{k} {v:.4g}" for k, v in values.items()))
-        print(f"wrote {Path(args.report) / 'index.html'}")
+        if args.report:
+            print(f"wrote {Path(args.report) / 'index.html'}")
     return 0

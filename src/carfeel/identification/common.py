@@ -4,6 +4,7 @@ reading logs of any format (through `carfeel.io.logs`)."""
 from __future__ import annotations
 
 import hashlib
+import os
 import sys
 import time
 from collections.abc import Sequence
@@ -47,7 +48,10 @@ def write_checked_preset(kind: str, out: Path, text: str) -> None:
             f"\n{exc}\ncheck the logs' units and sign conventions (README, 'From your own car's "
             "logs') and that they hold the manoeuvres the fit needs"
         ) from None
-    out.write_text(text)
+    # Replaced in one step: a failure while writing leaves the user's file as it was.
+    staged = out.with_name(f".{out.name}.part")
+    staged.write_text(text)
+    os.replace(staged, out)
 
 
 def read_results(
