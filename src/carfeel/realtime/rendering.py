@@ -379,6 +379,8 @@ class SteeringRenderer:
             car, scaling, rate_hz, sizing, info, r, self.tire_spin_rate, self.friction_stiffness
         )
         """(speed m/s, added damping at the device Nm*s/rad), rising speeds."""
+        self._scheduled_for = math.nan
+        self._spin_rate = self._added = 0.0
 
     def tire_spin_rate(self, speed_m_s: float) -> float:
         """K6, raised where needed so the tire spin's slope at zero rate fits its cap, rad/s."""
@@ -417,9 +419,11 @@ class SteeringRenderer:
         else:
             ay = single_track.steady_state_lateral_accel(speed, angle, vehicle)
         aligning = k.k1_Nm_s2_m * ay / (1.0 + k.k2 * abs(ay) ** k.k3)
-        tire_spin = math.atan(rate / self.tire_spin_rate(speed)) / (
-            k.k4_1_Nm + k.k5_s_m_Nm * abs(speed)
-        )
+        if speed != self._scheduled_for:  # the schedule's values only change with the speed
+            self._scheduled_for = speed
+            self._spin_rate = self.tire_spin_rate(speed)
+            self._added = self.added_damping(speed)
+        tire_spin = math.atan(rate / self._spin_rate) / (k.k4_1_Nm + k.k5_s_m_Nm * abs(speed))
         # Friction: the anchor slides when the stick spring holds the friction level.
         anchor = position if self._anchor is None else self._anchor
         if position - anchor > self.friction_slip:
@@ -428,7 +432,7 @@ class SteeringRenderer:
             anchor = position + self.friction_slip
         self._anchor = anchor
         friction = self.friction_stiffness * (position - anchor) / fs
-        damping = k.k9_Nm_s_rad * rate + self.added_damping(speed) * velocity / fs
+        damping = k.k9_Nm_s_rad * rate + self._added * velocity / fs
         over = abs(position) - self.stop_angle
         stop = 0.0
         if over > 0.0:

@@ -141,7 +141,7 @@ class PassivityController:
     """
 
     __slots__ = ("_commands", "_energy", "_last_position", "acted_s", "band", "ceiling",
-                 "damping", "deadband", "least_scale")  # fmt: skip
+                 "damping", "deadband")  # fmt: skip
 
     def __init__(
         self,
@@ -161,7 +161,6 @@ class PassivityController:
         self._last_position: list[float | None] = [None] * axes
         self.acted_s = 0.0
         """Time during which the controller lowered the force, s."""
-        self.least_scale = 1.0
 
     @property
     def energy(self) -> tuple[float, ...]:
@@ -181,7 +180,6 @@ class PassivityController:
             self._energy[i] = energy
             if energy < -self.deadband:
                 scale = max(0.0, 1.0 - (-energy - self.deadband) / self.band)
-                self.least_scale = min(self.least_scale, scale)
                 u *= scale
                 acted = True
             out.append(u)
