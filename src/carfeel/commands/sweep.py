@@ -87,8 +87,9 @@ def run_sweep(
     part = runner.PartFile(runner.part_path(out), sweep)
     check_writable(part.path)
     try:
-        run = runner.run_cases(sweep, part, workers=workers, scheduler=scheduler,
-                               restart=restart, progress=progress)  # fmt: skip
+        run = runner.run_cases(
+            sweep, part, workers=workers, scheduler=scheduler, restart=restart, progress=progress
+        )
         with outputs:
             results.write(run.rows, sweep, staged_out, fmt, sidecar)
             if plot is not None:
@@ -101,9 +102,7 @@ def run_sweep(
     return SweepSummary(run, out, plot)
 
 
-def _plot_outputs(
-    outputs: Outputs, folder: Path, parameters: Any, metrics: Any
-) -> dict[str, Path]:
+def _plot_outputs(outputs: Outputs, folder: Path, parameters: Any, metrics: Any) -> dict[str, Path]:
     from carfeel.sweep import plots
 
     if folder.exists() and not folder.is_dir():
@@ -124,9 +123,11 @@ def plot_results(results_path: Path, folder: Path) -> tuple[Path, list[str]]:
     import json
 
     staged = _plot_outputs(
-        outputs, folder, json.loads(meta["carfeel_parameters"]),
+        outputs,
+        folder,
+        json.loads(meta["carfeel_parameters"]),
         list(json.loads(meta["carfeel_metrics"])),
-    )  # fmt: skip
+    )
     with outputs:
         notes = plots.write(columns, meta, staged, results_path.stem)
     return folder / plots.PAGE, notes
@@ -159,23 +160,40 @@ def register(commands: Any) -> None:
         epilog="An interrupted sweep (Ctrl-C, a kill) resumes when run again with the same spec "
         "and --out: its finished cases are kept in OUT.part.jsonl beside the output.",
     )
-    sweep.add_argument("what", nargs="+", metavar="SPEC.toml | plot RESULTS",
-                       help="the sweep spec to run, or `plot` and a results file")  # fmt: skip
-    sweep.add_argument("--out", required=True, metavar="FILE.parquet|FILE.csv|DIR",
-                       help="results file (.parquet needs carfeel[batch]; .csv writes a .json "
-                       "sidecar); with `plot`, the folder for the figures")  # fmt: skip
+    sweep.add_argument(
+        "what",
+        nargs="+",
+        metavar="SPEC.toml | plot RESULTS",
+        help="the sweep spec to run, or `plot` and a results file",
+    )
+    sweep.add_argument(
+        "--out",
+        required=True,
+        metavar="FILE.parquet|FILE.csv|DIR",
+        help="results file (.parquet needs carfeel[batch]; .csv writes a .json "
+        "sidecar); with `plot`, the folder for the figures",
+    )
     where = sweep.add_mutually_exclusive_group()
-    where.add_argument("--workers", type=positive_int, metavar="N",
-                       help="run on a Dask LocalCluster of N single-threaded worker processes "
-                       "(carfeel[batch])")  # fmt: skip
-    where.add_argument("--scheduler", metavar="ADDRESS",
-                       help="run on the Dask cluster whose scheduler is at ADDRESS "
-                       "(tcp://host:8786)")  # fmt: skip
-    sweep.add_argument("--plot", metavar="DIR",
-                       help="also draw the figures and an HTML page into DIR")  # fmt: skip
-    sweep.add_argument("--restart", action="store_true",
-                       help="discard the finished cases of an interrupted run (another spec's "
-                       "part file included) and start anew")  # fmt: skip
+    where.add_argument(
+        "--workers",
+        type=positive_int,
+        metavar="N",
+        help="run on a Dask LocalCluster of N single-threaded worker processes (carfeel[batch])",
+    )
+    where.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="run on the Dask cluster whose scheduler is at ADDRESS (tcp://host:8786)",
+    )
+    sweep.add_argument(
+        "--plot", metavar="DIR", help="also draw the figures and an HTML page into DIR"
+    )
+    sweep.add_argument(
+        "--restart",
+        action="store_true",
+        help="discard the finished cases of an interrupted run (another spec's "
+        "part file included) and start anew",
+    )
     sweep.set_defaults(handler=_handle)
 
 
@@ -194,9 +212,13 @@ def _handle(args: argparse.Namespace) -> int:
     try:
         with _sigterm_stops():
             summary = run_sweep(
-                Path(what[0]), Path(args.out), workers=args.workers, scheduler=args.scheduler,
-                plot=Path(args.plot) if args.plot else None, restart=args.restart,
-            )  # fmt: skip
+                Path(what[0]),
+                Path(args.out),
+                workers=args.workers,
+                scheduler=args.scheduler,
+                plot=Path(args.plot) if args.plot else None,
+                restart=args.restart,
+            )
     except (KeyboardInterrupt, Terminated) as exc:
         from carfeel.sweep.runner import part_path
 

@@ -53,7 +53,7 @@ def _sel(mask: B, a: npt.ArrayLike, b: npt.ArrayLike) -> F64:
 
 def _full(value: npt.ArrayLike, like: B) -> F64:
     if isinstance(value, np.ndarray) and value.shape == like.shape:
-        return value  # type: ignore[return-value]
+        return value
     return np.full(like.shape, value)
 
 
@@ -102,9 +102,12 @@ def _detent_constants(params: Sequence[ShiftParams], neutral: bool) -> _Detent:
         has_far=far > 0.0,
         top=_floats([d.seat_force_N * d.width_m * (2.0 / 3.0) for d in ds]),
         flat=_floats(
-            [d.seat_force_N * d.width_m * (2.0 / 3.0) - d.far_force_N * d.far_width_m * (2.0 / 3.0)
-             for d in ds]
-        ),  # fmt: skip
+            [
+                d.seat_force_N * d.width_m * (2.0 / 3.0)
+                - d.far_force_N * d.far_width_m * (2.0 / 3.0)
+                for d in ds
+            ]
+        ),
         flat_j=_floats([engagement._flat_J(d.width_m, d) for d in ds]),
         reach=_floats([d.width_m + d.far_width_m for d in ds]),
     )
@@ -146,9 +149,18 @@ def _energy(x: F64, d: _Detent) -> F64:
 
 
 def stick_slip(
-    x: F64, v: F64, force: F64, mass: F64, damping: F64, stiffness: F64, rest: F64,
-    static: F64, sliding: F64, band: F64, h: float,
-) -> tuple[F64, F64]:  # fmt: skip
+    x: F64,
+    v: F64,
+    force: F64,
+    mass: F64,
+    damping: F64,
+    stiffness: F64,
+    rest: F64,
+    static: F64,
+    sliding: F64,
+    band: F64,
+    h: float,
+) -> tuple[F64, F64]:
     """`mechanics.stick_slip_step` over arrays: (position, velocity)."""
     m_h = mass / h
     impedance = m_h + damping + h * stiffness
@@ -163,9 +175,18 @@ def stick_slip(
 
 
 def stick_slip_midpoint(
-    x: F64, v: F64, force: F64, mass: F64, damping: F64, stiffness: F64, rest: F64,
-    static: F64, sliding: F64, band: F64, h: float,
-) -> tuple[F64, F64]:  # fmt: skip
+    x: F64,
+    v: F64,
+    force: F64,
+    mass: F64,
+    damping: F64,
+    stiffness: F64,
+    rest: F64,
+    static: F64,
+    sliding: F64,
+    band: F64,
+    h: float,
+) -> tuple[F64, F64]:
     """`mechanics.stick_slip_midpoint_step` over arrays: (position, velocity)."""
     applied = force - stiffness * (x - rest)
     stuck = (-band < v) & (v < band) & (-static <= applied) & (applied <= static)
@@ -286,11 +307,11 @@ class _Features:
         out = []
         for i, p in enumerate(params):
             entry = firsts[i]
-            order = sorted((k, c) for c, k in enumerate(entry) if k >= 0)
+            entered = sorted((k, c) for c, k in enumerate(entry) if k >= 0)
             sync, teeth, stop = entry[SYNC] >= 0, entry[ENGAGED] >= 0, entry[STOP] >= 0
             out.append(
                 ShiftFeatures(
-                    stages=tuple(names[c] for _, c in order),
+                    stages=tuple(names[c] for _, c in entered),
                     synchronization_position_m=sync_x[i] if sync else nan,
                     synchronization_force_N=median_list[i] if sync else nan,
                     synchronization_peak_N=sync_peak[i] if sync else nan,
@@ -299,9 +320,7 @@ class _Features:
                     engagement_peak_N=teeth_peak[i] if teeth else nan,
                     engagement_peak_position_m=teeth_peak_x[i] if teeth else nan,
                     stop_peak_N=stop_peak[i] if stop else nan,
-                    stop_overshoot_m=(
-                        stop_x[i] - p.gearbox.in_gear_position_m if stop else nan
-                    ),
+                    stop_overshoot_m=(stop_x[i] - p.gearbox.in_gear_position_m if stop else nan),
                     final_stage=names[finals[i]],
                     final_position_m=final_x[i],
                 )
@@ -334,9 +353,12 @@ class ShiftBatch:
         self.x_gear = _floats([p.in_gear_position_m for p in g])
         self.x_release = _floats([p.in_gear_position_m - p.detent_release_m for p in g])
         self.bound = _floats(
-            [p.neutral.stiffness_N_m * p.synchronization_position_m
-             + (p.neutral_detent.seat_force_N + p.ring_release_force_N) for p in g]
-        )  # fmt: skip
+            [
+                p.neutral.stiffness_N_m * p.synchronization_position_m
+                + (p.neutral_detent.seat_force_N + p.ring_release_force_N)
+                for p in g
+            ]
+        )
         self.hold = _floats([p.hold_force_N for p in g])
         self.sync_s = _floats([p.synchronization_duration_s for p in g])
         self.desync_s = _floats([p.desynchronization_time_s for p in g])
@@ -468,7 +490,9 @@ class ShiftBatch:
         self.activation = _sel(idle, 0.0, act)
         return _sel(idle, 0.0, force)
 
-    def _hand_over(self, v: F64, x: F64, old: npt.NDArray[np.int8], new: npt.NDArray[np.int8]) -> F64:
+    def _hand_over(
+        self, v: F64, x: F64, old: npt.NDArray[np.int8], new: npt.NDArray[np.int8]
+    ) -> F64:
         """engagement._hand_over on the lanes whose stage changed (a few per shift)."""
         changed = np.flatnonzero(old != new)
         if changed.size:
@@ -584,9 +608,13 @@ class ShiftBatch:
         out = midpoint & (x1 < self.x_release)
         new[out] = RETURNING
         settled = (
-            (stage == STOP) & ~out & (-self.settle_v < v1) & (v1 < self.settle_v)
-            & (-self.settle_x < off) & (off < self.settle_x)
-        )  # fmt: skip
+            (stage == STOP)
+            & ~out
+            & (-self.settle_v < v1)
+            & (v1 < self.settle_v)
+            & (-self.settle_x < off)
+            & (off < self.settle_x)
+        )
         new[settled] = IN_GEAR
         returning = stage == RETURNING
         home = returning & (x1 <= x_sync)
@@ -627,9 +655,18 @@ class ShiftBatch:
             if linked.any():
                 zero = np.zeros(self.n)
                 xl, vl = stick_slip(
-                    x, v, force, self.neutral_mass, self.link_c, self.link_k, x_sync,
-                    zero, zero, zero, h,
-                )  # fmt: skip
+                    x,
+                    v,
+                    force,
+                    self.neutral_mass,
+                    self.link_c,
+                    self.link_k,
+                    x_sync,
+                    zero,
+                    zero,
+                    zero,
+                    h,
+                )
                 behind = xl < x_sync
                 xl = _sel(behind, x_sync, xl)
                 vl = _sel(behind, 0.0, vl)

@@ -100,8 +100,10 @@ def write(
                 index = next(i for i in ranking[name] if i.parameter == p)
                 ax.set_xlabel(p, fontsize=8)
                 ax.set_ylabel(name, fontsize=8)
-                ax.set_title(f"PRCC {report.number(index.prcc, 2)}, rho "
-                             f"{report.number(index.spearman, 2)}", fontsize=8)  # fmt: skip
+                ax.set_title(
+                    f"PRCC {report.number(index.prcc, 2)}, rho {report.number(index.spearman, 2)}",
+                    fontsize=8,
+                )
             for ax in list(axes.flat)[len(parameters) :]:
                 ax.set_visible(False)
             fig.suptitle(f"{title}: {name}")
@@ -109,9 +111,11 @@ def write(
             fig.savefig(staged[f"metric-{safe(name)}.png"], dpi=90)
             plt.close(fig)
         matrix = np.array(
-            [[next(i for i in ranking[m] if i.parameter == p).prcc for p in parameters]
-             for m in metrics]
-        )  # fmt: skip
+            [
+                [next(i for i in ranking[m] if i.parameter == p).prcc for p in parameters]
+                for m in metrics
+            ]
+        )
         fig, ax = plt.subplots(figsize=(1.6 + 1.3 * len(parameters), 1.0 + 0.45 * len(metrics)))
         image = ax.imshow(np.nan_to_num(matrix), cmap="coolwarm", vmin=-1, vmax=1, aspect="auto")
         ax.set_xticks(range(len(parameters)), parameters, rotation=30, ha="right", fontsize=7)
@@ -127,19 +131,30 @@ def write(
     sections = [
         report.Section(
             "Sweep",
-            [*notes, f"model {meta['carfeel_model']}, preset {meta['carfeel_preset']}, carfeel "
-             f"{meta['carfeel_version']}; spec hash {meta['carfeel_spec_hash'][:12]}",
-             "Spec: " + meta["carfeel_spec"]],
-        ),  # fmt: skip
+            [
+                *notes,
+                f"model {meta['carfeel_model']}, preset {meta['carfeel_preset']}, carfeel "
+                f"{meta['carfeel_version']}; spec hash {meta['carfeel_spec_hash'][:12]}",
+                "Spec: " + meta["carfeel_spec"],
+            ],
+        ),
         report.Section(
             "Metrics (cases with status ok)",
             table=[["metric", "n", "mean", "sd", "p5", "median", "p95", "what"]]
             + [
-                [m, str(s.n), report.number(s.mean), report.number(s.sd), report.number(s.p5),
-                 report.number(s.p50), report.number(s.p95), described[m]]
+                [
+                    m,
+                    str(s.n),
+                    report.number(s.mean),
+                    report.number(s.sd),
+                    report.number(s.p5),
+                    report.number(s.p50),
+                    report.number(s.p95),
+                    described[m],
+                ]
                 for m in metrics
                 for s in [sensitivity.summary(values[m])]
-            ],  # fmt: skip
+            ],
             figures=[Path(DISTRIBUTIONS)],
         ),
     ]
@@ -147,18 +162,28 @@ def write(
         table = [["metric", "rank", "parameter", "PRCC", "Spearman rho", "n"]]
         for m in metrics:
             for k, index in enumerate(ranking[m], start=1):
-                table.append([m, str(k), index.parameter, report.number(index.prcc, 3),
-                              report.number(index.spearman, 3), str(index.n)])  # fmt: skip
+                table.append(
+                    [
+                        m,
+                        str(k),
+                        index.parameter,
+                        report.number(index.prcc, 3),
+                        report.number(index.spearman, 3),
+                        str(index.n),
+                    ]
+                )
         sections.append(
             report.Section(
                 "Sensitivity: which parameter moves each metric most",
-                ["Ranked by |PRCC| (the partial rank correlation: each parameter's monotone "
-                 "effect with the others' removed), Spearman's rank correlation beside it. "
-                 "Rank correlations see monotone effects only: look at the metric against "
-                 "each parameter for an optimum inside the range."],
+                [
+                    "Ranked by |PRCC| (the partial rank correlation: each parameter's monotone "
+                    "effect with the others' removed), Spearman's rank correlation beside it. "
+                    "Rank correlations see monotone effects only: look at the metric against "
+                    "each parameter for an optimum inside the range."
+                ],
                 table=table,
                 figures=[Path(SENSITIVITY), *(Path(f"metric-{safe(m)}.png") for m in metrics)],
-            )  # fmt: skip
+            )
         )
     with tempfile.TemporaryDirectory() as scratch:
         page = report.write(Path(scratch), title, sections)

@@ -25,11 +25,10 @@ FORMATS = (".parquet", ".csv")
 def pyarrow() -> Any:
     try:
         import pyarrow as pa
-        import pyarrow.parquet  # noqa: F401  (the submodule, for pa.parquet)
+        import pyarrow.parquet
     except ImportError:
         raise InputError(
-            "Parquet needs pyarrow: pip install 'carfeel[batch]' (or write CSV: --out "
-            "results.csv)"
+            "Parquet needs pyarrow: pip install 'carfeel[batch]' (or write CSV: --out results.csv)"
         ) from None
     return pa
 
@@ -137,8 +136,9 @@ def read(path: Path) -> tuple[dict[str, list[Any]], dict[str, str]]:
         try:
             info = json.loads(sidecar.read_text(encoding="utf-8"))
         except (OSError, ValueError) as exc:
-            raise InputError(f"{path}: its sidecar {sidecar} (written with it) cannot be read: "
-                             f"{exc}") from None  # fmt: skip
+            raise InputError(
+                f"{path}: its sidecar {sidecar} (written with it) cannot be read: {exc}"
+            ) from None
         types = info.pop("columns", {})
         meta = {k: str(v) for k, v in info.items()}
         with path.open(newline="", encoding="utf-8") as handle:

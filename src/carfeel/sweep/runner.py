@@ -30,12 +30,18 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from carfeel.errors import InputError
+from carfeel.sweep import tasks
 from carfeel.sweep.spec import Case, SpecError, SweepSpec, cases
-from carfeel.sweep.tasks import Row, Task, run_task
+from carfeel.sweep.tasks import Row, Task
 
 PART_VERSION = 1
-THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
-                    "VECLIB_MAXIMUM_THREADS", "NUMEXPR_NUM_THREADS")  # fmt: skip
+THREAD_VARIABLES = (
+    "OMP_NUM_THREADS",
+    "OPENBLAS_NUM_THREADS",
+    "MKL_NUM_THREADS",
+    "VECLIB_MAXIMUM_THREADS",
+    "NUMEXPR_NUM_THREADS",
+)
 """Set to 1 in every worker: one simulation per core, no thread pool beside it."""
 
 
@@ -61,8 +67,10 @@ class PartFile:
         except (OSError, UnicodeDecodeError, ValueError) as exc:
             if restart:
                 return {}
-            raise InputError(f"{self.path} (an interrupted sweep's rows) cannot be read: {exc}; "
-                             "delete it or pass --restart") from None  # fmt: skip
+            raise InputError(
+                f"{self.path} (an interrupted sweep's rows) cannot be read: {exc}; "
+                "delete it or pass --restart"
+            ) from None
         if header.get("spec_hash") != self.spec.hash:
             if restart:
                 return {}
@@ -85,8 +93,12 @@ class PartFile:
         """Start the file anew with the rows kept (a clean copy: no cut line stays)."""
         staged = self.path.with_name(f".{self.path.name}.tmp")
         with staged.open("w", encoding="utf-8") as handle:
-            header = {"carfeel_sweep_part": PART_VERSION, "spec_hash": self.spec.hash,
-                      "spec": self.spec.label, "cases": self.spec.n_cases}  # fmt: skip
+            header = {
+                "carfeel_sweep_part": PART_VERSION,
+                "spec_hash": self.spec.hash,
+                "spec": self.spec.label,
+                "cases": self.spec.n_cases,
+            }
             handle.write(json.dumps(header) + "\n")
             if rows:
                 handle.write(json.dumps({"rows": list(rows.values())}) + "\n")
@@ -132,9 +144,7 @@ class Progress:
             rate = (self.done - self.start_done) / elapsed if elapsed > 0 else 0.0
             left = (self.total - self.done) / rate if rate > 0 else math.nan
             eta = f"{left:.0f} s left" if math.isfinite(left) else ""
-            self.stream.write(
-                f"\r[{bar}] {self.done}/{self.total} cases, {rate:.1f}/s {eta}   "
-            )
+            self.stream.write(f"\r[{bar}] {self.done}/{self.total} cases, {rate:.1f}/s {eta}   ")
             self.stream.flush()
 
     def close(self) -> None:
@@ -176,10 +186,12 @@ def run_cases(
     scheduler: str | None = None,
     restart: bool = False,
     progress: TextIO | None = None,
-    execute: Callable[[Task], list[Row]] = run_task,
+    execute: Callable[[Task], list[Row]] | None = None,
 ) -> SweepRun:
     """Every case of `spec`, the finished ones from `part` (if given) and the rest simulated,
-    serially or on Dask; the part file is kept up to date as tasks finish."""
+    serially or on Dask; the part file is kept up to date as tasks finish. `execute` runs one
+    task (default `tasks.run_task`)."""
+    execute = execute if execute is not None else tasks.run_task
     started = time.monotonic()
     done = part.load(restart) if part is not None else {}
     todo = [c for c in cases(spec) if c.case_id not in done]
@@ -211,8 +223,9 @@ def run_cases(
         if part is not None:
             part.close()
     ordered = [rows[i] for i in sorted(rows)]
-    return SweepRun(spec, ordered, len(done), len(todo), where, time.monotonic() - started,
-                    tuple(notes))  # fmt: skip
+    return SweepRun(
+        spec, ordered, len(done), len(todo), where, time.monotonic() - started, tuple(notes)
+    )
 
 
 def _on_dask(
@@ -221,10 +234,17 @@ def _on_dask(
     finished: Callable[[list[Row]], None],
     execute: Callable[[Task], list[Row]],
 ) -> None:
-    from dask.distributed import as_completed
+    as_completed: Any = dask_modules().as_completed
 
-    futures = [client.submit(execute, task, key=f"carfeel-sweep-{task.spec.hash[:12]}-"
-                             f"{task.cases[0].case_id}", pure=False) for task in tasks]  # fmt: skip
+    futures = [
+        client.submit(
+            execute,
+            task,
+            key=f"carfeel-sweep-{task.spec.hash[:12]}-{task.cases[0].case_id}",
+            pure=False,
+        )
+        for task in tasks
+    ]
     try:
         for future in as_completed(futures):
             finished(future.result())
@@ -258,9 +278,7 @@ def _main_not_reimported() -> Iterator[None]:
 
 
 @contextlib.contextmanager
-def dask_client(
-    workers: int | None, scheduler: str | None
-) -> Iterator[tuple[Any, int, str, str]]:
+def dask_client(workers: int | None, scheduler: str | None) -> Iterator[tuple[Any, int, str, str]]:
     """(client, number of workers, a description, a note) for a LocalCluster of `workers`
     single-threaded processes, or for the cluster at `scheduler`; closed at the end."""
     if workers is not None and scheduler is not None:
@@ -273,9 +291,13 @@ def dask_client(
         env = dict.fromkeys(THREAD_VARIABLES, "1")
         with _main_not_reimported():
             cluster = distributed.LocalCluster(
-                n_workers=workers, threads_per_worker=1, processes=True,
-                dashboard_address=None, silence_logs=logging.ERROR, env=env,
-            )  # fmt: skip
+                n_workers=workers,
+                threads_per_worker=1,
+                processes=True,
+                dashboard_address=None,
+                silence_logs=logging.ERROR,
+                env=env,
+            )
         try:
             client = distributed.Client(cluster)
             try:

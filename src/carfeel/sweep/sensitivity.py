@@ -60,8 +60,11 @@ def indices(parameters: Mapping[str, Sequence[float]], metric: Sequence[float]) 
     """Spearman and PRCC of `metric` against each parameter, strongest first."""
     y = np.asarray(metric, dtype=float)
     names = list(parameters)
-    x = np.column_stack([np.asarray(parameters[n], dtype=float) for n in names]) if names else (
-        np.zeros((len(y), 0)))  # fmt: skip
+    x = (
+        np.column_stack([np.asarray(parameters[n], dtype=float) for n in names])
+        if names
+        else (np.zeros((len(y), 0)))
+    )
     keep = np.isfinite(y) & np.all(np.isfinite(x), axis=1)
     y, x = y[keep], x[keep]
     n = len(y)
@@ -102,5 +105,6 @@ def summary(values: Sequence[float]) -> Summary:
     if not len(v):
         return Summary(0, *([math.nan] * 5))
     p5, p50, p95 = (float(q) for q in np.percentile(v, [5, 50, 95]))
-    return Summary(len(v), float(v.mean()), float(v.std(ddof=1)) if len(v) > 1 else 0.0, p5,
-                   p50, p95)  # fmt: skip
+    return Summary(
+        len(v), float(v.mean()), float(v.std(ddof=1)) if len(v) > 1 else 0.0, p5, p50, p95
+    )

@@ -49,7 +49,7 @@ from typing import Any
 import numpy as np
 
 from carfeel import __version__
-from carfeel.errors import CarfeelError, InputError
+from carfeel.errors import CarfeelError, InputError, PresetError
 from carfeel.io import presets
 from carfeel.simulation.hpattern import HPatternSetup
 from carfeel.simulation.manoeuvres import MANOEUVRES
@@ -96,20 +96,41 @@ DISTRIBUTIONS = {
     "normal": ("mean", "sd"),
     "truncnormal": ("mean", "sd", "low", "high"),
 }
-TOP_KEYS = ("model", "preset", "seeds", "samples", "sampling", "sampling_seed", "metrics",
-            "engine", "cases_per_task", "run", "set", "vary")  # fmt: skip
+TOP_KEYS = (
+    "model",
+    "preset",
+    "seeds",
+    "samples",
+    "sampling",
+    "sampling_seed",
+    "metrics",
+    "engine",
+    "cases_per_task",
+    "run",
+    "set",
+    "vary",
+)
 RUN_KEYS: dict[str, dict[str, tuple[type, ...]]] = {
     "shift": {"duration_s": (float, int), "dt_s": (float, int), "substeps": (int,)},
     "hpattern": {
-        "sequence": (str, list), "speed_kmh": (float, int), "engine_rpm": (float, int),
-        "clutch": (float, int), "synchronizer": (str,), "max_duration_s": (float, int),
-        "dt_s": (float, int), "substeps": (int,),
+        "sequence": (str, list),
+        "speed_kmh": (float, int),
+        "engine_rpm": (float, int),
+        "clutch": (float, int),
+        "synchronizer": (str,),
+        "max_duration_s": (float, int),
+        "dt_s": (float, int),
+        "substeps": (int,),
     },
     "steering": {
-        "manoeuvre": (str,), "speed_kmh": (float, int), "steering_model": (str,),
-        "road": (str,), "dt_s": (float, int), "substeps": (int,),
+        "manoeuvre": (str,),
+        "speed_kmh": (float, int),
+        "steering_model": (str,),
+        "road": (str,),
+        "dt_s": (float, int),
+        "substeps": (int,),
     },
-}  # fmt: skip
+}
 RUN_RANGES = {
     "speed_kmh": (0.0, 250.0),
     "engine_rpm": (0.0, 20000.0),
@@ -153,7 +174,7 @@ class Vary:
         mean, sd, low, high = self.args
         a, b = (low - mean) / sd, (high - mean) / sd
         drawn = np.asarray(stats.truncnorm.ppf(u, a, b, loc=mean, scale=sd), dtype=float)
-        return np.clip(drawn, low, high)  # the ppf's last ulp must not leave the bounds
+        return np.asarray(np.clip(drawn, low, high))  # the ppf's last ulp stays within them
 
 
 @dataclass(frozen=True)
@@ -304,16 +325,18 @@ def from_toml(text: str, label: str = "<spec>", folder: Path | None = None) -> S
         metrics = list(known)
     for name in metrics:
         if name not in known:
-            problems.append(f"metrics: unknown metric {name!r}; the {model} sweep keeps "
-                            f"{', '.join(known)}")  # fmt: skip
+            problems.append(
+                f"metrics: unknown metric {name!r}; the {model} sweep keeps {', '.join(known)}"
+            )
     engine = data.get("engine", "batch" if model == "shift" else "pure")
     if engine not in ("batch", "pure") or (engine == "batch" and model != "shift"):
         problems.append(
             f"engine = {engine!r}: expected 'batch' (the vectorized single shift, model = "
             "'shift' only) or 'pure' (the models' own steps)"
         )
-    per_task = data.get("cases_per_task", DEFAULT_CASES_PER_TASK.get(
-        "batch" if engine == "batch" else model, 8))  # fmt: skip
+    per_task = data.get(
+        "cases_per_task", DEFAULT_CASES_PER_TASK.get("batch" if engine == "batch" else model, 8)
+    )
     if isinstance(per_task, bool) or not isinstance(per_task, int) or per_task < 1:
         problems.append(f"cases_per_task = {per_task!r}: expected a whole number >= 1")
         per_task = 1
@@ -321,28 +344,45 @@ def from_toml(text: str, label: str = "<spec>", folder: Path | None = None) -> S
         # The preset with [set] applied must itself be valid: else every row would be invalid.
         trouble = case_problems(model, base, dict(fixed))
         problems.extend(f"[set] makes the preset invalid: {p}" for p in trouble)
-    n_cases = (
-        math.prod(len(v.values) for v in vary if v.values) * samples * max(len(seeds), 1)
-    )
+    n_cases = math.prod(len(v.values) for v in vary if v.values) * samples * max(len(seeds), 1)
     if n_cases > MAX_CASES:
-        problems.append(f"{n_cases:.3g} cases asked for; at most {MAX_CASES:.0e}: fewer values, "
-                        "samples or seeds")  # fmt: skip
+        problems.append(
+            f"{n_cases:.3g} cases asked for; at most {MAX_CASES:.0e}: fewer values, "
+            "samples or seeds"
+        )
     if problems:
         raise _error(label, problems)
     digest = hashlib.sha256(
         json.dumps(
-            {"spec": data, "preset": preset_text, "engagement": engagement_text,
-             "carfeel": __version__},
-            sort_keys=True, default=str,
+            {
+                "spec": data,
+                "preset": preset_text,
+                "engagement": engagement_text,
+                "carfeel": __version__,
+            },
+            sort_keys=True,
+            default=str,
         ).encode()
-    ).hexdigest()  # fmt: skip
+    ).hexdigest()
     return SweepSpec(
-        label=label, model=model, preset_label=preset_label, preset_text=preset_text,
-        engagement_text=engagement_text, seeds=seeds, samples=samples, sampling=sampling,
-        sampling_seed=sampling_seed, metrics=tuple(metrics), engine=engine,
-        cases_per_task=per_task, run=tuple(run), fixed=tuple(fixed), vary=tuple(vary),
-        text=text, hash=digest,
-    )  # fmt: skip
+        label=label,
+        model=model,
+        preset_label=preset_label,
+        preset_text=preset_text,
+        engagement_text=engagement_text,
+        seeds=seeds,
+        samples=samples,
+        sampling=sampling,
+        sampling_seed=sampling_seed,
+        metrics=tuple(metrics),
+        engine=engine,
+        cases_per_task=per_task,
+        run=tuple(run),
+        fixed=tuple(fixed),
+        vary=tuple(vary),
+        text=text,
+        hash=digest,
+    )
 
 
 def _error(label: str, problems: list[str]) -> SpecError:
@@ -360,8 +400,9 @@ def _resolve_preset(model: str, name: str, folder: Path | None) -> tuple[str, st
         if model == "hpattern":
             reference = presets.parse(label, text).get("engagement", "")
             if not isinstance(reference, str) or not reference:
-                raise presets.PresetError(f"preset {label}: engagement: missing; expected a "
-                                          "shift preset name")  # fmt: skip
+                raise PresetError(
+                    f"preset {label}: engagement: missing; expected a shift preset name"
+                )
             if (reference.endswith(".toml") or "/" in reference) and not Path(
                 reference
             ).is_absolute():
@@ -394,10 +435,10 @@ def base_params(model: str, preset_text: str, engagement_text: str = "") -> Any:
     tables = {k: v for k, v in data.items() if k not in ("name", "source", "engagement")}
     setup = presets.build(HPatternSetup, tables, "", problems)
     if setup is None or problems:
-        raise presets.PresetError("not valid:\n  " + "\n  ".join(problems))
+        raise PresetError("not valid:\n  " + "\n  ".join(problems))
     problems = presets.check_hpattern(setup, shift)
     if problems:
-        raise presets.PresetError("not valid:\n  " + "\n  ".join(problems))
+        raise PresetError("not valid:\n  " + "\n  ".join(problems))
     return HPatternCase(setup, shift)
 
 
@@ -421,7 +462,7 @@ def field_type(model: str, base: Any, path: str) -> tuple[Any, Any]:
         return float, None
     kind: Any = _root_type(model)
     value = base
-    walked = []
+    walked: list[str] = []
     for part in path.split("."):
         match = _SEGMENT.match(part)
         if match is None:
@@ -444,6 +485,7 @@ def field_type(model: str, base: Any, path: str) -> tuple[Any, Any]:
             if typing.get_origin(kind) is not tuple:
                 raise KeyError(f"{name} is not a list; drop [{index}]")
             kind = typing.get_args(kind)[0]
+            assert value is not None  # a tuple field of the preset
             if int(index) >= len(value):
                 raise KeyError(f"{name} has {len(value)} entries (0..{len(value) - 1})")
             value = value[int(index)]
@@ -499,7 +541,9 @@ def _in_range(key: str, value: float) -> bool:
     low, high, low_in, high_in = presets.RANGES[key]
     if not math.isfinite(value):
         return False
-    return (value >= low if low_in else value > low) and (value <= high if high_in else value < high)
+    return (value >= low if low_in else value > low) and (
+        value <= high if high_in else value < high
+    )
 
 
 def _check_value(
@@ -521,16 +565,19 @@ def _check_vary(model: str, base: Any, v: Vary, problems: list[str]) -> None:
     if not v.distribution:
         return
     if kind is not float:
-        problems.append(f"[vary] {v.path} is {'true/false' if kind is bool else 'a whole number'}"
-                        ": give a grid of values, not a distribution")  # fmt: skip
+        problems.append(
+            f"[vary] {v.path} is {'true/false' if kind is bool else 'a whole number'}"
+            ": give a grid of values, not a distribution"
+        )
         return
     names = DISTRIBUTIONS[v.distribution]
     args = dict(zip(names, v.args, strict=True))
     if "sd" in args and not args["sd"] > 0.0:
         problems.append(f"[vary] {v.path}: sd = {args['sd']:g} must be > 0")
     if "low" in args and not args["low"] < args["high"]:
-        problems.append(f"[vary] {v.path}: low = {args['low']:g} must be below high = "
-                        f"{args['high']:g}")  # fmt: skip
+        problems.append(
+            f"[vary] {v.path}: low = {args['low']:g} must be below high = {args['high']:g}"
+        )
     for name in ("low", "high", "mean"):
         if name in args:
             problem = value_problem(model, base, v.path, args[name])
@@ -543,10 +590,11 @@ def _seeds(value: Any, problems: list[str]) -> tuple[int, ...]:
     if isinstance(value, int) and not isinstance(value, bool) and value >= 1:
         return tuple(range(value))
     if (
-        isinstance(value, list) and value
+        isinstance(value, list)
+        and value
         and all(isinstance(s, int) and not isinstance(s, bool) for s in value)
         and len(set(value)) == len(value)
-    ):  # fmt: skip
+    ):
         return tuple(value)
     problems.append(
         f"seeds = {value!r}: expected how many seeds (a whole number >= 1: seeds 0..n-1) or a "
@@ -563,14 +611,17 @@ def _run(model: str, table: Any, problems: list[str]) -> list[tuple[str, Any]]:
     out: dict[str, Any] = {}
     for key, value in table.items():
         if key not in allowed:
-            problems.append(f"[run] {key}: unknown setting; the {model} sweep takes "
-                            f"{', '.join(allowed)}")  # fmt: skip
+            problems.append(
+                f"[run] {key}: unknown setting; the {model} sweep takes {', '.join(allowed)}"
+            )
             continue
         if isinstance(value, bool) or not isinstance(value, allowed[key]):
-            problems.append(f"[run] {key} = {value!r}: expected "
-                            f"{'a number' if float in allowed[key] else 'text'}")  # fmt: skip
+            problems.append(
+                f"[run] {key} = {value!r}: expected "
+                f"{'a number' if float in allowed[key] else 'text'}"
+            )
             continue
-        out[key] = float(value) if float in allowed[key] else value
+        out[key] = float(value) if float in allowed[key] else value  # type: ignore[arg-type]
     for key in ("duration_s", "dt_s", "max_duration_s"):
         if key in out and not (math.isfinite(out[key]) and out[key] > 0.0):
             problems.append(f"[run] {key} = {out[key]:g} s: expected > 0")
@@ -596,22 +647,27 @@ def _run(model: str, table: Any, problems: list[str]) -> list[tuple[str, Any]]:
         elif not gears_of(sequence):
             problems.append(f"[run] sequence = {sequence!r}: no gear to shift into")
         else:
-            out["sequence"] = ",".join(["N", *gears_of(sequence)]) if isinstance(
-                sequence, list) else sequence  # fmt: skip
+            out["sequence"] = (
+                ",".join(["N", *gears_of(sequence)]) if isinstance(sequence, list) else sequence
+            )
         sync = out.get("synchronizer")
         if sync is not None and sync not in ("fixed", "physics"):
             problems.append(f"[run] synchronizer = {sync!r}: expected 'fixed' or 'physics'")
     if model == "steering":
         manoeuvre = out.get("manoeuvre")
         if manoeuvre not in MANOEUVRES:
-            problems.append(f"[run] manoeuvre = {manoeuvre!r}: expected one of "
-                            f"{', '.join(MANOEUVRES)}")  # fmt: skip
+            problems.append(
+                f"[run] manoeuvre = {manoeuvre!r}: expected one of {', '.join(MANOEUVRES)}"
+            )
         if out.get("steering_model", "paper") not in STEERING_MODELS:
-            problems.append(f"[run] steering_model = {out['steering_model']!r}: expected one "
-                            f"of {', '.join(STEERING_MODELS)}")  # fmt: skip
+            problems.append(
+                f"[run] steering_model = {out['steering_model']!r}: expected one "
+                f"of {', '.join(STEERING_MODELS)}"
+            )
         if out.get("road", "dry") not in ROAD_FRICTION:
-            problems.append(f"[run] road = {out['road']!r}: expected one of "
-                            f"{', '.join(ROAD_FRICTION)}")  # fmt: skip
+            problems.append(
+                f"[run] road = {out['road']!r}: expected one of {', '.join(ROAD_FRICTION)}"
+            )
     return sorted(out.items())
 
 
@@ -641,10 +697,12 @@ def _assignments(table: Any, where: str, problems: list[str]) -> list[tuple[str,
 
 def _vary(table: Any, problems: list[str]) -> list[Vary]:
     if not isinstance(table, dict):
-        problems.append(f"vary = {table!r}: expected a table [vary] of key path = "
-                        "{ values = [...] } or { distribution = ... }")  # fmt: skip
+        problems.append(
+            f"vary = {table!r}: expected a table [vary] of key path = "
+            "{ values = [...] } or { distribution = ... }"
+        )
         return []
-    out = []
+    out: list[Vary] = []
     for path, entry in _flatten(table):
         hint = (
             f'"{path}" = {{ values = [a, b, c] }} or {{ distribution = "uniform", low = a, '
@@ -657,12 +715,18 @@ def _vary(table: Any, problems: list[str]) -> list[Vary]:
             values = entry["values"]
             extra = set(entry) - {"values"}
             if extra:
-                problems.append(f"[vary] {path}: {', '.join(sorted(extra))}: a grid takes only "
-                                "values")  # fmt: skip
-            if (not isinstance(values, list) or not values
-                    or not all(isinstance(x, bool | int | float) for x in values)):  # fmt: skip
-                problems.append(f"[vary] {path}: values = {values!r}: expected a non-empty list "
-                                "of numbers (or true/false)")  # fmt: skip
+                problems.append(
+                    f"[vary] {path}: {', '.join(sorted(extra))}: a grid takes only values"
+                )
+            if (
+                not isinstance(values, list)
+                or not values
+                or not all(isinstance(x, bool | int | float) for x in values)
+            ):
+                problems.append(
+                    f"[vary] {path}: values = {values!r}: expected a non-empty list "
+                    "of numbers (or true/false)"
+                )
                 continue
             if len(set(values)) != len(values):
                 problems.append(f"[vary] {path}: values = {values!r} repeats a value")
@@ -689,8 +753,10 @@ def _vary(table: Any, problems: list[str]) -> list[Vary]:
         if not all(isinstance(a, int | float) and not isinstance(a, bool) for a in args) or not all(
             math.isfinite(a) for a in args
         ):
-            problems.append(f"[vary] {path}: {name} arguments must be finite numbers, got "
-                            f"{dict(zip(names, args, strict=True))}")  # fmt: skip
+            problems.append(
+                f"[vary] {path}: {name} arguments must be finite numbers, got "
+                f"{dict(zip(names, args, strict=True))}"
+            )
             continue
         out.append(Vary(path, distribution=name, args=tuple(float(a) for a in args)))
     return out
@@ -724,7 +790,7 @@ def parameter_sets(spec: SweepSpec) -> list[dict[str, Value]]:
 
 def cases(spec: SweepSpec) -> list[Case]:
     """Every case of the sweep (parameter set x seed), numbered from 0."""
-    out = []
+    out: list[Case] = []
     for index, values in enumerate(parameter_sets(spec)):
         items = tuple(values.items())
         for seed in spec.seeds:

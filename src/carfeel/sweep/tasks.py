@@ -97,9 +97,12 @@ def _shift_pure(params: Any, seed: int, settings: dict[str, Any]) -> dict[str, A
     from carfeel.simulation.shift import simulate_shift
 
     result = simulate_shift(
-        params, seed=seed, duration_s=shift_duration_s(settings, params.driver.pull_out),
-        dt_s=settings.get("dt_s", 1e-3), substeps=settings.get("substeps", 1),
-    )  # fmt: skip
+        params,
+        seed=seed,
+        duration_s=shift_duration_s(settings, params.driver.pull_out),
+        dt_s=settings.get("dt_s", 1e-3),
+        substeps=settings.get("substeps", 1),
+    )
     if not all(np.all(np.isfinite(result[n])) for n in ("position_m", "force_N")):
         raise ArithmeticError("non-finite position or force")
     stages = result["stage"]
@@ -108,7 +111,9 @@ def _shift_pure(params: Any, seed: int, settings: dict[str, Any]) -> dict[str, A
     return shift_metrics(shift_features(result, params.gearbox.in_gear_position_m), to_stop)
 
 
-def _shift_batch(spec: SweepSpec, valid: Sequence[tuple[Case, Any, dict[str, Any]]]) -> dict[int, Row]:
+def _shift_batch(
+    spec: SweepSpec, valid: Sequence[tuple[Case, Any, dict[str, Any]]]
+) -> dict[int, Row]:
     """The valid cases of a task as one vectorized batch per distinct run length."""
     from carfeel.sweep.batch import ShiftBatch
 
@@ -128,9 +133,12 @@ def _shift_batch(spec: SweepSpec, valid: Sequence[tuple[Case, Any, dict[str, Any
             metrics = shift_metrics(run.features[i], float(run.time_to_stop_s[i]))
             ok = bool(run.finite[i])
             rows[case.case_id] = _row(
-                spec, case, metrics, "ok" if ok else "failed",
+                spec,
+                case,
+                metrics,
+                "ok" if ok else "failed",
                 "" if ok else "non-finite position or force",
-            )  # fmt: skip
+            )
     return rows
 
 
@@ -152,16 +160,21 @@ def _hpattern(params: Any, seed: int, settings: dict[str, Any]) -> dict[str, Any
     preset = HPatternPreset("sweep", "", "", shift, setup)
     sync = settings.get("synchronizer")
     pattern = preset.pattern(None if sync is None else sync == "physics")
-    script = Script(sequence, setup.layout, shift.driver, setup.driver,
-                    float(settings.get("clutch", 1.0)))  # fmt: skip
+    script = Script(
+        sequence, setup.layout, shift.driver, setup.driver, float(settings.get("clutch", 1.0))
+    )
     dt = float(settings.get("dt_s", 1e-3))
     run = HPatternRun(
-        pattern, script, float(settings.get("speed_kmh", 30.0)) / 3.6,
-        float(settings.get("engine_rpm", 800.0)) * 2 * math.pi / 60, dt,
-    )  # fmt: skip
+        pattern,
+        script,
+        float(settings.get("speed_kmh", 30.0)) / 3.6,
+        float(settings.get("engine_rpm", 800.0)) * 2 * math.pi / 60,
+        dt,
+    )
     duration = float(settings.get("max_duration_s", 3.0 * len(sequence) + 5.0))
-    result = simulate_hpattern(run, seed=seed, max_duration_s=duration, dt_s=dt,
-                               substeps=int(settings.get("substeps", 1)))  # fmt: skip
+    result = simulate_hpattern(
+        run, seed=seed, max_duration_s=duration, dt_s=dt, substeps=int(settings.get("substeps", 1))
+    )
     return hpattern_metrics(result, gears)
 
 
@@ -181,7 +194,6 @@ def hpattern_metrics(result: Result, gears: Sequence[str]) -> dict[str, Any]:
             window = slice(start, end)
             sync = stages[window] == "synchronization"
             teeth = stages[window] == "engagement"
-            stop = stages[window] == "stop"
             out[prefix + "synchronization_force_N"] = (
                 float(np.median(force[window][sync])) if sync.any() else math.nan
             )
@@ -198,8 +210,12 @@ def hpattern_metrics(result: Result, gears: Sequence[str]) -> dict[str, Any]:
             out[prefix + "engaged"] = True
             start = end
         else:
-            for name in ("synchronization_force_N", "synchronization_time_s",
-                         "engagement_peak_N", "stop_peak_N"):  # fmt: skip
+            for name in (
+                "synchronization_force_N",
+                "synchronization_time_s",
+                "engagement_peak_N",
+                "stop_peak_N",
+            ):
                 out[prefix + name] = math.nan
             out[prefix + "engaged"] = False
     complete = len(engaged) >= len(gears)
@@ -219,21 +235,31 @@ def _steering(params: Any, seed: int, settings: dict[str, Any]) -> dict[str, Any
     car = params
     model = settings.get("steering_model", "paper")
     if model == "physical" and not car.has_physical:
-        raise CarfeelError("the preset has no [tyres] and [steering_system] tables; the "
-                           "physical steering model needs them")  # fmt: skip
+        raise CarfeelError(
+            "the preset has no [tyres] and [steering_system] tables; the "
+            "physical steering model needs them"
+        )
     manoeuvre = manoeuvres.build(settings["manoeuvre"], car.vehicle, settings.get("speed_kmh"))
     result = simulate_steering(
-        car, manoeuvre, dt_s=float(settings.get("dt_s", 1e-3)),
-        substeps=int(settings.get("substeps", 1)), model=model,
+        car,
+        manoeuvre,
+        dt_s=float(settings.get("dt_s", 1e-3)),
+        substeps=int(settings.get("substeps", 1)),
+        model=model,
         road=settings.get("road", "dry") if model == "physical" else None,
-    )  # fmt: skip
+    )
     torque, ay = result["torque_Nm"], result["lateral_accel_m_s2"]
     if not (np.all(np.isfinite(torque)) and np.all(np.isfinite(ay))):
         raise ArithmeticError("non-finite torque or lateral acceleration")
     feel = steering_feel(
-        result.time_s, result["speed_m_s"], result["steering_angle_rad"], ay, torque,
-        steering_ratio=car.vehicle.steering_ratio, wheelbase_m=car.vehicle.wheelbase_m,
-    )  # fmt: skip
+        result.time_s,
+        result["speed_m_s"],
+        result["steering_angle_rad"],
+        ay,
+        torque,
+        steering_ratio=car.vehicle.steering_ratio,
+        wheelbase_m=car.vehicle.wheelbase_m,
+    )
     metrics: dict[str, Any] = dict(feel.as_dict())
     metrics["peak_torque_Nm"] = float(np.abs(torque).max())
     metrics["rms_lateral_accel_g"] = float(math.sqrt(float((ay**2).mean())) / G)
