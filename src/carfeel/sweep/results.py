@@ -156,6 +156,8 @@ def read(path: Path) -> tuple[dict[str, list[Any]], dict[str, str]]:
 
 
 def _parse(text: str, kind: str) -> Any:
+    if kind == "str":
+        return text
     if text == "":
         return None
     if kind == "int":

@@ -21,8 +21,9 @@ beside them. The seed (the tooth position) is noise to these indices: it lowers 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -56,7 +57,7 @@ def _correlation(a: F64, b: F64) -> float:
     return float(a @ b) / scale if scale > 0.0 else math.nan
 
 
-def indices(parameters: Mapping[str, Sequence[float]], metric: Sequence[float]) -> list[Index]:
+def indices(parameters: Mapping[str, Any], metric: Any) -> list[Index]:
     """Spearman and PRCC of `metric` against each parameter, strongest first."""
     y = np.asarray(metric, dtype=float)
     names = list(parameters)
@@ -99,7 +100,7 @@ class Summary:
     p95: float
 
 
-def summary(values: Sequence[float]) -> Summary:
+def summary(values: Any) -> Summary:
     v = np.asarray(values, dtype=float)
     v = v[np.isfinite(v)]
     if not len(v):

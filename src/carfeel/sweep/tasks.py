@@ -22,6 +22,11 @@ from carfeel.sweep.spec import Case, SweepSpec, apply, base_params, case_problem
 
 Row = dict[str, Any]
 
+BATCH_MIN_LANES = 64
+"""Fewer shifts than this in a task run the pure step instead: the batch's cost per step is
+numpy's per-call overhead (about 300 calls) until a batch has a hundred lanes or so. Both give
+the same rows, bit for bit (tests/test_batch_engagement.py)."""
+
 
 @dataclass(frozen=True)
 class Task:
@@ -127,6 +132,15 @@ def _shift_batch(
         )
         groups.setdefault(key, []).append((case, params))
     for (duration, dt, substeps), members in groups.items():
+        if len(members) < BATCH_MIN_LANES:
+            for case, params in members:
+                settings = {"duration_s": duration, "dt_s": dt, "substeps": substeps}
+                try:
+                    metrics = _shift_pure(params, case.seed, settings)
+                    rows[case.case_id] = _row(spec, case, metrics, "ok", "")
+                except ArithmeticError as exc:
+                    rows[case.case_id] = _row(spec, case, {}, "failed", str(exc))
+            continue
         batch = ShiftBatch([p for _, p in members], [c.seed for c, _ in members])
         run = batch.run(duration, dt, substeps)
         for i, (case, _) in enumerate(members):
