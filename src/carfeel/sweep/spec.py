@@ -42,7 +42,7 @@ import tomllib
 import typing
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cache, lru_cache
 from pathlib import Path
 from typing import Any
 
@@ -471,7 +471,7 @@ def field_type(model: str, base: Any, path: str) -> tuple[Any, Any]:
         kind = _optional_of(kind)
         if not dataclasses.is_dataclass(kind):
             raise KeyError(f"{'.'.join(walked)} is a value, not a table")
-        hints = typing.get_type_hints(kind)
+        hints = _hints(typing.cast(type, kind))
         if name not in hints:
             where = ".".join(walked) or "the preset"
             fields = ", ".join(hints)
@@ -493,6 +493,12 @@ def field_type(model: str, base: Any, path: str) -> tuple[Any, Any]:
     if dataclasses.is_dataclass(kind) or typing.get_origin(kind) is tuple or kind is str:
         raise KeyError("it is a table, a list or a name; address a number inside it")
     return kind, value
+
+
+@cache
+def _hints(cls: type[Any]) -> dict[str, Any]:
+    """The fields' types of a parameter dataclass (typing.get_type_hints: slow, so kept)."""
+    return typing.get_type_hints(cls)
 
 
 def _optional_of(kind: Any) -> Any:
@@ -827,12 +833,21 @@ def _replace(obj: Any, parts: list[str], value: Value) -> Any:
 def case_problems(model: str, base: Any, values: Mapping[str, Value]) -> list[str]:
     """The preset validation of one case: each value's type and range, then the preset's
     cross-parameter checks on the changed parameters."""
+    return checked_case(model, base, values)[1]
+
+
+def checked_case(model: str, base: Any, values: Mapping[str, Value]) -> tuple[Any, list[str]]:
+    """(the case's parameters, or None, and its problems) after the preset validation."""
     problems = [p for path, v in values.items() if (p := value_problem(model, base, path, v))]
     if problems:
-        return problems
+        return None, problems
     params = apply(base, values)
     if model == "shift":
-        return presets.check_shift(params)
-    if model == "steering":
-        return presets.check_steering(params)
-    return presets.check_shift(params.shift) + presets.check_hpattern(params.setup, params.shift)
+        problems = presets.check_shift(params)
+    elif model == "steering":
+        problems = presets.check_steering(params)
+    else:
+        problems = presets.check_shift(params.shift) + presets.check_hpattern(
+            params.setup, params.shift
+        )
+    return (None if problems else params), problems

@@ -18,7 +18,7 @@ import numpy as np
 from carfeel.analysis.shift_features import ShiftFeatures, shift_features
 from carfeel.errors import CarfeelError
 from carfeel.simulation.result import Result
-from carfeel.sweep.spec import Case, SweepSpec, apply, base_params, case_problems, gears_of
+from carfeel.sweep.spec import Case, SweepSpec, base_params, checked_case, gears_of
 
 Row = dict[str, Any]
 
@@ -43,11 +43,11 @@ def run_task(task: Task) -> list[Row]:
     rows: dict[int, Row] = {}
     for case in task.cases:
         values = {**fixed, **dict(case.values)}
-        problems = case_problems(spec.model, base, values)
+        params, problems = checked_case(spec.model, base, values)
         if problems:
             rows[case.case_id] = _row(spec, case, {}, "invalid", "; ".join(problems))
         else:
-            valid.append((case, apply(base, values), _settings(spec, values)))
+            valid.append((case, params, _settings(spec, values)))
     if spec.model == "shift" and spec.engine == "batch":
         rows.update(_shift_batch(spec, valid))
     else:
