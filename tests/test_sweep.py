@@ -414,3 +414,26 @@ def test_progress_shows_on_a_terminal_only(tmp_path):
     runner.run_cases(sweep, progress=shown)  # type: ignore[arg-type]
     assert quiet.text == ""
     assert "8/8 cases" in shown.text and "#" * 30 in shown.text
+
+
+def test_the_draws_follow_their_distributions_and_the_ranks_handle_ties():
+    from scipy import stats
+
+    u = np.linspace(0.0005, 0.9995, 41)
+    cases = [
+        (spec.Vary("x", distribution="normal", args=(5.0, 2.0)), stats.norm(5.0, 2.0)),
+        (spec.Vary("x", distribution="uniform", args=(1.0, 3.0)), stats.uniform(1.0, 2.0)),
+        (
+            spec.Vary("x", distribution="truncnormal", args=(80.0, 10.0, 60.0, 100.0)),
+            stats.truncnorm(-2.0, 2.0, loc=80.0, scale=10.0),
+        ),
+        (  # the bounds far in the upper tail, where a naive CDF loses its digits
+            spec.Vary("x", distribution="truncnormal", args=(0.0, 1.0, 4.0, 6.0)),
+            stats.truncnorm(4.0, 6.0),
+        ),
+    ]
+    for vary, reference in cases:
+        # scipy.stats as the independent reference; 1e-9 of the spread covers ndtri's rounding.
+        assert np.allclose(vary.sample(u), reference.ppf(u), rtol=0.0, atol=1e-9)
+    values = np.array([3.0, 1.0, 2.0, 2.0, 5.0, 1.0, 1.0])
+    assert np.array_equal(sensitivity._ranks(values), stats.rankdata(values))

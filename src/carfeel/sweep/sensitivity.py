@@ -46,9 +46,16 @@ class Index:
 
 
 def _ranks(values: F64) -> F64:
-    from scipy.stats import rankdata
-
-    return np.asarray(rankdata(values), dtype=float)
+    """Ranks 1..n, ties sharing their mean rank."""
+    n = len(values)
+    order = np.argsort(values, kind="mergesort")
+    where = np.empty(n, dtype=np.intp)
+    where[order] = np.arange(n)
+    ordered = values[order]
+    starts = np.r_[True, ordered[1:] != ordered[:-1]]
+    group = np.cumsum(starts)[where] - 1
+    edges = np.r_[np.flatnonzero(starts), n]
+    return np.asarray(0.5 * (edges[group] + edges[group + 1] - 1) + 1.0, dtype=float)
 
 
 def _correlation(a: F64, b: F64) -> float:

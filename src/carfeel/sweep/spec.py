@@ -51,6 +51,9 @@ import numpy as np
 from carfeel import __version__
 from carfeel.errors import CarfeelError, InputError, PresetError
 from carfeel.io import presets
+from carfeel.models.drivers.hpattern import HPatternDriverParams
+from carfeel.models.gearshift.hpattern import FeelParams, Layout, SelectParams, WallParams
+from carfeel.models.gearshift.synchronizer import SynchronizerParams
 from carfeel.simulation.hpattern import HPatternSetup
 from carfeel.simulation.manoeuvres import MANOEUVRES
 from carfeel.simulation.shift import ShiftParams
@@ -162,19 +165,24 @@ class Vary:
     """The distribution's arguments in DISTRIBUTIONS order."""
 
     def sample(self, u: np.ndarray) -> np.ndarray:
-        """The distribution's values at the uniform quantiles u (inverse CDF)."""
-        from scipy import stats
+        """The distribution's values at the uniform quantiles u (inverse CDF; scipy.special,
+        not scipy.stats, whose import costs seconds)."""
+        from scipy.special import ndtr, ndtri
 
         if self.distribution == "uniform":
             low, high = self.args
             return low + u * (high - low)
         if self.distribution == "normal":
             mean, sd = self.args
-            return np.asarray(stats.norm.ppf(u, loc=mean, scale=sd), dtype=float)
+            return np.asarray(mean + sd * ndtri(u), dtype=float)
         mean, sd, low, high = self.args
         a, b = (low - mean) / sd, (high - mean) / sd
-        drawn = np.asarray(stats.truncnorm.ppf(u, a, b, loc=mean, scale=sd), dtype=float)
-        return np.asarray(np.clip(drawn, low, high))  # the ppf's last ulp stays within them
+        sign = 1.0
+        if a > 0.0:  # in the upper tail: mirror it to the lower, where the CDF keeps precision
+            a, b, sign, u = -b, -a, -1.0, 1.0 - u
+        lo, hi = ndtr(a), ndtr(b)
+        drawn = mean + sign * sd * ndtri(lo + u * (hi - lo))
+        return np.asarray(np.clip(drawn, low, high))  # the last ulp stays within the bounds
 
 
 @dataclass(frozen=True)
@@ -416,10 +424,22 @@ def _resolve_preset(model: str, name: str, folder: Path | None) -> tuple[str, st
 
 @dataclass(frozen=True, slots=True)
 class HPatternCase:
-    """What an H-pattern sweep varies: the preset's tables and its engagement preset."""
+    """What an H-pattern sweep varies: the preset's tables (its key paths as in the preset
+    file) and its engagement preset (under `shift.`)."""
 
-    setup: HPatternSetup
+    layout: Layout
+    select: SelectParams
+    walls: WallParams
+    synchronizer: SynchronizerParams
+    feel: FeelParams
+    driver: HPatternDriverParams
     shift: ShiftParams
+
+    @property
+    def setup(self) -> HPatternSetup:
+        return HPatternSetup(
+            self.layout, self.select, self.walls, self.synchronizer, self.feel, self.driver
+        )
 
 
 @lru_cache(maxsize=8)
@@ -439,7 +459,15 @@ def base_params(model: str, preset_text: str, engagement_text: str = "") -> Any:
     problems = presets.check_hpattern(setup, shift)
     if problems:
         raise PresetError("not valid:\n  " + "\n  ".join(problems))
-    return HPatternCase(setup, shift)
+    return HPatternCase(
+        setup.layout,
+        setup.select,
+        setup.walls,
+        setup.synchronizer,
+        setup.feel,
+        setup.driver,
+        shift,
+    )
 
 
 def _root_type(model: str) -> type[Any]:
@@ -776,10 +804,9 @@ def parameter_sets(spec: SweepSpec) -> list[dict[str, Value]]:
     drawn: dict[str, np.ndarray] = {}
     if draws:
         rng = np.random.default_rng(spec.sampling_seed)
-        if spec.sampling == "latin":
-            from scipy.stats import qmc
-
-            u = qmc.LatinHypercube(d=len(draws), seed=rng).random(spec.samples)
+        if spec.sampling == "latin":  # one draw in each of `samples` equal strata, per parameter
+            strata = np.column_stack([rng.permutation(spec.samples) for _ in draws])
+            u = (strata + rng.random((spec.samples, len(draws)))) / spec.samples
         else:
             u = rng.random((spec.samples, len(draws)))
         for j, v in enumerate(draws):
