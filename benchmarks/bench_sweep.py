@@ -112,27 +112,34 @@ def main() -> None:
     distributed = runner.dask_modules()
     import logging
 
-    t0 = time.perf_counter()
-    cluster = distributed.LocalCluster(
-        n_workers=2,
-        threads_per_worker=1,
-        processes=True,
-        dashboard_address=None,
-        silence_logs=logging.ERROR,
-    )
-    started = time.perf_counter() - t0
-    try:
-        address = cluster.scheduler_address
-        rate, n = sweep_rate(batch_text, scheduler=address)
-        print(
-            f"   2 workers, batch:             {rate:8.1f} shifts/s ({n} cases; "
-            f"{rate / serial_batch:.2f} x serial batch)"
+    rates = {}
+    for workers in (1, 2):
+        t0 = time.perf_counter()
+        cluster = distributed.LocalCluster(
+            n_workers=workers,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=None,
+            silence_logs=logging.ERROR,
         )
-        rate, n = sweep_rate(pure_text, scheduler=address)
-        print(f"   2 workers, pure step:         {rate:8.1f} shifts/s ({n} cases)")
-    finally:
-        cluster.close()
-    print(f"   (the LocalCluster took {started:.1f} s to start, not counted above)")
+        started = time.perf_counter() - t0
+        try:
+            address = cluster.scheduler_address
+            rates[workers], n = sweep_rate(batch_text, scheduler=address)
+            print(
+                f"   {workers} worker{'s' if workers > 1 else ' '}, batch:"
+                f"             {rates[workers]:8.1f} shifts/s ({n} cases)"
+            )
+            if workers == 2:
+                rate, n = sweep_rate(pure_text, scheduler=address)
+                print(f"   2 workers, pure step:         {rate:8.1f} shifts/s ({n} cases)")
+        finally:
+            cluster.close()
+        print(f"   (the {workers}-worker LocalCluster took {started:.1f} s to start, not counted)")
+    print(
+        f"   2 workers / 1 worker: {rates[2] / rates[1]:.2f}; 2 workers / serial batch: "
+        f"{rates[2] / serial_batch:.2f}"
+    )
     print(f"load average {os.getloadavg()[0]:.1f} at the end")
 
 
