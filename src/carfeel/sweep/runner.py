@@ -196,32 +196,31 @@ def run_cases(
     done = part.load(restart) if part is not None else {}
     todo = [c for c in cases(spec) if c.case_id not in done]
     rows = dict(done)
-    if part is not None:
-        part.open(done)
-    bar = Progress(spec.n_cases, len(done), progress)
     notes: list[str] = []
-
-    def finished(chunk: list[Row]) -> None:
-        for row in chunk:
-            rows[int(row["case_id"])] = row
+    with contextlib.ExitStack() as stack:
+        client, n_workers, where = None, 1, "serial"
+        if workers is not None or scheduler is not None:  # reached before the part file opens
+            client, n_workers, where, note = stack.enter_context(dask_client(workers, scheduler))
+            if note:
+                notes.append(note)
         if part is not None:
-            part.append(chunk)
-        bar.update(len(chunk))
+            part.open(done)
+            stack.callback(part.close)
+        bar = Progress(spec.n_cases, len(done), progress)
+        stack.callback(bar.close)
 
-    try:
-        if workers is None and scheduler is None:
-            where = "serial"
+        def finished(chunk: list[Row]) -> None:
+            for row in chunk:
+                rows[int(row["case_id"])] = row
+            if part is not None:
+                part.append(chunk)
+            bar.update(len(chunk))
+
+        if client is None:
             for task in tasks_of(spec, todo):
                 finished(execute(task))
         else:
-            with dask_client(workers, scheduler) as (client, n_workers, where, note):
-                if note:
-                    notes.append(note)
-                _on_dask(client, tasks_of(spec, todo, n_workers), finished, execute)
-    finally:
-        bar.close()
-        if part is not None:
-            part.close()
+            _on_dask(client, tasks_of(spec, todo, n_workers), finished, execute)
     ordered = [rows[i] for i in sorted(rows)]
     return SweepRun(
         spec, ordered, len(done), len(todo), where, time.monotonic() - started, tuple(notes)
