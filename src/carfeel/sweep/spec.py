@@ -1,0 +1,880 @@
+"""A sweep's spec (TOML), validated once like a preset, and the cases it asks for.
+
+    model = "shift"                  # shift | hpattern | steering
+    preset = "paper-first-gear"      # shipped name, or a path (relative to the spec's folder)
+    seeds = 4                        # seeds 0..3 for every parameter set (or a list of seeds)
+    samples = 200                    # Monte Carlo draws (when a parameter has a distribution)
+    sampling = "latin"               # random (default) | latin (Latin hypercube)
+    sampling_seed = 1                # seed of the draws
+    metrics = ["engagement_peak_N"]  # default: all of the model's (see METRICS)
+    engine = "batch"                 # shift only: batch (vectorized, default) | pure
+
+    [run]                            # what is simulated: shift duration, sequence, manoeuvre
+    duration_s = 1.2
+
+    [set]                            # fixed changes to the preset, by key path
+    "driver.push_force_N" = 90.0
+
+    [vary]                           # by key path: a grid of values, or a distribution
+    "gearbox.chamfer.gear_inertia_kg_m2" = { values = [0.1, 0.153, 0.2] }
+    "driver.push_velocity_m_s" = { distribution = "uniform", low = 0.15, high = 0.4 }
+    "gearbox.engagement.sliding_friction_N" = { distribution = "normal", mean = 10, sd = 1 }
+    "gearbox.neutral.static_friction_N" = { distribution = "truncnormal", mean = 1.5, sd = 0.3,
+                                            low = 1.0, high = 2.0 }
+
+The parameter sets are the grid's product times the draws (the same draws at every grid point);
+each set runs every seed: one case, one row. Key paths name preset fields (`gearbox.stop.
+stiffness_N_m`, `layout.gears[2].ratio`; an H-pattern's engagement preset under `shift.`) or
+run settings (`run.speed_kmh`). Everything checkable is checked here, with every problem named in
+one error; a drawn value that the preset's validation refuses (a normal draw out of range, a
+sliding friction above the static) makes that row `invalid`, with the problem, not the sweep.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import itertools
+import json
+import math
+import re
+import tomllib
+import typing
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from functools import cache, lru_cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from carfeel import __version__
+from carfeel.errors import CarfeelError, InputError, PresetError
+from carfeel.io import presets
+from carfeel.models.drivers.hpattern import HPatternDriverParams
+from carfeel.models.gearshift.hpattern import FeelParams, Layout, SelectParams, WallParams
+from carfeel.models.gearshift.synchronizer import SynchronizerParams
+from carfeel.simulation.hpattern import HPatternSetup
+from carfeel.simulation.manoeuvres import MANOEUVRES
+from carfeel.simulation.shift import ShiftParams
+from carfeel.simulation.steering import ROAD_FRICTION, STEERING_MODELS, SteeringCar
+
+MODELS = ("shift", "hpattern", "steering")
+
+SHIFT_METRICS = {
+    "synchronization_force_N": "median knob force on the synchronization plateau, N",
+    "synchronization_peak_N": "highest knob force while the ring blocks, N",
+    "synchronization_time_s": "how long the knob stayed at the synchro ring, s",
+    "engagement_peak_N": "highest knob force in the teeth, N",
+    "stop_peak_N": "highest knob force at the end stop, N",
+    "stop_overshoot_m": "how far past the in-gear position the knob went, m",
+    "shift_time_s": "from the start of the push to the knob at the end stop (the gear in), s",
+    "balked": "the gear did not go in within the run",
+}
+HPATTERN_SHIFT_METRICS = {
+    "synchronization_force_N": "median knob force on the plateau, N",
+    "synchronization_time_s": "time at the synchro ring, s",
+    "engagement_peak_N": "highest knob force in the teeth, N",
+    "stop_peak_N": "highest knob force at the end stop, N",
+    "engaged": "the gear went in",
+}
+HPATTERN_METRICS = {
+    "total_time_s": "from the start to the last gear of the sequence engaged, s",
+    "balked": "the sequence was not completed within the run",
+    "ground": "the teeth ground (a failed blocking condition, or reverse at speed)",
+    "peak_grind_N": "largest grinding vibration, N",
+}
+STEERING_METRICS = {
+    "torque_gradient_Nm_per_g": "on-centre torque gradient (weave), Nm/g",
+    "torque_at_0_1g_Nm": "torque at 0.1 g (weave), Nm",
+    "deadband_g": "torque deadband (weave), g",
+    "hysteresis_Nm": "torque hysteresis at 0 g (weave), Nm",
+    "sensitivity_g_per_100deg": "steering sensitivity (weave), g per 100 deg",
+    "understeer_gradient_deg_per_g": "understeer gradient (quasi-steady cornering), deg/g",
+    "peak_torque_Nm": "largest steering wheel torque, Nm",
+    "rms_lateral_accel_g": "rms lateral acceleration, g",
+}
+DISTRIBUTIONS = {
+    "uniform": ("low", "high"),
+    "normal": ("mean", "sd"),
+    "truncnormal": ("mean", "sd", "low", "high"),
+}
+TOP_KEYS = (
+    "model",
+    "preset",
+    "seeds",
+    "samples",
+    "sampling",
+    "sampling_seed",
+    "metrics",
+    "engine",
+    "cases_per_task",
+    "run",
+    "set",
+    "vary",
+)
+RUN_KEYS: dict[str, dict[str, tuple[type, ...]]] = {
+    "shift": {"duration_s": (float, int), "dt_s": (float, int), "substeps": (int,)},
+    "hpattern": {
+        "sequence": (str, list),
+        "speed_kmh": (float, int),
+        "engine_rpm": (float, int),
+        "clutch": (float, int),
+        "synchronizer": (str,),
+        "max_duration_s": (float, int),
+        "dt_s": (float, int),
+        "substeps": (int,),
+    },
+    "steering": {
+        "manoeuvre": (str,),
+        "speed_kmh": (float, int),
+        "steering_model": (str,),
+        "road": (str,),
+        "dt_s": (float, int),
+        "substeps": (int,),
+    },
+}
+RUN_RANGES = {
+    "speed_kmh": (0.0, 250.0),
+    "engine_rpm": (0.0, 20000.0),
+    "clutch": (0.0, 1.0),
+}
+"""Run settings a sweep may vary (`run.NAME`), with their allowed range."""
+MAX_STEP_S = {"shift": 2e-3, "hpattern": 1e-3, "steering": 1e-3}
+"""Longest model step of each model (simulation.*.MAX_STEP_S)."""
+DEFAULT_CASES_PER_TASK = {"batch": 4096, "shift": 200, "hpattern": 8, "steering": 8}
+"""About seconds of work per task on one core."""
+MAX_CASES = 10_000_000
+
+
+class SpecError(InputError):
+    """A sweep spec is missing, malformed, or asks for what the models cannot do."""
+
+
+Value = float | int | bool
+
+
+@dataclass(frozen=True)
+class Vary:
+    """One varied parameter: a grid of values, or a distribution."""
+
+    path: str
+    values: tuple[Value, ...] = ()
+    distribution: str = ""
+    args: tuple[float, ...] = ()
+    """The distribution's arguments in DISTRIBUTIONS order."""
+
+    def sample(self, u: np.ndarray) -> np.ndarray:
+        """The distribution's values at the uniform quantiles u (inverse CDF; scipy.special,
+        not scipy.stats, whose import costs seconds)."""
+        from scipy.special import ndtr, ndtri
+
+        if self.distribution == "uniform":
+            low, high = self.args
+            return low + u * (high - low)
+        if self.distribution == "normal":
+            mean, sd = self.args
+            return np.asarray(mean + sd * ndtri(u), dtype=float)
+        mean, sd, low, high = self.args
+        a, b = (low - mean) / sd, (high - mean) / sd
+        sign = 1.0
+        if a > 0.0:  # in the upper tail: mirror it to the lower, where the CDF keeps precision
+            a, b, sign, u = -b, -a, -1.0, 1.0 - u
+        lo, hi = ndtr(a), ndtr(b)
+        drawn = mean + sign * sd * ndtri(lo + u * (hi - lo))
+        return np.asarray(np.clip(drawn, low, high))  # the last ulp stays within the bounds
+
+
+@dataclass(frozen=True)
+class Case:
+    """One simulation: a parameter set (by its index, `sample`) and a seed."""
+
+    case_id: int
+    sample: int
+    seed: int
+    values: tuple[tuple[str, Value], ...]
+
+
+@dataclass(frozen=True)
+class SweepSpec:
+    """A validated spec; plain data, so it travels to Dask workers as it is."""
+
+    label: str
+    model: str
+    preset_label: str
+    preset_text: str
+    engagement_text: str
+    """hpattern: the text of the shift preset its slots engage with ('' otherwise)."""
+    seeds: tuple[int, ...]
+    samples: int
+    sampling: str
+    sampling_seed: int
+    metrics: tuple[str, ...]
+    engine: str
+    cases_per_task: int
+    run: tuple[tuple[str, Any], ...]
+    fixed: tuple[tuple[str, Value], ...]
+    vary: tuple[Vary, ...]
+    text: str
+    """The spec's TOML, as given (kept in the results' metadata)."""
+    hash: str
+
+    @property
+    def settings(self) -> dict[str, Any]:
+        return dict(self.run)
+
+    @property
+    def parameters(self) -> tuple[str, ...]:
+        return tuple(v.path for v in self.vary)
+
+    @property
+    def n_sets(self) -> int:
+        grid = math.prod(len(v.values) for v in self.vary if v.values)
+        return grid * self.samples
+
+    @property
+    def n_cases(self) -> int:
+        return self.n_sets * len(self.seeds)
+
+    def columns(self) -> list[str]:
+        return ["case_id", "sample", "seed", *self.parameters, *self.metrics, "status", "problem"]
+
+
+def metric_names(model: str, run: Mapping[str, Any]) -> dict[str, str]:
+    """Every metric a model's sweep can keep, with its description."""
+    if model == "shift":
+        return dict(SHIFT_METRICS)
+    if model == "steering":
+        return dict(STEERING_METRICS)
+    names = {}
+    for k, gear in enumerate(gears_of(run.get("sequence", "")), start=1):
+        for name, text in HPATTERN_SHIFT_METRICS.items():
+            names[f"shift{k}_{gear}_{name}"] = f"into {gear} (gear {k} of the sequence): {text}"
+    names.update(HPATTERN_METRICS)
+    return names
+
+
+def gears_of(sequence: str | Sequence[str]) -> tuple[str, ...]:
+    """The gears of a sequence, N not counted (as --mistake counts them)."""
+    parts = sequence.split(",") if isinstance(sequence, str) else list(sequence)
+    return tuple(p.strip().upper() for p in parts if p.strip().upper() != "N")
+
+
+def load(path: Path) -> SweepSpec:
+    """Read and validate a spec file; SpecError names every problem and its fix."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise SpecError(f"sweep spec {path} not found; give the path of a .toml file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SpecError(f"sweep spec {path} cannot be read: {exc}") from None
+    return from_toml(text, str(path), path.parent)
+
+
+def from_toml(text: str, label: str = "<spec>", folder: Path | None = None) -> SweepSpec:
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SpecError(f"sweep spec {label}: not valid TOML: {exc}") from None
+    problems: list[str] = []
+    for key in data:
+        if key not in TOP_KEYS:
+            problems.append(f"{key}: unknown key; a sweep spec has {', '.join(TOP_KEYS)}")
+    model = data.get("model")
+    if model not in MODELS:
+        problems.append(f"model = {model!r}: expected one of {', '.join(MODELS)}")
+        raise _error(label, problems)
+    kind = "shift" if model == "shift" else model
+    preset_name = data.get("preset", presets.DEFAULT_PRESETS[kind])
+    if not isinstance(preset_name, str) or not preset_name:
+        problems.append(f"preset = {preset_name!r}: expected a preset name or a .toml path")
+        raise _error(label, problems)
+    preset_label, preset_text, engagement_text = _resolve_preset(model, preset_name, folder)
+    try:
+        base = base_params(model, preset_text, engagement_text)
+    except CarfeelError as exc:
+        raise SpecError(f"sweep spec {label}: preset {preset_label}: {exc}") from None
+
+    seeds = _seeds(data.get("seeds", 1), problems)
+    run = _run(model, data.get("run", {}), problems)
+    fixed = _assignments(data.get("set", {}), "set", problems)
+    vary = _vary(data.get("vary", {}), problems)
+    paths = [path for path, _ in fixed] + [v.path for v in vary]
+    for path in {p for p in paths if paths.count(p) > 1}:
+        problems.append(f"{path}: given more than once in [set] and [vary]; give it once")
+    for path, value in fixed:
+        _check_value(model, base, path, value, "set", problems)
+    for v in vary:
+        _check_vary(model, base, v, problems)
+    has_draws = any(v.distribution for v in vary)
+    samples = data.get("samples", 0 if not has_draws else None)
+    if has_draws and (isinstance(samples, bool) or not isinstance(samples, int) or samples < 1):
+        problems.append(
+            f"samples = {samples!r}: a parameter has a distribution; give the number of draws, "
+            "a whole number >= 1 (e.g. samples = 200)"
+        )
+        samples = 1
+    elif not has_draws and samples not in (0, None):
+        problems.append(
+            f"samples = {samples!r}: no parameter has a distribution (grids only); drop samples"
+        )
+    samples = max(int(samples or 1), 1)
+    sampling = data.get("sampling", "random")
+    if sampling not in ("random", "latin"):
+        problems.append(f"sampling = {sampling!r}: expected 'random' or 'latin'")
+    sampling_seed = data.get("sampling_seed", 0)
+    if isinstance(sampling_seed, bool) or not isinstance(sampling_seed, int) or sampling_seed < 0:
+        problems.append(f"sampling_seed = {sampling_seed!r}: expected a whole number >= 0")
+        sampling_seed = 0
+    known = metric_names(model, dict(run))
+    metrics = data.get("metrics", list(known))
+    if not isinstance(metrics, list) or not metrics or not all(isinstance(m, str) for m in metrics):
+        problems.append(f"metrics = {metrics!r}: expected a list of names from {', '.join(known)}")
+        metrics = list(known)
+    for name in metrics:
+        if name not in known:
+            problems.append(
+                f"metrics: unknown metric {name!r}; the {model} sweep keeps {', '.join(known)}"
+            )
+    engine = data.get("engine", "batch" if model == "shift" else "pure")
+    if engine not in ("batch", "pure") or (engine == "batch" and model != "shift"):
+        problems.append(
+            f"engine = {engine!r}: expected 'batch' (the vectorized single shift, model = "
+            "'shift' only) or 'pure' (the models' own steps)"
+        )
+    per_task = data.get(
+        "cases_per_task", DEFAULT_CASES_PER_TASK.get("batch" if engine == "batch" else model, 8)
+    )
+    if isinstance(per_task, bool) or not isinstance(per_task, int) or per_task < 1:
+        problems.append(f"cases_per_task = {per_task!r}: expected a whole number >= 1")
+        per_task = 1
+    if not problems:
+        # The preset with [set] applied must itself be valid: else every row would be invalid.
+        trouble = case_problems(model, base, dict(fixed))
+        problems.extend(f"[set] makes the preset invalid: {p}" for p in trouble)
+    n_cases = math.prod(len(v.values) for v in vary if v.values) * samples * max(len(seeds), 1)
+    if n_cases > MAX_CASES:
+        problems.append(
+            f"{n_cases:.3g} cases asked for; at most {MAX_CASES:.0e}: fewer values, "
+            "samples or seeds"
+        )
+    if problems:
+        raise _error(label, problems)
+    digest = hashlib.sha256(
+        json.dumps(
+            {
+                "spec": data,
+                "preset": preset_text,
+                "engagement": engagement_text,
+                "carfeel": __version__,
+            },
+            sort_keys=True,
+            default=str,
+        ).encode()
+    ).hexdigest()
+    return SweepSpec(
+        label=label,
+        model=model,
+        preset_label=preset_label,
+        preset_text=preset_text,
+        engagement_text=engagement_text,
+        seeds=seeds,
+        samples=samples,
+        sampling=sampling,
+        sampling_seed=sampling_seed,
+        metrics=tuple(metrics),
+        engine=engine,
+        cases_per_task=per_task,
+        run=tuple(run),
+        fixed=tuple(fixed),
+        vary=tuple(vary),
+        text=text,
+        hash=digest,
+    )
+
+
+def _error(label: str, problems: list[str]) -> SpecError:
+    return SpecError(f"sweep spec {label} is not valid:\n  " + "\n  ".join(problems))
+
+
+def _resolve_preset(model: str, name: str, folder: Path | None) -> tuple[str, str, str]:
+    """(label, text, engagement text) of the spec's preset: read here, sent to the workers."""
+    looks_like_path = name.endswith(".toml") or "/" in name or "\\" in name
+    if looks_like_path and folder is not None and not Path(name).is_absolute():
+        name = str(folder / name)
+    try:
+        label, text = presets.resolve(model, name)
+        engagement = ""
+        if model == "hpattern":
+            reference = presets.parse(label, text).get("engagement", "")
+            if not isinstance(reference, str) or not reference:
+                raise PresetError(
+                    f"preset {label}: engagement: missing; expected a shift preset name"
+                )
+            if (reference.endswith(".toml") or "/" in reference) and not Path(
+                reference
+            ).is_absolute():
+                base = Path(label).parent if label.endswith(".toml") else Path(".")
+                reference = str(base / reference)
+            engagement = presets.resolve("shift", reference)[1]
+    except CarfeelError as exc:
+        raise SpecError(f"preset = {name!r}: {exc}") from None
+    return label, text, engagement
+
+
+@dataclass(frozen=True, slots=True)
+class HPatternCase:
+    """What an H-pattern sweep varies: the preset's tables (its key paths as in the preset
+    file) and its engagement preset (under `shift.`)."""
+
+    layout: Layout
+    select: SelectParams
+    walls: WallParams
+    synchronizer: SynchronizerParams
+    feel: FeelParams
+    driver: HPatternDriverParams
+    shift: ShiftParams
+
+    @property
+    def setup(self) -> HPatternSetup:
+        return HPatternSetup(
+            self.layout, self.select, self.walls, self.synchronizer, self.feel, self.driver
+        )
+
+
+@lru_cache(maxsize=8)
+def base_params(model: str, preset_text: str, engagement_text: str = "") -> Any:
+    """The preset's parameters (validated as `carfeel.io.presets` does), from its text."""
+    if model == "shift":
+        return presets.from_toml("shift", "preset", preset_text).params
+    if model == "steering":
+        return presets.from_toml("steering", "preset", preset_text).params
+    shift = presets.from_toml("shift", "engagement", engagement_text).params
+    data = presets.parse("preset", preset_text)
+    problems: list[str] = []
+    tables = {k: v for k, v in data.items() if k not in ("name", "source", "engagement")}
+    setup = presets.build(HPatternSetup, tables, "", problems)
+    if setup is None or problems:
+        raise PresetError("not valid:\n  " + "\n  ".join(problems))
+    problems = presets.check_hpattern(setup, shift)
+    if problems:
+        raise PresetError("not valid:\n  " + "\n  ".join(problems))
+    return HPatternCase(
+        setup.layout,
+        setup.select,
+        setup.walls,
+        setup.synchronizer,
+        setup.feel,
+        setup.driver,
+        shift,
+    )
+
+
+def _root_type(model: str) -> type[Any]:
+    return {"shift": ShiftParams, "steering": SteeringCar, "hpattern": HPatternCase}[model]
+
+
+_SEGMENT = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)(?:\[(\d+)\])?$")
+
+
+def field_type(model: str, base: Any, path: str) -> tuple[Any, Any]:
+    """(type, value in the preset) of the field at a key path; SpecError-free: raises KeyError
+    with the reason."""
+    if path.startswith("run."):
+        name = path[4:]
+        if name not in RUN_RANGES or name not in RUN_KEYS[model]:
+            varied = [f"run.{k}" for k in RUN_RANGES if k in RUN_KEYS[model]]
+            raise KeyError(
+                f"the {model} sweep varies these run settings: {', '.join(varied) or 'none'}"
+            )
+        return float, None
+    kind: Any = _root_type(model)
+    value = base
+    walked: list[str] = []
+    for part in path.split("."):
+        match = _SEGMENT.match(part)
+        if match is None:
+            raise KeyError(f"{part!r} is not a field name")
+        name, index = match.group(1), match.group(2)
+        kind = _optional_of(kind)
+        if not dataclasses.is_dataclass(kind):
+            raise KeyError(f"{'.'.join(walked)} is a value, not a table")
+        hints = _hints(typing.cast(type, kind))
+        if name not in hints:
+            where = ".".join(walked) or "the preset"
+            fields = ", ".join(hints)
+            raise KeyError(f"{where} has no {name!r}; it has {fields}")
+        kind = hints[name]
+        value = getattr(value, name) if value is not None else None
+        walked.append(part)
+        if value is None and index is None and _optional_of(kind) is not kind:
+            raise KeyError(f"the preset has no [{'.'.join(walked)}] table")
+        if index is not None:
+            if typing.get_origin(kind) is not tuple:
+                raise KeyError(f"{name} is not a list; drop [{index}]")
+            kind = typing.get_args(kind)[0]
+            assert value is not None  # a tuple field of the preset
+            if int(index) >= len(value):
+                raise KeyError(f"{name} has {len(value)} entries (0..{len(value) - 1})")
+            value = value[int(index)]
+    kind = _optional_of(kind)
+    if dataclasses.is_dataclass(kind) or typing.get_origin(kind) is tuple or kind is str:
+        raise KeyError("it is a table, a list or a name; address a number inside it")
+    return kind, value
+
+
+@cache
+def _hints(cls: type[Any]) -> dict[str, Any]:
+    """The fields' types of a parameter dataclass (typing.get_type_hints: slow, so kept)."""
+    return typing.get_type_hints(cls)
+
+
+def _optional_of(kind: Any) -> Any:
+    args = typing.get_args(kind)
+    if type(None) in args and len(args) == 2:
+        return args[0] if args[1] is type(None) else args[1]
+    return kind
+
+
+def _range_text(path: str) -> str:
+    if path.startswith("run."):
+        low, high = RUN_RANGES[path[4:]]
+        return f"{low:g} <= value <= {high:g}"
+    key = presets.range_key(path)
+    return presets.describe_range(key) if key in presets.RANGES else "any number"
+
+
+def value_problem(model: str, base: Any, path: str, value: Value) -> str | None:
+    """What is wrong with `value` at `path` (its type, its range), or None."""
+    try:
+        kind, _ = field_type(model, base, path)
+    except KeyError as exc:
+        return f"{path}: unknown parameter: {exc.args[0]}"
+    if kind is bool:
+        return None if isinstance(value, bool) else f"{path} = {value!r}: expected true or false"
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return f"{path} = {value!r}: expected a number with {_range_text(path)}"
+    if kind is int and not (isinstance(value, int) or float(value).is_integer()):
+        return f"{path} = {value!r}: expected a whole number"
+    number = float(value)
+    if path.startswith("run."):
+        low, high = RUN_RANGES[path[4:]]
+        inside = math.isfinite(number) and low <= number <= high
+    else:
+        key = presets.range_key(path)
+        inside = key not in presets.RANGES or _in_range(key, number)
+    if not inside:
+        unit = presets.unit_of(path.split(".")[-1])
+        return f"{path} = {number:g} {unit} is out of range: allowed {_range_text(path)}".replace(
+            "  ", " "
+        )
+    return None
+
+
+def _in_range(key: str, value: float) -> bool:
+    low, high, low_in, high_in = presets.RANGES[key]
+    if not math.isfinite(value):
+        return False
+    return (value >= low if low_in else value > low) and (
+        value <= high if high_in else value < high
+    )
+
+
+def _check_value(
+    model: str, base: Any, path: str, value: Value, where: str, problems: list[str]
+) -> None:
+    problem = value_problem(model, base, path, value)
+    if problem is not None:
+        problems.append(f"[{where}] {problem}")
+
+
+def _check_vary(model: str, base: Any, v: Vary, problems: list[str]) -> None:
+    try:
+        kind, _ = field_type(model, base, v.path)
+    except KeyError as exc:
+        problems.append(f"[vary] {v.path}: unknown parameter: {exc.args[0]}")
+        return
+    for value in v.values:
+        _check_value(model, base, v.path, value, "vary", problems)
+    if not v.distribution:
+        return
+    if kind is not float:
+        problems.append(
+            f"[vary] {v.path} is {'true/false' if kind is bool else 'a whole number'}"
+            ": give a grid of values, not a distribution"
+        )
+        return
+    names = DISTRIBUTIONS[v.distribution]
+    args = dict(zip(names, v.args, strict=True))
+    if "sd" in args and not args["sd"] > 0.0:
+        problems.append(f"[vary] {v.path}: sd = {args['sd']:g} must be > 0")
+    if "low" in args and not args["low"] < args["high"]:
+        problems.append(
+            f"[vary] {v.path}: low = {args['low']:g} must be below high = {args['high']:g}"
+        )
+    for name in ("low", "high", "mean"):
+        if name in args:
+            problem = value_problem(model, base, v.path, args[name])
+            if problem is not None:
+                what = "a bound" if name != "mean" else "the mean"
+                problems.append(f"[vary] {v.path}: {name} is {what} of the draws: {problem}")
+
+
+def _seeds(value: Any, problems: list[str]) -> tuple[int, ...]:
+    if isinstance(value, int) and not isinstance(value, bool) and value >= 1:
+        return tuple(range(value))
+    if (
+        isinstance(value, list)
+        and value
+        and all(isinstance(s, int) and not isinstance(s, bool) for s in value)
+        and len(set(value)) == len(value)
+    ):
+        return tuple(value)
+    problems.append(
+        f"seeds = {value!r}: expected how many seeds (a whole number >= 1: seeds 0..n-1) or a "
+        "list of distinct whole numbers"
+    )
+    return (0,)
+
+
+def _run(model: str, table: Any, problems: list[str]) -> list[tuple[str, Any]]:
+    if not isinstance(table, dict):
+        problems.append(f"run = {table!r}: expected a table [run]")
+        return []
+    allowed = RUN_KEYS[model]
+    out: dict[str, Any] = {}
+    for key, value in table.items():
+        if key not in allowed:
+            problems.append(
+                f"[run] {key}: unknown setting; the {model} sweep takes {', '.join(allowed)}"
+            )
+            continue
+        if isinstance(value, bool) or not isinstance(value, allowed[key]):
+            problems.append(
+                f"[run] {key} = {value!r}: expected "
+                f"{'a number' if float in allowed[key] else 'text'}"
+            )
+            continue
+        out[key] = float(value) if float in allowed[key] else value  # type: ignore[arg-type]
+    for key in ("duration_s", "dt_s", "max_duration_s"):
+        if key in out and not (math.isfinite(out[key]) and out[key] > 0.0):
+            problems.append(f"[run] {key} = {out[key]:g} s: expected > 0")
+    if "substeps" in out and out["substeps"] < 1:
+        problems.append(f"[run] substeps = {out['substeps']}: expected a whole number >= 1")
+    for key, (low, high) in RUN_RANGES.items():
+        if key in out and not low <= out[key] <= high:
+            problems.append(f"[run] {key} = {out[key]:g}: allowed {low:g} <= value <= {high:g}")
+    dt = out.get("dt_s", 1e-3)
+    steps = out.get("substeps", 1)
+    if dt / steps > MAX_STEP_S[model] * (1 + 1e-9):
+        needed = math.ceil(dt / MAX_STEP_S[model] - 1e-9)
+        problems.append(
+            f"[run] dt_s / substeps = {dt / steps:g} s is longer than {MAX_STEP_S[model]:g} s, "
+            f"where the {model} model stops being accurate; use substeps = {needed}"
+        )
+    if model == "hpattern":
+        sequence = out.get("sequence")
+        if sequence is None:
+            problems.append('[run] sequence: missing; the gears to go through, e.g. "N,1,2,N"')
+        elif isinstance(sequence, list) and not all(isinstance(g, str) for g in sequence):
+            problems.append(f"[run] sequence = {sequence!r}: expected gear names")
+        elif not gears_of(sequence):
+            problems.append(f"[run] sequence = {sequence!r}: no gear to shift into")
+        else:
+            out["sequence"] = (
+                ",".join(["N", *gears_of(sequence)]) if isinstance(sequence, list) else sequence
+            )
+        sync = out.get("synchronizer")
+        if sync is not None and sync not in ("fixed", "physics"):
+            problems.append(f"[run] synchronizer = {sync!r}: expected 'fixed' or 'physics'")
+    if model == "steering":
+        manoeuvre = out.get("manoeuvre")
+        if manoeuvre not in MANOEUVRES:
+            problems.append(
+                f"[run] manoeuvre = {manoeuvre!r}: expected one of {', '.join(MANOEUVRES)}"
+            )
+        if out.get("steering_model", "paper") not in STEERING_MODELS:
+            problems.append(
+                f"[run] steering_model = {out['steering_model']!r}: expected one "
+                f"of {', '.join(STEERING_MODELS)}"
+            )
+        if out.get("road", "dry") not in ROAD_FRICTION:
+            problems.append(
+                f"[run] road = {out['road']!r}: expected one of {', '.join(ROAD_FRICTION)}"
+            )
+    return sorted(out.items())
+
+
+def _flatten(table: Mapping[str, Any], prefix: str = "") -> list[tuple[str, Any]]:
+    out = []
+    for key, value in table.items():
+        path = f"{prefix}{key}"
+        if isinstance(value, dict) and not ({"values", "distribution"} & set(value)):
+            out.extend(_flatten(value, f"{path}."))
+        else:
+            out.append((path, value))
+    return out
+
+
+def _assignments(table: Any, where: str, problems: list[str]) -> list[tuple[str, Value]]:
+    if not isinstance(table, dict):
+        problems.append(f"{where} = {table!r}: expected a table [{where}] of key path = value")
+        return []
+    out = []
+    for path, value in _flatten(table):
+        if isinstance(value, bool | int | float):
+            out.append((path, value))
+        else:
+            problems.append(f"[{where}] {path} = {value!r}: expected a number or true/false")
+    return out
+
+
+def _vary(table: Any, problems: list[str]) -> list[Vary]:
+    if not isinstance(table, dict):
+        problems.append(
+            f"vary = {table!r}: expected a table [vary] of key path = "
+            "{ values = [...] } or { distribution = ... }"
+        )
+        return []
+    out: list[Vary] = []
+    for path, entry in _flatten(table):
+        hint = (
+            f'"{path}" = {{ values = [a, b, c] }} or {{ distribution = "uniform", low = a, '
+            "high = b }"
+        )
+        if not isinstance(entry, dict):
+            problems.append(f"[vary] {path} = {entry!r}: expected {hint}")
+            continue
+        if "values" in entry:
+            values = entry["values"]
+            extra = set(entry) - {"values"}
+            if extra:
+                problems.append(
+                    f"[vary] {path}: {', '.join(sorted(extra))}: a grid takes only values"
+                )
+            if (
+                not isinstance(values, list)
+                or not values
+                or not all(isinstance(x, bool | int | float) for x in values)
+            ):
+                problems.append(
+                    f"[vary] {path}: values = {values!r}: expected a non-empty list "
+                    "of numbers (or true/false)"
+                )
+                continue
+            if len(set(values)) != len(values):
+                problems.append(f"[vary] {path}: values = {values!r} repeats a value")
+            out.append(Vary(path, values=tuple(values)))
+            continue
+        name = entry.get("distribution")
+        if name not in DISTRIBUTIONS:
+            problems.append(
+                f"[vary] {path}: distribution = {name!r}: expected one of "
+                + ", ".join(f"{d} ({', '.join(a)})" for d, a in DISTRIBUTIONS.items())
+            )
+            continue
+        names = DISTRIBUTIONS[name]
+        extra = set(entry) - {"distribution", *names}
+        missing = [a for a in names if a not in entry]
+        if extra or missing:
+            problems.append(
+                f"[vary] {path}: a {name} distribution takes {', '.join(names)}"
+                + (f"; unknown {', '.join(sorted(extra))}" if extra else "")
+                + (f"; missing {', '.join(missing)}" if missing else "")
+            )
+            continue
+        args = [entry[a] for a in names]
+        if not all(isinstance(a, int | float) and not isinstance(a, bool) for a in args) or not all(
+            math.isfinite(a) for a in args
+        ):
+            problems.append(
+                f"[vary] {path}: {name} arguments must be finite numbers, got "
+                f"{dict(zip(names, args, strict=True))}"
+            )
+            continue
+        out.append(Vary(path, distribution=name, args=tuple(float(a) for a in args)))
+    return out
+
+
+def parameter_sets(spec: SweepSpec) -> list[dict[str, Value]]:
+    """Every parameter set, in order: the grid's product (spec order, the last key fastest)
+    times the draws (the same `samples` draws at every grid point)."""
+    grid = [v for v in spec.vary if v.values]
+    draws = [v for v in spec.vary if v.distribution]
+    drawn: dict[str, np.ndarray] = {}
+    if draws:
+        rng = np.random.default_rng(spec.sampling_seed)
+        if spec.sampling == "latin":  # one draw in each of `samples` equal strata, per parameter
+            strata = np.column_stack([rng.permutation(spec.samples) for _ in draws])
+            u = (strata + rng.random((spec.samples, len(draws)))) / spec.samples
+        else:
+            u = rng.random((spec.samples, len(draws)))
+        for j, v in enumerate(draws):
+            drawn[v.path] = v.sample(u[:, j])
+    sets = []
+    for point in itertools.product(*(v.values for v in grid)):
+        for s in range(spec.samples):
+            values: dict[str, Value] = dict(zip((v.path for v in grid), point, strict=True))
+            for v in draws:
+                values[v.path] = float(drawn[v.path][s])
+            sets.append({v.path: values[v.path] for v in spec.vary})
+    return sets
+
+
+def cases(spec: SweepSpec) -> list[Case]:
+    """Every case of the sweep (parameter set x seed), numbered from 0."""
+    out: list[Case] = []
+    for index, values in enumerate(parameter_sets(spec)):
+        items = tuple(values.items())
+        for seed in spec.seeds:
+            out.append(Case(len(out), index, seed, items))
+    return out
+
+
+def apply(base: Any, values: Mapping[str, Value]) -> Any:
+    """`base` with each key path (not `run.`) set to its value (dataclasses.replace)."""
+    for path, value in values.items():
+        if not path.startswith("run."):
+            base = _replace(base, path.split("."), value)
+    return base
+
+
+def _replace(obj: Any, parts: list[str], value: Value) -> Any:
+    match = _SEGMENT.match(parts[0])
+    assert match is not None  # checked by field_type
+    name, index = match.group(1), match.group(2)
+    current = getattr(obj, name)
+    if index is not None:
+        items = list(current)
+        i = int(index)
+        items[i] = _replace(items[i], parts[1:], value) if parts[1:] else value
+        new: Any = tuple(items)
+    elif parts[1:]:
+        new = _replace(current, parts[1:], value)
+    else:
+        kind = type(current)
+        new = kind(value) if kind in (int, float) and not isinstance(value, bool) else value
+    return dataclasses.replace(obj, **{name: new})
+
+
+def case_problems(model: str, base: Any, values: Mapping[str, Value]) -> list[str]:
+    """The preset validation of one case: each value's type and range, then the preset's
+    cross-parameter checks on the changed parameters."""
+    return checked_case(model, base, values)[1]
+
+
+def checked_case(model: str, base: Any, values: Mapping[str, Value]) -> tuple[Any, list[str]]:
+    """(the case's parameters, or None, and its problems) after the preset validation."""
+    problems = [p for path, v in values.items() if (p := value_problem(model, base, path, v))]
+    if problems:
+        return None, problems
+    params = apply(base, values)
+    if model == "shift":
+        problems = presets.check_shift(params)
+    elif model == "steering":
+        problems = presets.check_steering(params)
+    else:
+        problems = presets.check_shift(params.shift) + presets.check_hpattern(
+            params.setup, params.shift
+        )
+    return (None if problems else params), problems

@@ -1,0 +1,280 @@
+"""One task of a sweep: many cases simulated in one call, returned as rows of plain values.
+
+A task is what a Dask worker (or the serial loop) runs: a few seconds of work, no files, no
+shared state; its rows are dicts of int, float, bool and str, so they pickle and serialize as
+they are. Each case goes through the preset validation first; a case that fails it, or whose
+simulation fails, is a row with its status and problem, not an exception.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from carfeel.analysis.shift_features import ShiftFeatures, shift_features
+from carfeel.errors import CarfeelError
+from carfeel.simulation.result import Result
+from carfeel.sweep.spec import Case, SweepSpec, base_params, checked_case, gears_of
+
+Row = dict[str, Any]
+
+BATCH_MIN_LANES = 64
+"""Fewer shifts than this in a task run the pure step instead: the batch's cost per step is
+numpy's per-call overhead (about 300 calls) until a batch has a hundred lanes or so. Both give
+the same rows, bit for bit (tests/test_batch_engagement.py)."""
+
+
+@dataclass(frozen=True)
+class Task:
+    spec: SweepSpec
+    cases: tuple[Case, ...]
+
+
+def run_task(task: Task) -> list[Row]:
+    """Simulate every case of `task`; one row per case, in the task's order."""
+    spec = task.spec
+    base = base_params(spec.model, spec.preset_text, spec.engagement_text)
+    fixed = dict(spec.fixed)
+    valid: list[tuple[Case, Any, dict[str, Any]]] = []
+    rows: dict[int, Row] = {}
+    for case in task.cases:
+        values = {**fixed, **dict(case.values)}
+        params, problems = checked_case(spec.model, base, values)
+        if problems:
+            rows[case.case_id] = _row(spec, case, {}, "invalid", "; ".join(problems))
+        else:
+            valid.append((case, params, _settings(spec, values)))
+    if spec.model == "shift" and spec.engine == "batch":
+        rows.update(_shift_batch(spec, valid))
+    else:
+        simulate = {"shift": _shift_pure, "hpattern": _hpattern, "steering": _steering}[spec.model]
+        for case, params, settings in valid:
+            try:
+                metrics = simulate(params, case.seed, settings)
+            except (CarfeelError, ValueError, ArithmeticError) as exc:
+                rows[case.case_id] = _row(spec, case, {}, "failed", str(exc))
+                continue
+            rows[case.case_id] = _row(spec, case, metrics, "ok", "")
+    return [rows[case.case_id] for case in task.cases]
+
+
+def _settings(spec: SweepSpec, values: dict[str, Any]) -> dict[str, Any]:
+    settings = spec.settings
+    for path, value in values.items():
+        if path.startswith("run."):
+            settings[path[4:]] = float(value)
+    return settings
+
+
+def _row(spec: SweepSpec, case: Case, metrics: dict[str, Any], status: str, problem: str) -> Row:
+    row: Row = {"case_id": case.case_id, "sample": case.sample, "seed": case.seed}
+    row.update(case.values)
+    for name in spec.metrics:
+        row[name] = metrics.get(name)
+    row["status"] = status
+    row["problem"] = problem
+    return row
+
+
+def shift_duration_s(spec_settings: dict[str, Any], pull_out: bool) -> float:
+    return float(spec_settings.get("duration_s", 2.0 if pull_out else 1.2))
+
+
+def shift_metrics(features: ShiftFeatures, time_to_stop_s: float) -> dict[str, Any]:
+    """A shift's row from its features (the same for the pure and the batch engine)."""
+    return {
+        "synchronization_force_N": features.synchronization_force_N,
+        "synchronization_peak_N": features.synchronization_peak_N,
+        "synchronization_time_s": features.synchronization_hold_s,
+        "engagement_peak_N": features.engagement_peak_N,
+        "stop_peak_N": features.stop_peak_N,
+        "stop_overshoot_m": features.stop_overshoot_m,
+        "shift_time_s": time_to_stop_s,
+        "balked": "stop" not in features.stages,
+    }
+
+
+def _shift_pure(params: Any, seed: int, settings: dict[str, Any]) -> dict[str, Any]:
+    from carfeel.simulation.shift import simulate_shift
+
+    result = simulate_shift(
+        params,
+        seed=seed,
+        duration_s=shift_duration_s(settings, params.driver.pull_out),
+        dt_s=settings.get("dt_s", 1e-3),
+        substeps=settings.get("substeps", 1),
+    )
+    if not all(np.all(np.isfinite(result[n])) for n in ("position_m", "force_N")):
+        raise ArithmeticError("non-finite position or force")
+    stages = result["stage"]
+    at_stop = np.flatnonzero(stages == "stop")
+    to_stop = float(result.time_s[at_stop[0]]) if at_stop.size else math.nan
+    return shift_metrics(shift_features(result, params.gearbox.in_gear_position_m), to_stop)
+
+
+def _shift_batch(
+    spec: SweepSpec, valid: Sequence[tuple[Case, Any, dict[str, Any]]]
+) -> dict[int, Row]:
+    """The valid cases of a task as one vectorized batch per distinct run length."""
+    from carfeel.sweep.batch import ShiftBatch
+
+    rows: dict[int, Row] = {}
+    groups: dict[tuple[float, float, int], list[tuple[Case, Any]]] = {}
+    for case, params, settings in valid:
+        key = (
+            shift_duration_s(settings, params.driver.pull_out),
+            float(settings.get("dt_s", 1e-3)),
+            int(settings.get("substeps", 1)),
+        )
+        groups.setdefault(key, []).append((case, params))
+    for (duration, dt, substeps), members in groups.items():
+        if len(members) < BATCH_MIN_LANES:
+            for case, params in members:
+                settings = {"duration_s": duration, "dt_s": dt, "substeps": substeps}
+                try:
+                    metrics = _shift_pure(params, case.seed, settings)
+                    rows[case.case_id] = _row(spec, case, metrics, "ok", "")
+                except ArithmeticError as exc:
+                    rows[case.case_id] = _row(spec, case, {}, "failed", str(exc))
+            continue
+        batch = ShiftBatch([p for _, p in members], [c.seed for c, _ in members])
+        run = batch.run(duration, dt, substeps)
+        for i, (case, _) in enumerate(members):
+            metrics = shift_metrics(run.features[i], float(run.time_to_stop_s[i]))
+            ok = bool(run.finite[i])
+            rows[case.case_id] = _row(
+                spec,
+                case,
+                metrics,
+                "ok" if ok else "failed",
+                "" if ok else "non-finite position or force",
+            )
+    return rows
+
+
+def _hpattern(params: Any, seed: int, settings: dict[str, Any]) -> dict[str, Any]:
+    from carfeel.models.drivers.hpattern import Script
+    from carfeel.simulation.hpattern import HPatternRun, simulate_hpattern
+    from carfeel.sweep.spec import HPatternCase
+
+    assert isinstance(params, HPatternCase)
+    setup, shift = params.setup, params.shift
+    gears = gears_of(settings["sequence"])
+    sequence = tuple(g.strip().upper() for g in settings["sequence"].split(","))
+    names = {g.name for g in setup.layout.gears}
+    unknown = [g for g in gears if g not in names]
+    if unknown:
+        raise CarfeelError(f"no gear {', '.join(unknown)} in the layout; it has {sorted(names)}")
+    from carfeel.io.presets import HPatternPreset
+
+    preset = HPatternPreset("sweep", "", "", shift, setup)
+    sync = settings.get("synchronizer")
+    pattern = preset.pattern(None if sync is None else sync == "physics")
+    script = Script(
+        sequence, setup.layout, shift.driver, setup.driver, float(settings.get("clutch", 1.0))
+    )
+    dt = float(settings.get("dt_s", 1e-3))
+    run = HPatternRun(
+        pattern,
+        script,
+        float(settings.get("speed_kmh", 30.0)) / 3.6,
+        float(settings.get("engine_rpm", 800.0)) * 2 * math.pi / 60,
+        dt,
+    )
+    duration = float(settings.get("max_duration_s", 3.0 * len(sequence) + 5.0))
+    result = simulate_hpattern(
+        run, seed=seed, max_duration_s=duration, dt_s=dt, substeps=int(settings.get("substeps", 1))
+    )
+    return hpattern_metrics(result, gears)
+
+
+def hpattern_metrics(result: Result, gears: Sequence[str]) -> dict[str, Any]:
+    """Per gear of the sequence (in order) and for the whole sequence."""
+    if not all(np.all(np.isfinite(result[n])) for n in ("x_m", "y_m", "force_x_N")):
+        raise ArithmeticError("non-finite knob position or force")
+    dt = float(result.time_s[1] - result.time_s[0])
+    stages, events, force = result["stage"], result["event"], np.abs(result["force_x_N"])
+    engaged = [i for i, e in enumerate(events) if e.startswith("engage")]
+    out: dict[str, Any] = {}
+    start = 0
+    for k, gear in enumerate(gears, start=1):
+        prefix = f"shift{k}_{gear}_"
+        if k <= len(engaged):
+            end = engaged[k - 1] + 1
+            window = slice(start, end)
+            sync = stages[window] == "synchronization"
+            teeth = stages[window] == "engagement"
+            out[prefix + "synchronization_force_N"] = (
+                float(np.median(force[window][sync])) if sync.any() else math.nan
+            )
+            out[prefix + "synchronization_time_s"] = float(sync.sum() * dt)
+            out[prefix + "engagement_peak_N"] = (
+                float(force[window][teeth].max()) if teeth.any() else math.nan
+            )
+            # The stop comes after the engage event: look up to the next one.
+            after = slice(engaged[k - 1], engaged[k] if k < len(engaged) else len(stages))
+            at_stop = stages[after] == "stop"
+            out[prefix + "stop_peak_N"] = (
+                float(force[after][at_stop].max()) if at_stop.any() else math.nan
+            )
+            out[prefix + "engaged"] = True
+            start = end
+        else:
+            for name in (
+                "synchronization_force_N",
+                "synchronization_time_s",
+                "engagement_peak_N",
+                "stop_peak_N",
+            ):
+                out[prefix + name] = math.nan
+            out[prefix + "engaged"] = False
+    complete = len(engaged) >= len(gears)
+    out["total_time_s"] = float(result.time_s[engaged[len(gears) - 1]]) if complete else math.nan
+    out["balked"] = not complete
+    grind = np.abs(result["grind_N"])
+    out["ground"] = bool(grind.max() > 0.0)
+    out["peak_grind_N"] = float(grind.max())
+    return out
+
+
+def _steering(params: Any, seed: int, settings: dict[str, Any]) -> dict[str, Any]:
+    from carfeel.analysis.steering_feel import G, steering_feel
+    from carfeel.simulation import manoeuvres
+    from carfeel.simulation.steering import simulate_steering
+
+    car = params
+    model = settings.get("steering_model", "paper")
+    if model == "physical" and not car.has_physical:
+        raise CarfeelError(
+            "the preset has no [tyres] and [steering_system] tables; the "
+            "physical steering model needs them"
+        )
+    manoeuvre = manoeuvres.build(settings["manoeuvre"], car.vehicle, settings.get("speed_kmh"))
+    result = simulate_steering(
+        car,
+        manoeuvre,
+        dt_s=float(settings.get("dt_s", 1e-3)),
+        substeps=int(settings.get("substeps", 1)),
+        model=model,
+        road=settings.get("road", "dry") if model == "physical" else None,
+    )
+    torque, ay = result["torque_Nm"], result["lateral_accel_m_s2"]
+    if not (np.all(np.isfinite(torque)) and np.all(np.isfinite(ay))):
+        raise ArithmeticError("non-finite torque or lateral acceleration")
+    feel = steering_feel(
+        result.time_s,
+        result["speed_m_s"],
+        result["steering_angle_rad"],
+        ay,
+        torque,
+        steering_ratio=car.vehicle.steering_ratio,
+        wheelbase_m=car.vehicle.wheelbase_m,
+    )
+    metrics: dict[str, Any] = dict(feel.as_dict())
+    metrics["peak_torque_Nm"] = float(np.abs(torque).max())
+    metrics["rms_lateral_accel_g"] = float(math.sqrt(float((ay**2).mean())) / G)
+    return metrics
