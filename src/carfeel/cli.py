@@ -16,6 +16,7 @@ from carfeel.commands import (
     channels,
     demo,
     devices,
+    export,
     identify,
     metrics,
     presets,
@@ -56,7 +57,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"carfeel {__version__}")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
-    families = (demo, simulate, metrics, run, identify, channels, devices, presets, telemetry)
+    families = (demo, simulate, metrics, run, identify, channels, devices, presets, telemetry,
+                export)  # fmt: skip
     for family in families:
         family.register(commands)
     return parser
