@@ -358,6 +358,41 @@ def test_two_fmus_and_two_instances_run_at_once_in_one_process(fmus, version):
     assert got["a"] != got["b"]  # the seeds draw different teeth
 
 
+@pytest.mark.parametrize("version", fmu.FMI_VERSIONS)
+def test_the_shifts_integer_and_outside_inputs_reach_the_model(fmus, version):
+    # gate_open (FMI 2 Integer, FMI 3 Int32) from an outside synchronizer, a wall, a latch's
+    # friction, and a negative seed (Python's -7 & (2**64 - 1)), against the Python step.
+    gearbox = load_shift("paper-first-gear").params.gearbox
+    r = np.random.default_rng(5)
+    plan = []
+    for k in range(6000):
+        gate = None if k < 1500 else (k // 700) % 2 == 1
+        wall = (8000.0, 10.0, 0.004) if 2000 <= k < 2600 else (0.0, 0.0, 0.0)
+        push = 70.0 if (k // 1000) % 2 == 0 else -40.0
+        plan.append(
+            eng.EngagementInputs(push + float(r.normal(0, 2)), *wall, gate, 3.0 * (k > 4000))
+        )
+    instance = Instance(fmus["shift", version])
+    instance.start(seed=-7)
+    state = eng.initial_state(-7)
+    stages = set()
+    for u in plan:
+        instance.set("driver_force_N", u.driver_force_N)
+        instance.set("gate_open", -1 if u.gate_open is None else int(u.gate_open))
+        instance.set("wall_stiffness_N_m", u.wall_stiffness_N_m)
+        instance.set("wall_damping_N_s_m", u.wall_damping_N_s_m)
+        instance.set("wall_position_m", u.wall_position_m)
+        instance.set("extra_friction_N", u.extra_friction_N)
+        instance.step()
+        state, out = eng.step(state, u, gearbox, DT)
+        stages.add(out.stage)
+        got = (instance.get("position_m"), instance.get("reaction_N"))
+        assert _bits(got) == _bits((out.position_m, out.reaction_N))
+        assert [s.value for s in eng.Stage][int(instance.get("stage"))] == out.stage
+    instance.free()
+    assert {"synchronization", "engagement", "in_gear", "returning"} <= stages
+
+
 # -- communication steps, parameters, state ----------------------------------------------------
 
 
