@@ -1,7 +1,7 @@
 """Cost of a step of the exported FMUs beside the Python models, in one run.
 
 For the shift (the engagement over 10 s of a recorded knob force: five shifts with pull-out)
-and the steering law (over 10 s of a recorded weave), per step:
+the steering law and the physical steering model (over 10 s of a recorded weave), per step:
   python    the Python step called directly (`engagement.step`, `torque_terms`);
   fmpy      one co-simulation step through FMPy's FMU2Slave: set the inputs, doStep, get the
             outputs (what an importer written in Python pays), and FMPy's simulate_fmu;
@@ -237,6 +237,56 @@ def bench_steering(folder: Path, library: port.Port, repeat: int) -> None:
     )  # fmt: skip
 
 
+def bench_physical(folder: Path, library: port.Port, repeat: int) -> None:
+    from carfeel.models.steering import physical
+
+    car = load_steering().params
+    params = car.physical()
+    run = simulate_steering(car, manoeuvres.build("weave", car.vehicle), model="physical")
+    inputs = [
+        physical.PhysicalInputs(float(v), float(a), float(r), 0.0, 1.0)
+        for v, a, r in zip(run["speed_m_s"][:STEPS], run["steering_angle_rad"][:STEPS],
+                           run["steering_rate_rad_s"][:STEPS], strict=True)
+    ]  # fmt: skip
+    print(f"physical steering: the model over {STEPS} steps of a recorded weave (hands on)")
+    start = physical.initial_state(params)
+
+    def python() -> None:
+        state = start
+        step = physical.step
+        for u in inputs:
+            state, _ = step(state, u, params, DT)
+
+    reference = timed(python, repeat) / STEPS * 1e6
+    report("python: physical.step called directly", reference * STEPS / 1e6, STEPS)
+    path = folder / "physical.fmu"
+    fmu.export_fmu(fmu.spec_for("steering", None, steering_model="physical"), 2, path)
+    instance, vr = fmu_instance(path)
+    names = ("speed_m_s", "steering_angle_rad", "steering_rate_rad_s")
+    references = [vr[n] for n in names]
+    outputs = [vr[n] for n in ("torque_Nm", "torque_aligning_Nm", "lateral_accel_m_s2")]
+    values = [list(u[:3]) for u in inputs]
+
+    def cosim() -> None:
+        set_real, do_step, get_real = instance.setReal, instance.doStep, instance.getReal
+        t = 0.0
+        for row in values:
+            set_real(references, row)
+            do_step(currentCommunicationPoint=t, communicationStepSize=DT)
+            get_real(outputs)
+            t += DT
+
+    report("fmpy: setReal + doStep + getReal (FMI 2)", timed(cosim, repeat), STEPS, reference)
+    instance.terminate()
+    instance.freeInstance()
+    records = np.array([tuple(u) for u in inputs], port.PHYSICAL_INPUTS)
+    report(
+        "c loop: cf_physical_step inside C (one ctypes call)",
+        timed(lambda: library.physical_run(params, start, records, DT), repeat),
+        STEPS, reference,
+    )  # fmt: skip
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=5, help="runs per case, best kept (5)")
@@ -255,6 +305,7 @@ def main() -> None:
         library = port.Port(fmu.build_port_library(folder))
         bench_shift(folder, library, args.repeat)
         bench_steering(folder, library, args.repeat)
+        bench_physical(folder, library, args.repeat)
     sys.stdout.flush()
 
 

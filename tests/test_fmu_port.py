@@ -9,8 +9,10 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 import re
 import shutil
+from typing import Any
 
 import numpy as np
 import pytest
@@ -65,9 +67,10 @@ def assert_same_engagement(python_states, python_outputs, c_states, c_outputs) -
 
 def test_c_structs_have_the_dataclasses_fields_in_order():
     # The parameters cross into C as flat arrays of doubles: the order must be the dataclass's.
-    headers = (fmu.c_source_dir() / "cf_engagement.h").read_text() + (
-        fmu.c_source_dir() / "cf_steering.h"
-    ).read_text()
+    headers = "".join(
+        (fmu.c_source_dir() / f"{stem}.h").read_text()
+        for stem in ("cf_engagement", "cf_steering", "cf_physical")
+    )
     for struct, cls in fmu.C_STRUCTS.items():
         body = re.search(r"typedef struct \{([^{}]*)\} " + struct + ";", headers)
         assert body is not None, struct
@@ -289,3 +292,73 @@ def test_flat_values_follow_the_parameter_dataclass():
     spec = fmu.shift_spec(load_shift("paper-first-gear"))
     exposed = [v.start for v in spec.variables if v.name.startswith("gearbox.")]
     assert exposed == flat  # every gearbox number is an FMU parameter, in the same order
+
+
+def _physical_case(name: str) -> tuple[list[Any], float]:
+    """Inputs (PhysicalInputs per 1 ms step) of a case, and the start angle."""
+    from carfeel.models.steering.physical import PhysicalInputs
+
+    if name == "weave-then-release":  # 4 s of a weave at 100 km/h, then hands off for 4 s
+        run = _manoeuvre("weave")
+        hold = [
+            PhysicalInputs(float(v), float(a), float(r), 0.0, 1.0)
+            for v, a, r in zip(
+                run["speed_m_s"][:4000], run["steering_angle_rad"][:4000],
+                run["steering_rate_rad_s"][:4000], strict=True,
+            )
+        ]  # fmt: skip
+        return hold + [PhysicalInputs(27.78, 0.0, 0.0, 0.0, 0.0)] * 4000, 0.0
+    if name == "parking-lock-to-lock":  # the steer cycle at standstill, into the stops
+        run = _manoeuvre("steer-cycle")
+        return [
+            PhysicalInputs(0.0, float(a) * 1.1, float(r) * 1.1, 0.0, 1.0)
+            for a, r in zip(run["steering_angle_rad"], run["steering_rate_rad_s"], strict=True)
+        ], 0.0
+    if name == "ramp-to-the-limit":  # 20 m/s, the rim ramped to 170 deg: the tyres saturate
+        return [
+            PhysicalInputs(20.0, 3.0 * min(1.0, k / 6000), 0.5 * (k < 6000), 0.0, 1.0)
+            for k in range(8000)
+        ], 0.0
+    # a crawl through the kinematic speed with a hand's torque on a free rim
+    return [
+        PhysicalInputs(0.002 * k, 0.0, 0.0, 2.0 * math.sin(k / 300), 0.0) for k in range(3000)
+    ], 0.4
+
+
+@pytest.mark.parametrize(
+    "name", ["weave-then-release", "parking-lock-to-lock", "ramp-to-the-limit", "crawl-free-rim"]
+)
+def test_physical_steering_model_is_bit_for_bit(c_port, name):
+    from carfeel.models.steering import physical
+
+    car = load_steering("b-segment").params
+    params = car.physical()
+    inputs, angle = _physical_case(name)
+    state = physical.initial_state(params, steering_angle_rad=angle)
+    states, outputs = [], []
+    for u in inputs:
+        state, out = physical.step(state, u, params, 1e-3)
+        states.append(tuple(state))
+        outputs.append(tuple(out))
+    c_states, c_outputs = c_port.physical_run(
+        params, physical.initial_state(params, steering_angle_rad=angle), inputs, 1e-3
+    )
+    for k, field in enumerate(c_states.dtype.names or ()):
+        column = [s[k] for s in states]
+        assert _bits(column) == c_states[field].tobytes(), f"state.{field}"
+    for k, field in enumerate(c_outputs.dtype.names or ()):
+        column = [o[k] for o in outputs]
+        assert _bits(column) == c_outputs[field].tobytes(), f"output {field}"
+    # The case did what it is named for.
+    columns = {
+        f: np.array([o[k] for o in outputs]) for k, f in enumerate(c_outputs.dtype.names or ())
+    }
+    if name == "weave-then-release":
+        assert np.ptp(columns["steering_angle_rad"][4000:]) > 0.01  # the free rim moved
+    elif name == "parking-lock-to-lock":
+        assert np.max(np.abs(columns["torque_stop_Nm"])) > 0.0
+        assert np.max(columns["torque_park_Nm"]) > 0.0
+    elif name == "ramp-to-the-limit":
+        assert np.max(columns["front_grip_used"]) == 1.0  # a sliding axle: the brush's x >= 1
+    else:
+        assert np.ptp(columns["steering_angle_rad"]) > 0.01

@@ -20,7 +20,9 @@ sees an input's effect one communication step later.
 steering: inputs speed_m_s, lateral_accel_m_s2, steering_angle_rad, steering_rate_rad_s; outputs
   torque_Nm and its terms (aligning, tire spin, friction, damping). Parameter ay_source: the Ay
   of tau0 from the input (default) or from the FMU's single-track car (vehicle, front_axle,
-  steady_state).
+  steady_state). With --steering-model physical: brush tyres, car and EPS; inputs speed_m_s,
+  steering_angle_rad, steering_rate_rad_s, hand_torque_Nm, hands_on; outputs torque_Nm and
+  its eight terms, the car's Ay, yaw rate, grip used.
 shift: input driver_force_N (and gate_open, extra_friction_N, wall_*); outputs position_m,
   velocity_m_s, force_N, reaction_N, stage; parameter seed (the tooth draws).
 """
@@ -50,6 +52,9 @@ def register(commands: Any) -> None:
     fmu.add_argument("model", choices=("steering", "shift"), help="the model to export")
     fmu.add_argument("--preset", help="shipped preset name or TOML file (default: the model's "
                      "default preset: b-segment, paper-first-gear)")  # fmt: skip
+    fmu.add_argument("--steering-model", choices=("paper", "physical"), default=None,
+                     help="steering: the paper's law (default) or the physical model (brush "
+                     "tyres, EPS; the preset needs its [tyres] and [steering_system])")  # fmt: skip
     fmu.add_argument("--fmi", type=int, default=2, metavar="2|3",
                      help="FMI version (default 2, which more importers take)")  # fmt: skip
     fmu.add_argument("--seed", type=seed_arg, default=0,
@@ -65,7 +70,10 @@ def _handle(args: argparse.Namespace) -> int:
 
     if args.fmi not in FMI_VERSIONS:
         raise InputError(f"--fmi {args.fmi}: the FMI version is 2 or 3")
-    spec = spec_for(args.model, args.preset, seed=args.seed)  # the preset, checked
+    if args.steering_model is not None and args.model != "steering":
+        raise InputError("--steering-model is for the steering FMU, not the shift's")
+    steering_model = args.steering_model or "paper"
+    spec = spec_for(args.model, args.preset, seed=args.seed, steering_model=steering_model)
     out = Path(args.out)
     outputs = Outputs()
     staged = outputs.add(out, ".fmu")  # checked before anything is built
@@ -73,7 +81,7 @@ def _handle(args: argparse.Namespace) -> int:
         files = export_fmu(spec, args.fmi, staged)
     binary = next(name for name in files if name.startswith("binaries/"))
     print(
-        f"wrote {out}: FMI {args.fmi}.0 co-simulation FMU of {args.model} (preset {spec.preset}), "
+        f"wrote {out}: FMI {args.fmi}.0 co-simulation FMU of {spec.title}, "
         f"{sum(v.causality == 'parameter' for v in spec.variables)} parameters, "
         f"{sum(v.causality == 'input' for v in spec.variables)} inputs, "
         f"{sum(v.causality == 'output' for v in spec.variables)} outputs; binary {binary}"

@@ -44,6 +44,7 @@ from carfeel import __version__
 from carfeel.errors import CarfeelError
 from carfeel.io.force_profile import MAX_FORCE_N
 from carfeel.io.presets import RANGES, Preset, range_key, unit_of
+from carfeel.io.presets import STEERING_STEP_S as PHYSICAL_MAX_STEP_S
 from carfeel.models.gearshift.engagement import (
     ChamferParams,
     DetentParams,
@@ -51,6 +52,7 @@ from carfeel.models.gearshift.engagement import (
     Stage,
 )
 from carfeel.models.mechanics import StageMechanics
+from carfeel.models.steering.physical import SystemParams, TyreParams
 from carfeel.models.steering.torque import SteeringTorqueParams
 from carfeel.models.vehicle.single_track import VehicleParams
 from carfeel.simulation.shift import MAX_STEP_S as SHIFT_MAX_STEP_S
@@ -59,6 +61,8 @@ from carfeel.simulation.steering import MAX_STEP_S as STEERING_MAX_STEP_S
 from carfeel.simulation.steering import SteeringCar
 
 MODELS = ("steering", "shift")
+STEERING_MODELS = ("paper", "physical")
+"""The steering FMU's model: the paper's law, or the physical model (`--steering-model`)."""
 FMI_VERSIONS = (2, 3)
 MODEL_STEP_S = 1e-3
 """The FMUs' default model step (the 1 kHz loop's); the parameter model_step_s changes it."""
@@ -79,7 +83,7 @@ CFLAGS = (
 AY_SOURCES = ("input", "vehicle", "front_axle", "steady_state")
 """Where the steering FMU's tau0 takes Ay from (its parameter ay_source), in the C enum's order."""
 
-PORT_SOURCES = ("cf_engagement.c", "cf_steering.c", "cf_port_runs.c")
+PORT_SOURCES = ("cf_engagement.c", "cf_steering.c", "cf_physical.c", "cf_port_runs.c")
 COMMON_SOURCES = ("cf_fmu.c",)
 HEADERS = {
     2: ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h"),
@@ -130,6 +134,8 @@ class ModelSpec:
     preset: str
     source_file: str
     """The model's C file (its header has the same stem)."""
+    ports: tuple[str, ...]
+    """The C ports it steps (file stems: a .c and a .h each)."""
     variables: tuple[Variable, ...]
     defaults: tuple[tuple[str, float | int], ...]
     """Every member of struct cf_model the preset gives a value (parameters used or not)."""
@@ -224,7 +230,7 @@ _STAGE_DOCS = {
 
 
 def _parameter(
-    table: str, path: str, value: float, doc: str, preset: str, variability: str = "tunable"
+    table: str, path: str, value: float, doc: str, preset: str, c_member: str
 ) -> Variable:
     name = f"{table}.{path}"
     leaf = path.split(".")[-1]
@@ -234,21 +240,28 @@ def _parameter(
     text = doc or f"{leaf.replace('_', ' ')}"
     described = f"{text} [{unit or '-'}; preset {preset}, [{table}] {path}]"
     return Variable(
-        name, "parameter", variability, "real", name, described, float(value), unit,
+        name, "parameter", "tunable", "real", c_member, described, float(value), unit,
         low, high, low_in, high_in,
     )  # fmt: skip
 
 
 def _table_parameters(
-    table: str, params: Any, preset: str, used: Sequence[str] | None = None
+    table: str,
+    params: Any,
+    preset: str,
+    used: Sequence[str] | None = None,
+    c_struct: str | None = None,
 ) -> Iterator[Variable]:
+    """The FMU parameters of one preset table (`used`: only those fields), named table.field;
+    `c_struct` is the member of struct cf_model holding it (default: the table's name)."""
     docs: dict[type, dict[str, str]] = {}
     for path, value, owner, field in _flatten(params):
         if used is not None and path not in used:
             continue
         if owner not in docs:
             docs[owner] = _field_docs(owner)
-        yield _parameter(table, path, value, docs[owner].get(field, ""), preset)
+        member = f"{c_struct or table}.{path}"
+        yield _parameter(table, path, value, docs[owner].get(field, ""), preset, member)
 
 
 def _model_step(max_step_s: float, why: str) -> Variable:
@@ -318,7 +331,8 @@ def shift_spec(preset: Preset[ShiftParams], seed: int = 0) -> ModelSpec:
         "synchronization, the chamfers and dog teeth, the end stop, detents and stick-slip "
         "friction, driven by the driver's knob force (carfeel's models/gearshift/engagement.py, "
         "ported to C). Axis: 0 = neutral, positive toward the gear.",
-        preset.name, "cf_model_shift.c", tuple(variables), tuple(defaults), (("Stage", stages),),
+        preset.name, "cf_model_shift.c", ("cf_engagement",), tuple(variables), tuple(defaults),
+        (("Stage", stages),),
     )  # fmt: skip
 
 
@@ -400,19 +414,143 @@ def steering_spec(preset: Preset[SteeringCar]) -> ModelSpec:
         "tau3 (aligning, tire spin, friction, damping; carfeel's models/steering/torque.py, "
         "ported to C), with Ay from the importer or from a linear single-track car. Signs: "
         "angle, rate, Ay and torque positive to the left (counter-clockwise).",
-        preset.name, "cf_model_steering.c", tuple(variables), tuple(defaults),
+        preset.name, "cf_model_steering.c", ("cf_steering",), tuple(variables), tuple(defaults),
         (("AySource", sources),),
     )  # fmt: skip
 
 
-def spec_for(model: str, preset_name: str | None, seed: int = 0) -> ModelSpec:
+_PHYSICAL_OUTPUTS = (
+    (
+        "hand_angle_rad",
+        "steering_angle_rad",
+        "The rim's angle, rad, positive to the left (the input's when hands_on = 1)",
+    ),
+    ("hand_rate_rad_s", "steering_rate_rad_s", "The rim's rate, rad/s"),
+    (
+        "lateral_accel_m_s2",
+        "lateral_accel_m_s2",
+        "The car's lateral acceleration Ay, m/s^2, positive to the left",
+    ),
+    (
+        "torque_Nm",
+        "torque_Nm",
+        "Torque the driver applies at the rim, Nm, positive "
+        "counter-clockwise (each term resists the driver): the sum of the eight terms below",
+    ),
+    (
+        "torque_aligning_Nm",
+        "torque_aligning_Nm",
+        "Aligning term: mechanical trail times the "
+        "front axle's force plus the tyres' pneumatic moment, at the rim, Nm",
+    ),
+    (
+        "torque_jacking_Nm",
+        "torque_jacking_Nm",
+        "Jacking term: the kingpin inclination lifting the car, Nm",
+    ),
+    ("torque_park_Nm", "torque_park_Nm", "Dry-park wind-up of the contact patches, Nm"),
+    ("torque_friction_Nm", "torque_friction_Nm", "Column and rack friction (stick elements), Nm"),
+    ("torque_damping_Nm", "torque_damping_Nm", "Rack and EPS damping, Nm"),
+    ("torque_inertia_Nm", "torque_inertia_Nm", "Rim and rack inertia, Nm"),
+    ("torque_stop_Nm", "torque_stop_Nm", "End stops at the car's lock, Nm"),
+    (
+        "torque_assist_Nm",
+        "torque_assist_Nm",
+        "EPS assist and active return, Nm (negative: it takes load off the driver)",
+    ),
+    (
+        "torsion_bar_torque_Nm",
+        "torsion_bar_torque_Nm",
+        "Torque in the torsion bar and its compensation damper, Nm",
+    ),
+    ("front_wheel_angle_rad", "front_wheel_angle_rad", "Road wheel angle, rad"),
+    (
+        "front_grip_used",
+        "front_grip_used",
+        "Share of the front axle's grip used, 0..1 (above 0.95 it slides)",
+    ),
+    ("rear_grip_used", "rear_grip_used", "Share of the rear axle's grip used, 0..1"),
+    ("yaw_rate_rad_s", "yaw_rate_rad_s", "The car's yaw rate, rad/s, positive to the left"),
+    ("sideslip_rad", "sideslip_rad", "The car's sideslip, rad"),
+    ("x_m", "x_m", "The car's position, m"),
+    ("y_m", "y_m", "The car's position, m (left of the start heading)"),
+    ("yaw_rad", "yaw_rad", "The car's heading, rad"),
+)
+
+
+def physical_steering_spec(preset: Preset[SteeringCar]) -> ModelSpec:
+    """The steering FMU with the physical model (`models/steering/physical.py`) of `preset`'s
+    car: its [vehicle], [tyres] and [steering_system] tables."""
+    car = preset.params
+    if car.tyres is None or car.steering_system is None:
+        raise ExportError(
+            f"preset {preset.name} has no [tyres] and [steering_system] tables, which the "
+            "physical steering model needs (the shipped b-segment and d-segment have them); "
+            "export the paper's law instead (--steering-model paper)"
+        )
+    real = "real"
+    used = tuple(p for p, _, _, _ in _flatten(car.vehicle) if p != "width_m")
+    variables = [
+        Variable("speed_m_s", "input", "continuous", real, "inputs.speed_m_s",
+                 "Vehicle speed Vx, m/s (carfeel's speed_m_s)", 0.0, "m/s"),
+        Variable("steering_angle_rad", "input", "continuous", real, "inputs.steering_angle_rad",
+                 "The rim's angle, rad, positive to the left, imposed when hands_on = 1 (a "
+                 "driver's or a device's); its value at initialization is the rim's start",
+                 0.0, "rad"),
+        Variable("steering_rate_rad_s", "input", "continuous", real,
+                 "inputs.steering_rate_rad_s", "The rim's rate, rad/s, imposed with the angle",
+                 0.0, "rad/s"),
+        Variable("hand_torque_Nm", "input", "continuous", real, "inputs.hand_torque_Nm",
+                 "The driver's torque on a free rim (hands_on = 0), Nm, positive "
+                 "counter-clockwise; 0: hands off", 0.0, "Nm"),
+        Variable("hands_on", "input", "continuous", real, "inputs.hands_on",
+                 "1: the rim's angle and rate are imposed, the output is the torque into the "
+                 "column; 0: the rim is free under hand_torque_Nm (a release); the threshold is "
+                 "0.5", 1.0, "", 0.0, 1.0),
+        *_table_parameters("vehicle", car.vehicle, preset.name, used, "params.vehicle"),
+        *_table_parameters("tyres", car.tyres, preset.name, None, "params.tyres"),
+        *_table_parameters(
+            "steering_system", car.steering_system, preset.name, None, "params.system"
+        ),
+        _model_step(PHYSICAL_MAX_STEP_S, "the preset's checks size the steering system for "
+                    "1 ms (semi-implicit Euler)"),
+        *(Variable(name, "output", "continuous", real, f"outputs.{member}", doc,
+                   unit=_unit(name)) for name, member, doc in _PHYSICAL_OUTPUTS),
+    ]  # fmt: skip
+    defaults: list[tuple[str, float | int]] = [
+        (f"params.{table}.{path}", float(value))
+        for table, params in (
+            ("vehicle", car.vehicle), ("tyres", car.tyres), ("system", car.steering_system),
+        )
+        for path, value, _, _ in _flatten(params)
+    ]  # fmt: skip
+    defaults.append(("model_step_s", MODEL_STEP_S))
+    return ModelSpec(
+        "steering", "carfeel_steering_physical", f"carfeel physical steering ({preset.name})",
+        "The steering wheel torque of carfeel's physical model: brush tyres on a nonlinear "
+        "single-track car (load transfer, relaxation length) and an EPS steering system (rim, "
+        "torsion bar, rack, assist, friction, jacking, dry-park wind-up, end stops); "
+        "carfeel's models/steering/physical.py, ported to C. Signs: angle, rate, Ay and "
+        "torque positive to the left (counter-clockwise).",
+        preset.name, "cf_model_physical.c", ("cf_steering", "cf_physical"), tuple(variables),
+        tuple(defaults), (),
+    )  # fmt: skip
+
+
+def spec_for(
+    model: str, preset_name: str | None, seed: int = 0, steering_model: str = "paper"
+) -> ModelSpec:
     """The spec of `model` with a preset (shipped name or path; the default preset if None)."""
     from carfeel.io.presets import DEFAULT_PRESETS, load_shift, load_steering
 
     if model == "shift":
         return shift_spec(load_shift(preset_name or DEFAULT_PRESETS["shift"]), seed)
-    if model == "steering":
+    if model == "steering" and steering_model == "physical":
+        return physical_steering_spec(load_steering(preset_name or DEFAULT_PRESETS["steering"]))
+    if model == "steering" and steering_model == "paper":
         return steering_spec(load_steering(preset_name or DEFAULT_PRESETS["steering"]))
+    if model == "steering":
+        raise ExportError(f"steering model {steering_model!r}: one of {', '.join(STEERING_MODELS)}")
     raise ExportError(f"unknown model {model!r}: an FMU is exported of one of {', '.join(MODELS)}")
 
 
@@ -473,7 +611,7 @@ def model_description(spec: ModelSpec, fmi_version: int, token: str) -> str:
             name, base = _FMI_UNITS[unit]
             element = ET.SubElement(definitions, "Unit", name=name)
             ET.SubElement(element, "BaseUnit", {k: str(v) for k, v in base.items()})
-    types = ET.SubElement(root, "TypeDefinitions")
+    types = ET.SubElement(root, "TypeDefinitions") if spec.enumerations else root
     for type_name, items in spec.enumerations:
         if fmi3:
             enum = ET.SubElement(types, "EnumerationType", name=type_name)
@@ -567,11 +705,11 @@ def build_description(spec: ModelSpec) -> str:
 def source_files(spec: ModelSpec, fmi_version: int) -> tuple[str, ...]:
     """The files of the FMU's sources/ folder (generated and FMI headers included)."""
     model = spec.source_file
-    port = "cf_engagement" if spec.model == "shift" else "cf_steering"
+    ports = [name for stem in spec.ports for name in (f"{stem}.c", f"{stem}.h")]
     wrapper = f"cf_fmi{fmi_version}.c"
     return (
-        f"{port}.c", f"{port}.h", model, model.replace(".c", ".h"), "cf_fmu.c", "cf_fmu.h",
-        wrapper, "cf_generated.c", *HEADERS[fmi_version],
+        *ports, model, model.replace(".c", ".h"), "cf_fmu.c", "cf_fmu.h", wrapper,
+        "cf_generated.c", *HEADERS[fmi_version],
     )  # fmt: skip
 
 
@@ -784,4 +922,6 @@ C_STRUCTS = {
     "cf_engagement_params": EngagementParams,
     "cf_torque_params": SteeringTorqueParams,
     "cf_vehicle_params": VehicleParams,
+    "cf_tyre_params": TyreParams,
+    "cf_system_params": SystemParams,
 }

@@ -21,6 +21,12 @@ from carfeel.models.gearshift.engagement import (
     EngagementState,
     Stage,
 )
+from carfeel.models.steering.physical import (
+    PhysicalInputs,
+    PhysicalOutputs,
+    PhysicalParams,
+    PhysicalState,
+)
 from carfeel.models.steering.torque import SteeringTorqueParams
 from carfeel.models.vehicle.single_track import VehicleParams, VehicleState
 
@@ -62,6 +68,9 @@ ENGAGEMENT_OUTPUTS = np.dtype(
     ]
 )
 VEHICLE_STATE = np.dtype([(name, "<f8") for name in VehicleState._fields])
+PHYSICAL_STATE = np.dtype([(name, "<f8") for name in PhysicalState._fields])
+PHYSICAL_INPUTS = np.dtype([(name, "<f8") for name in PhysicalInputs._fields])
+PHYSICAL_OUTPUTS = np.dtype([(name, "<f8") for name in PhysicalOutputs._fields])
 
 
 def _pointer(array: np.ndarray) -> ctypes.c_void_p:
@@ -119,6 +128,8 @@ class Port:
         lib.cf_torque_run.restype = None
         lib.cf_vehicle_run.argtypes = [void, void, void, size, void, double, void, void]
         lib.cf_vehicle_run.restype = None
+        lib.cf_physical_run.argtypes = [void, void, size, void, double, void, void]
+        lib.cf_physical_run.restype = None
         lib.cf_steady_state_run.argtypes = [void, void, size, void, void]
         lib.cf_steady_state_run.restype = None
         lib.cf_port_next_uniform.argtypes = [ctypes.c_uint64, ctypes.POINTER(double)]
@@ -197,3 +208,27 @@ class Port:
             _pointer(speed), _pointer(angle), len(speed), _pointer(flat), _pointer(ay)
         )
         return ay
+
+    def physical_run(
+        self,
+        params: PhysicalParams,
+        state: PhysicalState,
+        inputs: Sequence[PhysicalInputs] | np.ndarray,
+        dt_s: float,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(states, outputs) after each step of the C physical steering model; `inputs` as
+        PhysicalInputs or as a PHYSICAL_INPUTS array."""
+        flat = _doubles(flat_values(params))
+        start = np.array([tuple(state)], PHYSICAL_STATE)
+        records = (
+            inputs
+            if isinstance(inputs, np.ndarray)
+            else np.array([tuple(u) for u in inputs], PHYSICAL_INPUTS)
+        )
+        states = np.zeros(len(records), PHYSICAL_STATE)
+        outputs = np.zeros(len(records), PHYSICAL_OUTPUTS)
+        self.library.cf_physical_run(
+            _pointer(start), _pointer(records), len(records), _pointer(flat), dt_s,
+            _pointer(states), _pointer(outputs),
+        )  # fmt: skip
+        return states, outputs

@@ -2,7 +2,6 @@
  * across parameters of carfeel.io.presets.check_steering. */
 #include "cf_model_steering.h"
 
-#include <stdio.h>
 #include <string.h>
 
 void cf_model_clear(cf_model *m) { memset(m, 0, sizeof *m); }
@@ -10,38 +9,7 @@ void cf_model_clear(cf_model *m) { memset(m, 0, sizeof *m); }
 double cf_model_step_size(const cf_model *m) { return m->model_step_s; }
 
 int cf_model_check(const cf_model *m, char *message, size_t size) {
-    const cf_vehicle_params *v = &m->vehicle;
-    if (!(v->cg_to_front_axle_m < v->wheelbase_m)) {
-        snprintf(message, size,
-                 "vehicle.cg_to_front_axle_m = %g m must be shorter than vehicle.wheelbase_m = "
-                 "%g m (the centre of gravity lies between the axles)",
-                 v->cg_to_front_axle_m, v->wheelbase_m);
-        return 1;
-    }
-    if (cf_understeer_gradient(v) < 0.0) {
-        snprintf(message, size,
-                 "the vehicle oversteers: a linear oversteering car is unstable above its critical "
-                 "speed; raise vehicle.rear_cornering_stiffness_N_rad or move the centre of "
-                 "gravity forward");
-        return 1;
-    }
-    double b = v->wheelbase_m - v->cg_to_front_axle_m;
-    double lateral = v->mass_kg * v->kinematic_speed_m_s /
-                     (v->front_cornering_stiffness_N_rad + v->rear_cornering_stiffness_N_rad);
-    double yaw = v->yaw_inertia_kg_m2 * v->kinematic_speed_m_s /
-                 (v->cg_to_front_axle_m * v->cg_to_front_axle_m *
-                      v->front_cornering_stiffness_N_rad +
-                  b * b * v->rear_cornering_stiffness_N_rad);
-    double shortest = lateral < yaw ? lateral : yaw;
-    if (shortest < 1e-3) {
-        snprintf(message, size,
-                 "at vehicle.kinematic_speed_m_s = %g m/s the tyres' time constant is %.3g ms, "
-                 "under the 1 ms the model steps with; raise kinematic_speed_m_s or check the "
-                 "mass, inertia and cornering stiffnesses",
-                 v->kinematic_speed_m_s, shortest * 1e3);
-        return 1;
-    }
-    return 0;
+    return cf_vehicle_check(&m->vehicle, message, size);
 }
 
 static void evaluate(cf_model *m) {

@@ -4,6 +4,7 @@
 #include <stdint.h>
 
 #include "cf_engagement.h"
+#include "cf_physical.h"
 #include "cf_steering.h"
 
 #if defined(__GNUC__)
@@ -63,4 +64,14 @@ CF_EXPORT void cf_steady_state_run(const double *speed_m_s, const double *angle_
 /* SplitMix64's next draw (cf_next_uniform), for comparing with models/rng.py. */
 CF_EXPORT uint64_t cf_port_next_uniform(uint64_t state, double *u) {
     return cf_next_uniform(state, u);
+}
+
+/* n steps of the physical steering model from *state: states[k] and outputs[k] after step k. */
+CF_EXPORT void cf_physical_run(cf_physical_state *state, const cf_physical_inputs *inputs,
+                               size_t n, const cf_physical_params *params, double dt_s,
+                               cf_physical_state *states, cf_physical_outputs *outputs) {
+    for (size_t k = 0; k < n; ++k) {
+        cf_physical_step(state, &inputs[k], params, dt_s, &outputs[k]);
+        states[k] = *state;
+    }
 }

@@ -3,6 +3,7 @@
 #include "cf_steering.h"
 
 #include <math.h>
+#include <stdio.h>
 
 /* torque.torque_terms; Python's abs(ay) ** k3 is libm's pow(fabs(ay), k3). */
 void cf_torque_terms(double speed_m_s, double steering_rate_rad_s, double lateral_accel_m_s2,
@@ -119,3 +120,40 @@ void cf_vehicle_step(cf_vehicle_state *s, double speed_m_s, double steering_angl
     s->lateral_accel_m_s2 = ay;
     s->front_wheel_angle_rad = delta;
 }
+
+/* The checks of carfeel.io.presets.check_steering on the car; 0 when it passes, else the
+ * problem in `message`. */
+int cf_vehicle_check(const cf_vehicle_params *v, char *message, size_t size) {
+    if (!(v->cg_to_front_axle_m < v->wheelbase_m)) {
+        snprintf(message, size,
+                 "vehicle.cg_to_front_axle_m = %g m must be shorter than vehicle.wheelbase_m = "
+                 "%g m (the centre of gravity lies between the axles)",
+                 v->cg_to_front_axle_m, v->wheelbase_m);
+        return 1;
+    }
+    if (cf_understeer_gradient(v) < 0.0) {
+        snprintf(message, size,
+                 "the vehicle oversteers: a linear oversteering car is unstable above its critical "
+                 "speed; raise vehicle.rear_cornering_stiffness_N_rad or move the centre of "
+                 "gravity forward");
+        return 1;
+    }
+    double b = v->wheelbase_m - v->cg_to_front_axle_m;
+    double lateral = v->mass_kg * v->kinematic_speed_m_s /
+                     (v->front_cornering_stiffness_N_rad + v->rear_cornering_stiffness_N_rad);
+    double yaw = v->yaw_inertia_kg_m2 * v->kinematic_speed_m_s /
+                 (v->cg_to_front_axle_m * v->cg_to_front_axle_m *
+                      v->front_cornering_stiffness_N_rad +
+                  b * b * v->rear_cornering_stiffness_N_rad);
+    double shortest = lateral < yaw ? lateral : yaw;
+    if (shortest < 1e-3) {
+        snprintf(message, size,
+                 "at vehicle.kinematic_speed_m_s = %g m/s the tyres' time constant is %.3g ms, "
+                 "under the 1 ms the model steps with; raise kinematic_speed_m_s or check the "
+                 "mass, inertia and cornering stiffnesses",
+                 v->kinematic_speed_m_s, shortest * 1e3);
+        return 1;
+    }
+    return 0;
+}
+

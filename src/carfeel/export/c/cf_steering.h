@@ -9,6 +9,8 @@
 #ifndef CF_STEERING_H
 #define CF_STEERING_H
 
+#include <stddef.h>
+
 typedef struct {
     double k1_Nm_s2_m;
     double k2;
@@ -66,5 +68,8 @@ double cf_steady_state_lateral_accel(double speed_m_s, double steering_wheel_ang
 
 /* VehicleParams.understeer_gradient_rad_s2_m */
 double cf_understeer_gradient(const cf_vehicle_params *params);
+
+/* carfeel.io.presets.check_steering's checks of the car: 0 if it passes, else 1 and why. */
+int cf_vehicle_check(const cf_vehicle_params *params, char *message, size_t size);
 
 #endif
