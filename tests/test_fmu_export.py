@@ -192,6 +192,22 @@ def test_fmpy_validates_the_fmu(fmus, model, version):
     assert f"binaries/{folder}/carfeel_{model}.so" in files
     assert {f"sources/{h}" for h in fmu.HEADERS[version]} <= files  # the standard's headers
     assert f"sources/cf_fmi{version}.c" in files and "sources/cf_generated.c" in files
+    assert ("documentation/index.html" if version == 3 else "documentation/_main.html") in files
+
+
+def test_a_wrong_token_is_refused_at_instantiation(fmus, capsys):
+    # The description and the binary must come from the same export.
+    path = fmus["shift", 2]
+    description = read_model_description(str(path))
+    instance = FMU2Slave(
+        guid="{00000000-0000-0000-0000-000000000000}",
+        unzipDirectory=extract(str(path)),
+        modelIdentifier=description.coSimulation.modelIdentifier,
+        instanceName="wrong",
+    )
+    with pytest.raises(Exception, match="instantiate"):
+        instance.instantiate()
+    assert "does not match this FMU's" in capsys.readouterr().out
 
 
 def test_parameters_carry_the_presets_values_units_and_ranges(fmus):

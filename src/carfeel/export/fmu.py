@@ -604,7 +604,7 @@ def model_description(spec: ModelSpec, fmi_version: int, token: str) -> str:
         for name in source_files(spec, 2):
             if name.endswith(".c"):
                 ET.SubElement(files, "File").set("name", name)
-    units = sorted({v.unit for v in spec.variables if v.unit})
+    units = sorted({v.unit for v in spec.variables if v.unit} | ({"s"} if fmi3 else set()))
     if units:
         definitions = ET.SubElement(root, "UnitDefinitions")
         for unit in units:
@@ -866,7 +866,8 @@ def export_fmu(spec: ModelSpec, fmi_version: int, out: Path) -> list[str]:
         )
         documentation = root / "documentation"
         documentation.mkdir()
-        (documentation / "index.html").write_text(_documentation(spec, fmi_version), "utf-8")
+        main_page = "index.html" if fmi_version == 3 else "_main.html"  # each standard's name
+        (documentation / main_page).write_text(_documentation(spec, fmi_version), "utf-8")
         return _zip(root, out)
 
 
