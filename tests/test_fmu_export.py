@@ -643,6 +643,7 @@ def _bad_preset(tmp_path: Path) -> Path:
         (["steering", "--out", "{t}/missing/x.fmu"], "does not exist"),
         (["steering", "--out", "{t}/x.zip"], "expected a .fmu file name"),
         (["gear"], "invalid choice: 'gear'"),
+        (["steering", "--seed", "3"], "--seed is for the shift FMU"),
     ],
 )
 def test_bad_input_exits_2_with_a_message_and_leaves_no_file(tmp_path, capsys, args, message):

@@ -57,7 +57,7 @@ def register(commands: Any) -> None:
                      "tyres, EPS; the preset needs its [tyres] and [steering_system])")  # fmt: skip
     fmu.add_argument("--fmi", type=int, default=2, metavar="2|3",
                      help="FMI version (default 2, which more importers take)")  # fmt: skip
-    fmu.add_argument("--seed", type=seed_arg, default=0,
+    fmu.add_argument("--seed", type=seed_arg, default=None,
                      help="shift: the seed parameter's start value (default 0)")  # fmt: skip
     fmu.add_argument("--out", required=True, metavar="NAME.fmu", help="the FMU file to write")
     fmu.set_defaults(handler=_handle)
@@ -72,8 +72,10 @@ def _handle(args: argparse.Namespace) -> int:
         raise InputError(f"--fmi {args.fmi}: the FMI version is 2 or 3")
     if args.steering_model is not None and args.model != "steering":
         raise InputError("--steering-model is for the steering FMU, not the shift's")
+    if args.seed is not None and args.model != "shift":
+        raise InputError("--seed is for the shift FMU (its tooth draws); the steering has none")
     steering_model = args.steering_model or "paper"
-    spec = spec_for(args.model, args.preset, seed=args.seed, steering_model=steering_model)
+    spec = spec_for(args.model, args.preset, seed=args.seed or 0, steering_model=steering_model)
     out = Path(args.out)
     outputs = Outputs()
     staged = outputs.add(out, ".fmu")  # checked before anything is built
