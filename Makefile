@@ -16,7 +16,7 @@ $(VENV)/.installed: pyproject.toml | $(BIN)/python
 	touch $@
 
 $(VENV)/.installed-test: pyproject.toml | $(BIN)/python
-	$(BIN)/python -m pip install --quiet -e '.[test,logs,batch]'
+	$(BIN)/python -m pip install --quiet -e '.[test,logs,batch,fmu]'
 	touch $(VENV)/.installed $@
 
 demo: $(VENV)/.installed
@@ -28,6 +28,7 @@ lint: $(VENV)/.installed-test
 	$(BIN)/mypy
 
 test: lint
+	command -v cc >/dev/null || (apt-get update && apt-get install -y gcc)  # FMU export's compiler
 	$(BIN)/python -m pytest
 
 bench: $(VENV)/.installed
@@ -40,6 +41,7 @@ bench: $(VENV)/.installed
 	$(BIN)/python benchmarks/bench_fit_bias.py
 	$(BIN)/python benchmarks/bench_shift_fit.py
 	$(BIN)/python benchmarks/bench_sweep.py
+	$(BIN)/python benchmarks/bench_fmu.py
 
 # Mutation testing (mutmut) of the models, the rendering and the safety chain ([tool.mutmut] in
 # pyproject.toml); MUTANTS="carfeel.realtime.safety*" narrows it. Hours on two cores for all of

@@ -16,6 +16,7 @@ from carfeel.commands import (
     channels,
     demo,
     devices,
+    export,
     identify,
     metrics,
     presets,
@@ -58,7 +59,7 @@ def build_parser() -> argparse.ArgumentParser:
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
     families = (demo, simulate, metrics, run, identify, channels, devices, presets, telemetry,
-                sweep)  # fmt: skip
+                sweep, export)  # fmt: skip
     for family in families:
         family.register(commands)
     return parser
