@@ -31,7 +31,7 @@ test: lint
 	command -v cc >/dev/null || (apt-get update && apt-get install -y gcc)  # FMU export's compiler
 	$(BIN)/python -m pytest
 
-bench: $(VENV)/.installed
+bench: $(VENV)/.installed-test
 	$(BIN)/python benchmarks/bench_engagement_step.py
 	$(BIN)/python benchmarks/bench_steering.py
 	$(BIN)/python benchmarks/bench_hpattern_step.py
