@@ -171,3 +171,179 @@ def test_validate_prints_its_figures_without_a_report(tmp_path, capsys, monkeypa
     figures = json.loads(capsys.readouterr().out)
     assert figures  # per log, the rms and r2 of the torque
     assert sorted(p.name for p in tmp_path.iterdir()) == before
+
+
+# ---------------------------------------------------------------- report folders (fit, validate)
+
+
+@pytest.fixture
+def old_report(tmp_path):
+    """A report the user already has: its page and a figure."""
+    folder = tmp_path / "report"
+    folder.mkdir()
+    (folder / "index.html").write_text("old report\n")
+    (folder / "steering-9.png").write_bytes(b"old figure")
+    return folder
+
+
+def report_untouched(folder) -> bool:
+    return (
+        sorted(p.name for p in folder.iterdir()) == ["index.html", "steering-9.png"]
+        and (folder / "index.html").read_text() == "old report\n"
+        and not [p for p in folder.parent.iterdir() if p.name.startswith(".")]
+    )
+
+
+def weave_logs(tmp_path, count=2):
+    logs = []
+    for i in range(count):
+        log = tmp_path / f"weave{i}.csv"
+        speed = str(90 + 10 * i)
+        assert main(["simulate", "steering", "--manoeuvre", "weave", "--speed-kmh", speed,
+                     "--dt", "0.005", "--out", str(log)]) == 0  # fmt: skip
+        logs.append(log)
+    return logs
+
+
+def test_a_validation_that_fails_while_drawing_leaves_the_old_report_whole(
+    old_report, tmp_path, capsys, monkeypatch
+):
+    """The hard case: the second figure fails after the first is written."""
+    from carfeel.io import plots
+
+    logs = weave_logs(tmp_path)
+    drawn = []
+    real = plots.plot_torque_validation
+
+    def second_fails(*args, **kwargs):
+        if drawn:
+            raise OSError(28, "No space left on device", str(args[4]))
+        drawn.append(real(*args, **kwargs))
+        return drawn[-1]
+
+    monkeypatch.setattr(plots, "plot_torque_validation", second_fails)
+    capsys.readouterr()
+    code = main(["validate", "--preset", "b-segment", *map(str, logs), "--report",
+                 str(old_report)])  # fmt: skip
+    assert code == 2
+    assert "No space left on device" in capsys.readouterr().err
+    assert drawn  # the first figure was drawn (in the staging folder) before the failure
+    assert report_untouched(old_report)
+
+
+def test_a_failed_fit_leaves_the_report_and_the_preset(old_report, tmp_path, capsys):
+    trace = tmp_path / "shift.csv"
+    assert main(["simulate", "shift", "--pull-out", "--out", str(trace)]) == 0
+    lines = trace.read_text().splitlines()
+    header = lines[0].split(",")
+    force = header.index("force_N")
+    rows = [line.split(",") for line in lines[1:]]
+    for row in rows:  # the force in kgf: the fit gives a preset carfeel refuses
+        row[force] = repr(float(row[force]) / 9.80665)
+    kgf = tmp_path / "kgf.csv"
+    kgf.write_text("\n".join([lines[0], *(",".join(r) for r in rows)]) + "\n")
+    preset = tmp_path / "mine.toml"
+    preset.write_text("precious\n")
+    capsys.readouterr()
+    code = main(["fit", "shift", str(kgf), "--out", str(preset), "--report", str(old_report)])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "mine.toml is not written" in err and "if force_N is in kgf, multiply it" in err
+    assert preset.read_text() == "precious\n"
+    assert report_untouched(old_report)
+
+
+def test_a_report_replaces_an_old_one_whole_and_keeps_other_files(old_report, tmp_path, capsys):
+    logs = weave_logs(tmp_path, count=1)
+    assert main(["validate", "--preset", "b-segment", str(logs[0]), "--report",
+                 str(old_report)]) == 0  # fmt: skip
+    # Only a report was there: replaced whole, the old figure gone with it.
+    assert sorted(p.name for p in old_report.iterdir()) == ["index.html", "steering-1.png"]
+    assert "Validation of b-segment" in (old_report / "index.html").read_text()
+    mode = stat.S_IMODE(old_report.stat().st_mode)
+    assert mode & 0o055 == 0o055, oct(mode)  # a folder as any other: others may enter it
+    # A folder with the user's own files keeps them; the report's files are replaced in it.
+    notes = old_report / "notes.txt"
+    notes.write_text("mine\n")
+    assert main(["validate", "--preset", "b-segment", str(logs[0]), "--report",
+                 str(old_report)]) == 0  # fmt: skip
+    assert notes.read_text() == "mine\n"
+    assert sorted(p.name for p in old_report.iterdir()) == [
+        "index.html", "notes.txt", "steering-1.png"
+    ]  # fmt: skip
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+@pytest.mark.parametrize(
+    ("report", "message"),
+    [
+        ("", "an output folder name is empty"),
+        ("missing/report", "folder missing does not exist"),
+        ("weave0.csv", "it exists and is not a folder"),
+        ("/proc/report", "folder /proc does not take new files"),
+    ],
+)
+def test_a_report_folder_that_cannot_be_written_is_refused_first(
+    tmp_path, capsys, monkeypatch, report, message
+):
+    logs = weave_logs(tmp_path, count=1)
+    monkeypatch.chdir(tmp_path)
+    out = tmp_path / "fit.toml"
+    capsys.readouterr()
+    assert main(["fit", "steering", str(logs[0]), "--out", str(out), "--report", report]) == 2
+    assert message in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_the_outputs_stage_a_folder_and_discard_it_on_failure(tmp_path):
+    from carfeel.io.outputs import Outputs
+
+    final = tmp_path / "r"
+    outputs = Outputs()
+    staged = outputs.add_folder(final)
+    assert staged.is_dir() and staged.parent == tmp_path and not final.exists()
+    (staged / "index.html").write_text("half")
+
+    def failed_run():
+        with outputs:
+            raise RuntimeError("the run failed")
+
+    with pytest.raises(RuntimeError):
+        failed_run()
+    assert list(tmp_path.iterdir()) == []  # nothing left, not even the staging folder
+
+
+# ---------------------------------------------------------------- the recording's columns
+
+
+def documented_columns() -> dict[str, set[str]]:
+    """The README's "Recording columns": every model's, then each model's own."""
+    import re
+    from pathlib import Path
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    start = readme.index("**Recording columns**")
+    text = readme[start : readme.index("\n\n", start)]
+    common, *bullets = text.split("\n- ")
+
+    def names(part: str) -> set[str]:
+        spans = re.findall(r"`([^`]*)`", part)
+        return {n for s in spans if "-" not in s for n in re.split(r",\s*", s)}
+
+    models = {re.match(r"`--model (\w+)`", b).group(1): names(b) for b in bullets}  # type: ignore[union-attr]
+    return {"": names(common), **models}
+
+
+@pytest.mark.parametrize(("model", "device"), [("shift", "virtual"), ("hpattern", "virtual"),
+                                               ("steering", "virtual:wheel")])  # fmt: skip
+def test_the_readme_names_every_column_a_recording_has(tmp_path, model, device):
+    record = tmp_path / "rec.csv"
+    assert main(["run", "--clock", "simulated", "--model", model, "--device", device,
+                 "--duration", "0.3", "--record", str(record)]) == 0  # fmt: skip
+    header = record.read_text().splitlines()[0].split(",")
+    documented = documented_columns()
+    expected = documented[""] | documented[model]
+    if model == "steering":
+        expected -= {"command_1"}  # a wheel has one axis
+    assert set(header) == expected
+    assert len(header) == len(set(header))

@@ -13,7 +13,7 @@ from carfeel.commands.common import (
     sources_of,
     to_json,
 )
-from carfeel.errors import InputError
+from carfeel.io.outputs import check_folder
 
 
 def register(commands: Any) -> None:
@@ -85,10 +85,10 @@ def register(commands: Any) -> None:
 
 def _fit(args: argparse.Namespace) -> int:
     out = Path(args.out)
-    if out.suffix.lower() != ".toml":
-        raise InputError(f"--out {out}: expected a .toml file name for the preset")
-    check_writable(out, ".toml")
-    report_dir = Path(args.report) if args.report else None
+    check_writable(out, ".toml")  # names an empty --out, and a name that is not a .toml
+    report_dir = None if args.report is None else Path(args.report)
+    if report_dir is not None:
+        check_folder(report_dir)
     if args.kind == "steering":
         from carfeel.identification.workflows import Sources, fit_steering_logs, fit_summary
 
@@ -129,13 +129,13 @@ def _validate(args: argparse.Namespace) -> int:
     logs = [Path(p) for p in args.logs]
     with tempfile.TemporaryDirectory() as scratch:
         # Without --report the report is drawn in a scratch folder and thrown away.
-        folder = Path(args.report) if args.report else Path(scratch) / "report"
+        folder = Path(scratch) / "report" if args.report is None else Path(args.report)
         figures = validate(args.preset, logs, folder, Sources(*sources_of(args)), args.drift)
     if args.json:
         print(to_json(figures))
     else:
         for name, values in figures.items():
             print(f"{name}: " + ", ".join(f"{k} {v:.4g}" for k, v in values.items()))
-        if args.report:
+        if args.report is not None:
             print(f"wrote {Path(args.report) / 'index.html'}")
     return 0

@@ -363,6 +363,34 @@ def plot_recording(result: Result, path: str | Path, title: str = "Real-time run
     return _save(fig, plt, path)
 
 
+def _residual_histogram(ax: Any, residual: np.ndarray, unit: str) -> None:
+    """A histogram of the residual within 4 interquartile ranges of its quartiles (about 6 sigma
+    of a normal residual; a few outliers would squash the rest into one bar), saying how many
+    samples fall outside the range shown."""
+    finite = residual[np.isfinite(residual)]
+    q1, q3 = (float(v) for v in np.percentile(finite, (25, 75)))
+    low = max(q1 - 4.0 * (q3 - q1), float(finite.min()))
+    high = min(q3 + 4.0 * (q3 - q1), float(finite.max()))
+    if not high > low:
+        low, high = low - 1e-9, high + 1e-9
+    inside = (finite >= low) & (finite <= high)
+    ax.hist(finite[inside], bins=80, range=(low, high), color="#1f77b4")
+    ax.set_xlabel(f"model - measured [{unit}]")
+    ax.set_ylabel("samples")
+    outside = int(np.count_nonzero(~inside))
+    rms = float(np.sqrt(np.mean(finite**2)))
+    ax.set_title(
+        f"rms {rms:.3g} {unit}"
+        + (f"; {outside} of {len(finite)} samples beyond the range shown" if outside else ""),
+        fontsize=9,
+    )
+
+
+MEASURED = {"color": "black", "lw": 0.7, "zorder": 3}
+MODEL = {"color": "#d62728", "lw": 2.2, "alpha": 0.55, "zorder": 2}
+"""The model drawn broad and translucent under the measured line: where they agree both show."""
+
+
 def plot_torque_validation(
     time_s: np.ndarray,
     lateral_accel_m_s2: np.ndarray,
@@ -375,23 +403,20 @@ def plot_torque_validation(
     plt = _pyplot()
     fig, (ax_t, ax_a, ax_r) = plt.subplots(1, 3, figsize=(15, 4.5), layout="constrained")
     fig.suptitle(title)
-    ax_t.plot(time_s, measured_Nm, color="#999999", lw=0.8, label="measured")
-    ax_t.plot(time_s, model_Nm, color="#d62728", lw=1.0, label="model")
+    ax_t.plot(time_s, model_Nm, label="model", **MODEL)
+    ax_t.plot(time_s, measured_Nm, label="measured", **MEASURED)
     ax_t.set_xlabel("time [s]")
     ax_t.set_ylabel("steering wheel torque [Nm]")
     ax_t.legend(fontsize=8)
     ax_t.grid(alpha=0.3)
     ay_g = lateral_accel_m_s2 / 9.80665
-    ax_a.plot(ay_g, measured_Nm, ".", color="#999999", ms=1, label="measured")
-    ax_a.plot(ay_g, model_Nm, ".", color="#d62728", ms=1, label="model")
+    ax_a.plot(ay_g, model_Nm, ".", color="#d62728", ms=2.5, alpha=0.4, label="model", zorder=2)
+    ax_a.plot(ay_g, measured_Nm, ".", color="black", ms=0.8, label="measured", zorder=3)
     ax_a.set_xlabel("lateral acceleration [g]")
     ax_a.set_ylabel("torque [Nm]")
+    ax_a.legend(fontsize=8, markerscale=6)
     ax_a.grid(alpha=0.3)
-    residual = model_Nm - measured_Nm
-    ax_r.hist(residual, bins=80, color="#1f77b4")
-    ax_r.set_xlabel("model - measured [Nm]")
-    ax_r.set_ylabel("samples")
-    ax_r.set_title(f"rms {np.sqrt(np.mean(residual**2)):.3f} Nm")
+    _residual_histogram(ax_r, model_Nm - measured_Nm, "Nm")
     return _save(fig, plt, path)
 
 
@@ -412,21 +437,25 @@ def plot_shift_validation(
     ax_r = fig.add_subplot(grid[1, 0], sharex=ax_t)
     ax_l = fig.add_subplot(grid[:, 1])
     fig.suptitle(title)
-    ax_t.plot(time_s, measured_m * 1e3, color="#999999", lw=1.0, label="measured position")
-    ax_t.plot(time_s, model_m * 1e3, color="#d62728", lw=1.0, label="model position")
+    ax_t.plot(time_s, model_m * 1e3, label="model position", **MODEL)
+    ax_t.plot(time_s, measured_m * 1e3, label="measured position", **MEASURED)
     ax_t.set_ylabel("knob position [mm]")
     ax_f = ax_t.twinx()
-    ax_f.plot(time_s, force_N, color="#1f77b4", lw=0.6, alpha=0.6)
+    ax_f.plot(time_s, force_N, color="#1f77b4", lw=0.6, alpha=0.6, label="measured force")
     ax_f.set_ylabel("force at the knob [N]", color="#1f77b4")
-    ax_t.legend(fontsize=8, loc="upper left")
+    ax_t.set_zorder(ax_f.get_zorder() + 1)  # the positions (and the legend) over the force
+    ax_t.patch.set_visible(False)
+    lines = ax_t.get_legend_handles_labels()
+    more = ax_f.get_legend_handles_labels()
+    ax_t.legend(lines[0] + more[0], lines[1] + more[1], fontsize=8, loc="center right")
     ax_t.grid(alpha=0.3)
     ax_r.plot(time_s, (model_m - measured_m) * 1e3, color="#d62728", lw=0.8)
     ax_r.axhline(0.0, color="black", lw=0.5)
     ax_r.set_xlabel("time [s]")
-    ax_r.set_ylabel("residual [mm]")
+    ax_r.set_ylabel("model - measured [mm]")
     ax_r.grid(alpha=0.3)
-    ax_l.plot(measured_m * 1e3, force_N, color="#999999", lw=0.8, label="measured")
-    ax_l.plot(model_m * 1e3, force_N, color="#d62728", lw=0.8, label="model")
+    ax_l.plot(model_m * 1e3, force_N, label="model", **MODEL)
+    ax_l.plot(measured_m * 1e3, force_N, label="measured", **MEASURED)
     ax_l.set_xlabel("knob position [mm]")
     ax_l.set_ylabel("force at the knob [N]")
     ax_l.legend(fontsize=8)
