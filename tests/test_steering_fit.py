@@ -249,7 +249,13 @@ def test_fit_and_validate_from_the_command_line(tmp_path, capsys):
     checked = json.loads(capsys.readouterr().out)
     assert all(v["r2"] > 0.99 for v in checked.values())
     page = (check / "index.html").read_text()
-    assert "torque_gradient_Nm_per_g" in page and "measured" in page
+    assert "torque gradient at 0 g (Nm/g)" in page and "measured" in page
+    assert page.count("<tr>") == page.count("</tr>")  # issue 11: rows were left open
+    # Only the metrics a log gives are rows; the rest are named once, with the reason.
+    assert "<td>n/a</td><td>n/a</td>" not in page
+    assert "Feel metrics not given for this log" in page and "this run is not one" in page
+    fit_page = (fit_report / "index.html").read_text()
+    assert "<th>what it is</th>" in fit_page and "K4, tyre spin at standstill" in fit_page
 
 
 def test_malformed_logs_exit_2_from_the_command_line(tmp_path, capsys):
