@@ -32,7 +32,9 @@ def register(commands: Any) -> None:
         "time_s, speed_m_s, steering_angle_rad, steering_torque_Nm and optionally "
         "lateral_accel_m_s2 and steering_rate_rad_s (several files: one per manoeuvre).",
     )
-    fit_steer.add_argument("logs", nargs="+", metavar="LOG.csv")
+    fit_steer.add_argument("logs", nargs="+", metavar="LOG.csv",
+                           help="steering logs: CSV, or with carfeel[logs] Parquet, MDF4, CAN "
+                           "with --dbc (one per manoeuvre)")  # fmt: skip
     fit_steer.add_argument("--out", required=True, metavar="PRESET.toml", help="preset to write")
     fit_steer.add_argument("--base", default="b-segment", metavar="NAME|PATH",
                            help="car preset the fit starts from (default b-segment)")  # fmt: skip
@@ -53,7 +55,9 @@ def register(commands: Any) -> None:
         description="Fit the gear engagement to traces with time_s, position_m, force_N (the "
         "knob's position and force, as the paper's Fig. 5/6).",
     )
-    fit_shift.add_argument("traces", nargs="+", metavar="TRACE.csv")
+    fit_shift.add_argument("traces", nargs="+", metavar="TRACE.csv",
+                           help="shift traces (time_s, position_m, force_N), one or more "
+                           "engagements each")  # fmt: skip
     fit_shift.add_argument("--out", required=True, metavar="PRESET.toml", help="preset to write")
     fit_shift.add_argument("--base", default="paper-first-gear", metavar="NAME|PATH",
                            help="shift preset the fit starts from")  # fmt: skip
@@ -69,7 +73,8 @@ def register(commands: Any) -> None:
         "write one report (HTML + PNG): overlays, residuals and, for steering, the feel metrics "
         "measured and modelled side by side.",
     )
-    validate.add_argument("logs", nargs="+", metavar="LOG.csv")
+    validate.add_argument("logs", nargs="+", metavar="LOG.csv",
+                          help="steering logs or shift traces measured on the car")  # fmt: skip
     validate.add_argument("--preset", required=True, metavar="PRESET.toml",
                           help="the preset to check against the logs")  # fmt: skip
     validate.add_argument("--report", default=None, metavar="DIR",

@@ -281,7 +281,8 @@ def fit_shift(
     fitted = _fitted_values(params)
     figures.update(fitted)
     sigmas.update(_median_sigmas(found, times))
-    sigmas.update(_tooth_law_sigmas(found, spread))
+    drawn = sum(math.isfinite(e.features.tooth_resistance_N) for e in found)
+    sigmas.update(_tooth_law_sigmas(drawn, spread))
     # A value `_fix_up` repaired is no longer the fitted one: no sigma for it.
     as_fitted = _fitted_values(ShiftParams(gearbox, driver))
     sigmas = {k: sigmas.get(k, math.nan) if v == as_fitted[k] else math.nan
@@ -1084,28 +1085,28 @@ def _covariance(solution: Any) -> FloatArray:
     return np.asarray(cov)
 
 
+def _median_error(values: Sequence[float]) -> float:
+    """Standard error of the median of `values`: 1.2533 s / sqrt(n), the large-sample one of a
+    normal sample (within 5 % of the true one from n = 3 on); NaN from fewer than three."""
+    v = [x for x in values if math.isfinite(x)]
+    return 1.2533 * float(np.std(v, ddof=1)) / math.sqrt(len(v)) if len(v) >= 3 else math.nan
+
+
 def _median_sigmas(found: Sequence[_Found], times: Sequence[float]) -> dict[str, float]:
-    """Standard errors of the medians over the engagements (1.2533 s / sqrt(n), the median of a
-    normal sample; NaN from fewer than three)."""
-
-    def error(values: Sequence[float]) -> float:
-        v = [x for x in values if math.isfinite(x)]
-        return 1.2533 * float(np.std(v, ddof=1)) / math.sqrt(len(v)) if len(v) >= 3 else math.nan
-
+    """The sigmas of the values that are medians over the engagements."""
     return {
-        "gearbox.synchronization_position_m": error(
+        "gearbox.synchronization_position_m": _median_error(
             [e.features.synchronization_position_m for e in found]
         ),
-        "gearbox.synchronization_duration_s": error(times),
-        "driver.push_force_N": error([e.features.plateau_force_N for e in found]),
+        "gearbox.synchronization_duration_s": _median_error(times),
+        "driver.push_force_N": _median_error([e.features.plateau_force_N for e in found]),
     }
 
 
-def _tooth_law_sigmas(found: Sequence[_Found], spread: float) -> dict[str, float]:
+def _tooth_law_sigmas(n: int, spread: float) -> dict[str, float]:
     """Standard deviations of the uniform law's bounds estimated from n draws (`_tooth_law`): for
     U(a, a + w), var(lower) = n w^2 / ((n + 1)(n + 2)(n - 1)) and var(spread) = 2 w^2 / ((n - 1)
-    (n + 2)) (the order statistics' moments); NaN from one draw."""
-    n = sum(math.isfinite(e.features.tooth_resistance_N) for e in found)
+    (n + 2)) (from the moments of the extremes); none from one draw."""
     if n < 2:
         return {}
     lower = spread * math.sqrt(n / ((n + 1) * (n + 2) * (n - 1)))
