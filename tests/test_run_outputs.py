@@ -212,7 +212,7 @@ def test_a_validation_that_fails_while_drawing_leaves_the_old_report_whole(
     from carfeel.io import plots
 
     logs = weave_logs(tmp_path)
-    drawn = []
+    drawn: list[object] = []
     real = plots.plot_torque_validation
 
     def second_fails(*args, **kwargs):
