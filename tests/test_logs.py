@@ -364,3 +364,22 @@ def test_kgf_and_lbf_are_units_of_force(tmp_path):
         )
         result = logs.read_channels(path, logs.load_map(channel_map))
         assert result["force_N"][1] == pytest.approx({"kgf": 8, "lbf": 2}[unit] * factor, rel=1e-6)
+
+
+def test_a_force_no_hand_gives_stops_the_shift_fit(tmp_path, capsys):
+    """Issue 11: one 1e300 sample in a force trace and the shift fit wrote a preset."""
+    trace = tmp_path / "shift.csv"
+    assert main(["simulate", "shift", "--out", str(trace)]) == 0
+    lines = trace.read_text().splitlines()
+    index = lines[0].split(",").index("force_N")
+    row = lines[300].split(",")
+    row[index] = "1e300"
+    bad = tmp_path / "bad.csv"
+    bad.write_text("\n".join([*lines[:300], ",".join(row), *lines[301:]]) + "\n")
+    out = tmp_path / "p.toml"
+    capsys.readouterr()
+    assert main(["fit", "shift", str(bad), "--out", str(out)]) == 2
+    assert "bad.csv, line 301: force_N = 1e+300, beyond the 2000 no car reaches" in (
+        capsys.readouterr().err
+    )
+    assert not out.exists()

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import stat
 
+import numpy as np
 import pytest
 
 from carfeel.cli import main
@@ -29,10 +30,12 @@ def untouched(keep) -> bool:
     )
 
 
-def test_a_device_that_cannot_be_opened_leaves_the_recording_alone(precious, capsys):
-    # No pysdl2 on these machines (an extra): opening fails, nothing is written.
-    assert main(["run", "--device", "sdl:0", "--record", str(precious)]) == 2
-    assert "carfeel[devices]" in capsys.readouterr().err
+@pytest.mark.parametrize("device", ["sdl:0", "evdev:/dev/input/event99"])
+def test_a_device_that_cannot_be_opened_leaves_the_recording_alone(precious, capsys, device):
+    # No pysdl2 here (an extra), no such event device: opening fails, nothing is written.
+    assert main(["run", "--device", device, "--record", str(precious)]) == 2
+    err = capsys.readouterr().err
+    assert "carfeel[devices]" in err or "event99" in err
     assert untouched(precious)
 
 
@@ -67,6 +70,7 @@ def test_a_finished_run_replaces_the_recording_with_normal_permissions(precious,
         (0, True, "0 recorded sample(s); a replay needs at least two"),
         (1, True, "1 recorded sample(s)"),
         (50, False, "its sidecar r.json is missing"),
+        (50, "{", "its sidecar r.json is missing, unreadable"),  # it changed the position scale
     ],
 )
 def test_bad_replays_exit_2_with_the_reason(tmp_path, capsys, rows, sidecar, message):
@@ -77,7 +81,9 @@ def test_bad_replays_exit_2_with_the_reason(tmp_path, capsys, rows, sidecar, mes
     replay = tmp_path / "r.csv"
     replay.write_text("\n".join(lines[: rows + 1]) + "\n")
     if sidecar:
-        replay.with_suffix(".json").write_text(source.with_suffix(".json").read_text())
+        replay.with_suffix(".json").write_text(
+            sidecar if isinstance(sidecar, str) else source.with_suffix(".json").read_text()
+        )
     capsys.readouterr()
     code = main(["run", "--clock", "simulated", "--model", "shift", "--device", f"replay:{replay}"])
     assert code == 2
@@ -88,6 +94,7 @@ def test_bad_replays_exit_2_with_the_reason(tmp_path, capsys, rows, sidecar, mes
     ("args", "message"),
     [
         (["--model", "shift", "--sequence", "N,1,N"], "--sequence is the H-pattern's script"),
+        (["--model", "steering", "--sequence", "N,1,N"], "--model steering has none"),
         (["--device-max-force", "1e9", "--device", "sdl:0"], "allowed 0 < value <= 200"),
         (["--rate-hz", "10"], "allowed 250 <= value <= 10000 Hz"),
         (["--preset", "nope"], "nope"),
@@ -132,6 +139,30 @@ def test_a_failed_simulation_leaves_the_user_s_files(precious, capsys, command):
     assert code == 2
     assert "cannot write /proc/x.png" in capsys.readouterr().err
     assert untouched(precious)
+
+
+def test_a_failure_while_writing_names_the_users_file(precious, tmp_path, capsys, monkeypatch):
+    """Issue 11: `cannot use /proc/.x.csv.iwlpbjgh.tmp`: the staged name, not the user's."""
+    from carfeel.errors import InputError
+
+    plot = tmp_path / "keep.png"
+
+    def full_disk(result, path, *args, **kwargs):
+        raise OSError(28, "No space left on device", str(path))
+
+    monkeypatch.setattr("carfeel.io.plots.plot_shift", full_disk)
+    assert main(["simulate", "shift", "--out", str(precious), "--plot", str(plot)]) == 2
+    err = capsys.readouterr().err
+    assert f"cannot use {plot}: No space left on device" in err and ".tmp" not in err
+    assert untouched(precious)
+
+    def refused(result, path, *args, **kwargs):
+        raise InputError(f"cannot write {path}: refused")
+
+    monkeypatch.setattr("carfeel.io.plots.plot_shift", refused)
+    assert main(["simulate", "shift", "--out", str(precious), "--plot", str(plot)]) == 2
+    err = capsys.readouterr().err
+    assert f"cannot write {plot}: refused" in err and ".tmp" not in err
 
 
 def test_a_simulation_replaces_its_outputs_only_when_done(precious, tmp_path, capsys):
@@ -226,7 +257,9 @@ def test_a_validation_that_fails_while_drawing_leaves_the_old_report_whole(
     code = main(["validate", "--preset", "b-segment", *map(str, logs), "--report",
                  str(old_report)])  # fmt: skip
     assert code == 2
-    assert "No space left on device" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    # The user's folder named, not the temporary one the report was staged in.
+    assert f"cannot use {old_report}/steering-2.png: No space left on device" in err, err
     assert drawn  # the first figure was drawn (in the staging folder) before the failure
     assert report_untouched(old_report)
 
@@ -347,3 +380,42 @@ def test_the_readme_names_every_column_a_recording_has(tmp_path, model, device):
         expected -= {"command_1"}  # a wheel has one axis
     assert set(header) == expected
     assert len(header) == len(set(header))
+
+
+@pytest.mark.parametrize(("signum", "code"), [("SIGINT", 130), ("SIGTERM", 143)])
+def test_a_signal_ends_the_recording_with_the_fade_to_zero(tmp_path, signum, code):
+    """Issue 11: after SIGTERM or SIGINT the recording ended before the fade (its last command
+    was 8.7 N), so the fade could not be checked from the file; and the run exited 0."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from carfeel.simulation.result import Result
+
+    record = tmp_path / "sig.csv"
+    # Simulated time: a stall of this shared machine cannot end the run by a fault first.
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "carfeel.cli", "run", "--model", "hpattern", "--clock",
+         "simulated", "--duration", "3600", "--record", str(record)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    part = tmp_path / "sig.part.csv"
+    deadline = time.monotonic() + 60.0
+    # Past the start-up pulses and the ramp-in (2 s of simulated time): the hand is shifting.
+    while time.monotonic() < deadline and (
+        not part.exists() or part.read_text().count("\n") < 3000
+    ):
+        time.sleep(0.1)
+    proc.send_signal(getattr(signal, signum))
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == code, err
+    assert f"stopped by {signum}" in out
+    result = Result.from_csv(record)
+    commands = np.column_stack([result["command_0"], result["command_1"]])
+    ramp = np.flatnonzero(np.isnan(result["x_m"]))  # the rows after the model stopped
+    assert len(ramp) > 0 and ramp[-1] == len(result) - 1
+    before = np.abs(commands[ramp[0] - 1]).max()
+    assert before > 0.0  # there was a force to take away
+    assert np.all(commands[-1] == 0.0)  # the file ends at zero force
+    assert np.all(np.abs(commands[ramp]).max(axis=1) <= before + 1e-9)  # falling, not jumping

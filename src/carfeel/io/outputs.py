@@ -28,7 +28,7 @@ import tempfile
 from pathlib import Path
 from types import TracebackType
 
-from carfeel.errors import InputError
+from carfeel.errors import CarfeelError, InputError
 
 
 def check_writable(path: Path, suffix: str | None = None) -> None:
@@ -151,8 +151,22 @@ class Outputs:
     ) -> None:
         if exc_type is None:
             self.commit()
-        else:
-            self.discard()
+            return
+        names = self._finals()
+        self.discard()
+        # A failure names the user's files, not the temporary ones they were staged as.
+        if isinstance(exc, OSError):
+            for attribute in ("filename", "filename2"):
+                value = getattr(exc, attribute, None)
+                if isinstance(value, str | os.PathLike):
+                    setattr(exc, attribute, _renamed(os.fspath(value), names))
+        elif isinstance(exc, CarfeelError):
+            text = _renamed(str(exc), names)
+            if text != str(exc):
+                raise type(exc)(text) from None
+
+    def _finals(self) -> dict[str, str]:
+        return {str(staged): str(final) for staged, final in (*self._staged, *self._folders)}
 
 
 def _commit_folder(staged: Path, final: Path, mask: int) -> None:
@@ -173,3 +187,10 @@ def _commit_folder(staged: Path, final: Path, mask: int) -> None:
     os.replace(staged, final)
     if old is not None:
         shutil.rmtree(old, ignore_errors=True)
+
+
+def _renamed(text: str, names: dict[str, str]) -> str:
+    """`text` with every staged path in it replaced by its final one."""
+    for staged, final in sorted(names.items(), key=lambda item: -len(item[0])):
+        text = text.replace(staged, final)
+    return text

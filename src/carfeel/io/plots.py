@@ -101,17 +101,55 @@ def _mark_peaks(ax: Any, t: np.ndarray, force: np.ndarray, stages: np.ndarray) -
         "engagement": "engagement peak",
         "stop": "stop impact",
     }
+    fig = ax.figure
+    fig.canvas.draw()  # the layout, so that the labels can be placed in display units
+    renderer = fig.canvas.get_renderer()
+    trace = ax.transData.transform(np.column_stack([t, force]))
+    frame = ax.get_window_extent(renderer)
+    taken: list[tuple[float, float, float, float]] = []
     for name, label in labels.items():
         mask = stages == name
         if not mask.any():
             continue
         i = int(np.flatnonzero(mask)[np.argmax(force[mask])])
-        # Above and right of the peak, on a white ground with a leader, clear of the trace.
+        text = f"{label}\n{force[i]:.1f} N"
+        probe = ax.text(0.0, 0.0, text, fontsize=8)
+        size = probe.get_window_extent(renderer)
+        probe.remove()
+        half_w, half_h = size.width / 2 + 4.0, size.height / 2 + 4.0
+        anchor = trace[i]
+        # Nearest place around the peak whose box holds no part of the trace, stays inside the
+        # axes and clear of the labels placed before: the label never hides the curve.
+        centre = anchor + np.array([half_w + 10.0, half_h + 10.0])
+        for radius in (35.0, 55.0, 80.0, 110.0, 150.0, 200.0, 260.0):
+            found = False
+            for angle in np.radians([45, 135, 90, 0, 180, 315, 225, 270, 20, 160, 70, 110]):
+                c = anchor + radius * np.array([np.cos(angle), np.sin(angle)])
+                box = (c[0] - half_w, c[1] - half_h, c[0] + half_w, c[1] + half_h)
+                if not (frame.x0 < box[0] and box[2] < frame.x1 and frame.y0 < box[1]
+                        and box[3] < frame.y1):  # fmt: skip
+                    continue
+                hits = ((trace[:, 0] >= box[0]) & (trace[:, 0] <= box[2])
+                        & (trace[:, 1] >= box[1]) & (trace[:, 1] <= box[3]))  # fmt: skip
+                if hits.any() or any(
+                    box[0] < o[2] and o[0] < box[2] and box[1] < o[3] and o[1] < box[3]
+                    for o in taken
+                ):
+                    continue
+                centre, found = c, True
+                break
+            if found:
+                break
+        taken.append((centre[0] - half_w, centre[1] - half_h, centre[0] + half_w,
+                      centre[1] + half_h))  # fmt: skip
+        offset = (centre - anchor) * 72.0 / fig.dpi  # display pixels -> points
         ax.annotate(
-            f"{label}\n{force[i]:.1f} N",
+            text,
             xy=(t[i], force[i]),
-            xytext=(14, -34 if name == "synchronization" else 22),
+            xytext=(float(offset[0]), float(offset[1])),
             textcoords="offset points",
+            ha="center",
+            va="center",
             fontsize=8,
             color=STAGE_COLOURS[name],
             bbox={"boxstyle": "round,pad=0.2", "fc": "white", "ec": "none", "alpha": 0.85},
@@ -190,7 +228,7 @@ def plot_steering(
     ax_t.set_xlabel("time [s]")
     ax_t.set_ylabel("steering wheel torque [Nm]")
     ax_t.grid(alpha=0.3)
-    ax_t.legend(fontsize=8, loc="upper right", framealpha=0.6)
+    ax_t.legend(fontsize=8, loc="best", framealpha=0.8)  # where it hides the least of the curves
     ax_t.set_title("torque and its terms vs time")
 
     x_loop, x_label = (
@@ -232,7 +270,8 @@ def plot_steering(
         ax_extra.set_title("path" + (" and ISO 3888-1 cones" if lanes else ""))
     else:
         for name, (colour, label) in TERM_COLOURS.items():
-            ax_extra.plot(x_loop, result[name], color=colour, lw=1.0, label=label)
+            if name in result.names:  # the paper's terms, or the physical model's
+                ax_extra.plot(x_loop, result[name], color=colour, lw=1.0, label=label)
         ax_extra.set_xlabel(x_label)
         ax_extra.set_ylabel("term [Nm]")
         ax_extra.legend(fontsize=8)
