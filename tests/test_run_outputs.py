@@ -419,3 +419,18 @@ def test_a_signal_ends_the_recording_with_the_fade_to_zero(tmp_path, signum, cod
     assert before > 0.0  # there was a force to take away
     assert np.all(commands[-1] == 0.0)  # the file ends at zero force
     assert np.all(np.abs(commands[ramp]).max(axis=1) <= before + 1e-9)  # falling, not jumping
+
+
+def test_every_command_says_what_it_wrote(tmp_path, capsys):
+    """Issue 11: `fit shift --report` and `run --plot` did not say what they wrote."""
+    record, plot = tmp_path / "r.csv", tmp_path / "r.png"
+    assert main(["run", "--clock", "simulated", "--model", "shift", "--duration", "0.3",
+                 "--record", str(record), "--plot", str(plot)]) == 0  # fmt: skip
+    out = capsys.readouterr().out
+    assert f"recorded {record} (+ .json)" in out and f"plotted {plot}" in out
+    trace, preset, report = tmp_path / "t.csv", tmp_path / "p.toml", tmp_path / "report"
+    assert main(["simulate", "shift", "--pull-out", "--out", str(trace)]) == 0
+    capsys.readouterr()
+    assert main(["fit", "shift", str(trace), "--out", str(preset), "--report", str(report)]) == 0
+    out = capsys.readouterr().out
+    assert f"wrote {preset}" in out and f"wrote the report {report / 'index.html'}" in out
