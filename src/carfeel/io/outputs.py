@@ -175,9 +175,9 @@ def _commit_folder(staged: Path, final: Path, mask: int) -> None:
     for entry in staged.iterdir():
         if entry.is_file():
             os.chmod(entry, 0o666 & ~mask)
-    if final.is_dir() and not _only_a_report(final):
-        for entry in staged.iterdir():  # the user's other files stay
-            os.replace(entry, final / entry.name)
+    if final.is_dir() and (final.is_symlink() or not _only_a_report(final)):
+        for entry in staged.iterdir():  # the user's other files (or link) stay
+            shutil.move(entry, final / entry.name)  # a link may lead to another file system
         staged.rmdir()
         return
     old = None
