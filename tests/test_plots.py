@@ -103,3 +103,26 @@ def test_a_parked_run_plots_the_terms_its_model_has(figures, tmp_path, model):
     (fig,) = figures
     labels = {line.get_label() for line in fig.axes[3].get_lines()}
     assert "friction (tau2)" in labels if model == "paper" else "jacking" in labels
+
+
+def test_the_fit_reports_figure_shows_both_lines_labels_both_and_clips_outliers(figures, tmp_path):
+    """Issue 11: the model line hid the measured one, the scatter had no legend and a few
+    outliers stretched the residual histogram into one bar."""
+    rng = np.random.default_rng(0)
+    t = np.linspace(0.0, 20.0, 4000)
+    ay = 3.0 * np.sin(0.5 * t)
+    measured = 2.0 * ay + rng.normal(0.0, 0.05, t.size)
+    model = 2.0 * ay
+    measured[[100, 2000]] += 40.0  # two spikes in the log
+    plots.plot_torque_validation(t, ay, measured, model, tmp_path / "v.png", "v")
+    (fig,) = figures
+    ax_t, ax_a, ax_r = fig.axes
+    for ax in (ax_t, ax_a):
+        labels = [text.get_text() for text in ax.get_legend().get_texts()]
+        assert labels == ["model", "measured"]
+        model_line, measured_line = ax.get_lines()[:2]
+        # The measured line on top and thinner, the model broad beneath: both show.
+        assert measured_line.get_zorder() > model_line.get_zorder()
+    low, high = ax_r.get_xlim()
+    assert low > -1.0 and high < 1.0  # the bulk's range (0.05 Nm noise), not the 40 Nm spikes
+    assert "2 of 4000 samples beyond the range shown" in ax_r.get_title()
