@@ -419,3 +419,128 @@ def test_a_missing_force_profile_and_pull_out_with_a_profile_are_refused(tmp_pat
     )
     assert code == 2 and "exclude each other" in capsys.readouterr().err
     assert not out.exists()
+
+
+# ---------------------------------------------------------------- issue 11: every failure clear
+
+
+def test_every_option_and_argument_has_a_help_text():
+    """Issue 11 found `run --model`, `validate --preset` and `--report` without one: the class,
+    over every command the parser assembles (a new family's options included)."""
+    import argparse
+
+    from carfeel.cli import build_parser
+
+    missing = []
+
+    def walk(parser, path):
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for name, sub in action.choices.items():
+                    walk(sub, [*path, name])
+            elif not action.help and not isinstance(action, argparse._HelpAction):
+                missing.append(" ".join([*path, *(action.option_strings or [action.dest])]))
+
+    walk(build_parser(), ["carfeel"])
+    assert missing == []
+
+
+def run_cli(args):
+    try:
+        return main(args)
+    except SystemExit as exc:  # argparse's own refusals
+        return exc.code
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        # A 300-digit seed was printed back in full (and aliased a 64-bit one).
+        (["simulate", "shift", "--seed", "1" + "0" * 300], "got '100000000000000000000000000"),
+        (["simulate", "shift", "--seed", "-1"], "from 0 to 2^64 - 1"),
+        (["simulate", "hpattern", "--sequence", "N," + "9" * 300],
+         "no gear 9999999999999999999999999999...999999999 in layout 5r"),
+        (["simulate", "hpattern", "--sequence", "N,1", "--mistake", "wall:" + "9" * 300],
+         "--mistake wall:99999999999999999999999...999999999: allowed 1 .. 1"),
+    ],
+)  # fmt: skip
+def test_long_arguments_are_refused_and_echoed_short(tmp_path, capsys, args, message):
+    assert run_cli([*args, "--out", str(tmp_path / "x.csv")]) == 2
+    err = capsys.readouterr().err
+    assert message in err and len(err) < 1000
+    assert not (tmp_path / "x.csv").exists()
+
+
+def test_a_preset_integer_beyond_any_float_is_named_not_a_traceback(tmp_path, capsys):
+    from importlib import resources
+
+    text = resources.files("carfeel.presets").joinpath("hpattern", "5r.toml").read_text()
+    huge = text.replace("plane = 0", "plane = 1" + "0" * 400, 1)
+    assert huge != text
+    layout = tmp_path / "huge.toml"
+    layout.write_text(huge)
+    code = main(["simulate", "hpattern", "--sequence", "N,1", "--layout", str(layout), "--out",
+                 str(tmp_path / "x.csv")])  # fmt: skip
+    assert code == 2
+    assert "layout.gears[0].plane = a 401-digit number" in capsys.readouterr().err
+
+
+def test_one_row_is_one_row(tmp_path, capsys):
+    log = tmp_path / "one.csv"
+    log.write_text("time_s,speed_m_s,steering_angle_rad,lateral_accel_m_s2,torque_Nm\n0,1,0,0,0\n")
+    assert main(["metrics", "steering", str(log)]) == 2
+    assert "one.csv: 1 row; the metrics need" in capsys.readouterr().err
+
+
+def test_an_empty_preset_name_says_so(tmp_path, capsys):
+    log = tmp_path / "w.csv"
+    assert main(["simulate", "steering", "--manoeuvre", "weave", "--dt", "0.005", "--out",
+                 str(log)]) == 0  # fmt: skip
+    capsys.readouterr()
+    assert main(["fit", "steering", str(log), "--out", ""]) == 2
+    assert "an output file name is empty" in capsys.readouterr().err  # it said "--out .:"
+
+
+def test_a_closed_pipe_ends_quietly_with_sigpipe_s_code(tmp_path):
+    """`carfeel ... | head -1`: the reader goes away; no "cannot use a file: Broken pipe"."""
+    from pathlib import Path
+
+    carfeel = Path(sys.executable).with_name("carfeel")
+    proc = subprocess.Popen(
+        [str(carfeel), "presets"], stdout=subprocess.PIPE, stderr=subprocess.PIPE
+    )
+    assert proc.stdout is not None and proc.stderr is not None
+    proc.stdout.close()  # before it writes: its first write meets a closed pipe
+    err = proc.stderr.read().decode()
+    assert proc.wait(timeout=60) == 141
+    assert err == ""
+
+
+def readme_examples(prefix: str) -> list[str]:
+    """The README's example command lines that start with `prefix` (continuations joined)."""
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    lines = text.replace("\\\n", " ").splitlines()
+    return [line.split("  #")[0].strip() for line in lines if line.startswith(prefix)]
+
+
+def test_the_readmes_hpattern_examples_do_what_they_say(tmp_path, capsys, monkeypatch):
+    """Issue 11: the `--mistake early-clutch:3` example exited 2 (its sequence has two gears)
+    and `--sequence ...,N,R,N` at 30 km/h never engaged reverse (no synchronizer: right, but
+    the README promised it). Every such example runs, and the two claims hold."""
+    import shlex
+
+    examples = readme_examples("carfeel simulate hpattern")
+    assert len(examples) >= 3
+    monkeypatch.chdir(tmp_path)
+    printed = {}
+    for example in examples:
+        args = shlex.split(example)[1:]
+        capsys.readouterr()
+        assert main(args) == 0, example
+        printed[example] = capsys.readouterr().out
+    reverse = next(text for example, text in printed.items() if ",R," in example)
+    assert "gears engaged    R" in reverse
+    balk = next(text for example, text in printed.items() if "early-clutch" in example)
+    assert "gears engaged    1;" in balk  # into 1st, and the clutch let out before 2nd: a balk

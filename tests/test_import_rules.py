@@ -33,3 +33,74 @@ def test_models_import_only_models_and_the_standard_library():
             if top == "carfeel":
                 assert name.startswith("carfeel.models"), f"{path.name} imports {name}"
             assert top not in HEAVY, f"{path.name} imports {name}: keep the step plain Python"
+
+
+PACKAGE = MODELS.parent
+
+
+def carfeel_imports(path: Path, module_level_only: bool) -> set[str]:
+    """The carfeel modules `path` imports (at module level, or anywhere in it)."""
+    tree = ast.parse(path.read_text(), filename=str(path))
+    nodes = tree.body if module_level_only else list(ast.walk(tree))
+    names: set[str] = set()
+    for node in nodes:
+        if isinstance(node, ast.Import):
+            names.update(a.name for a in node.names if a.name.startswith("carfeel"))
+        elif isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("carfeel"):
+            names.add(node.module)
+            names.update(f"{node.module}.{a.name}" for a in node.names)
+    return names
+
+
+def module_name(path: Path) -> str:
+    parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    found, state = [], {}
+
+    def visit(node: str, trail: list[str]) -> None:
+        state[node] = "open"
+        for nxt in sorted(graph.get(node, ())):
+            if state.get(nxt) == "open":
+                found.append([*trail[trail.index(nxt) :], nxt])
+            elif nxt not in state:
+                visit(nxt, [*trail, nxt])
+        state[node] = "done"
+
+    for node in sorted(graph):
+        if node not in state:
+            visit(node, [node])
+    return found
+
+
+def import_graph(module_level_only: bool, within: str = "carfeel") -> dict[str, set[str]]:
+    modules = {module_name(p): p for p in PACKAGE.rglob("*.py")}
+    graph = {}
+    for name, path in modules.items():
+        if name.startswith(within):
+            targets = carfeel_imports(path, module_level_only)
+            graph[name] = {t for t in targets if t in modules and t.startswith(within)} - {name}
+    return graph
+
+
+def test_no_import_cycle_at_module_level():
+    """Issue 11: `workflows.py` and `shift_workflows.py` imported each other. No module of carfeel
+    takes part in a cycle of module-level imports (the order of imports would decide what
+    works)."""
+    assert cycles(import_graph(module_level_only=True)) == []
+
+
+def test_the_identification_workflows_do_not_import_each_other_at_all():
+    """Not even lazily: the shift workflow stands on `common`, not on the steering one's."""
+    graph = import_graph(module_level_only=False, within="carfeel.identification")
+    assert cycles(graph) == []
+
+
+def test_the_cli_only_assembles_the_command_families():
+    """`cli.py` parses and dispatches: it imports the command modules, the errors and the
+    version, not the models, the simulations or the workflows (each family owns its own)."""
+    imported = carfeel_imports(PACKAGE / "cli.py", module_level_only=False)
+    allowed = ("carfeel.commands", "carfeel.errors", "carfeel.__version__")
+    assert {m for m in imported if not m.startswith(allowed) and m != "carfeel"} == set()

@@ -11,6 +11,7 @@ import pytest
 from carfeel.cli import main
 from carfeel.errors import InputError
 from carfeel.io import logs
+from carfeel.simulation.result import Result
 from tests.conftest import SHARED
 
 CAN = SHARED / "data" / "can"
@@ -247,3 +248,138 @@ def test_impossible_values_duplicates_and_ay_at_a_standstill_are_refused(tmp_pat
     parked.write_text("\n".join(rows) + "\n")
     assert main(["fit", "steering", str(parked), "--out", str(out)]) == 2
     assert "yet Ay is 2 m/s^2" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------- issue 11: one place for logs
+
+
+@pytest.fixture(scope="module")
+def weave_csv(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("weave")
+    log = folder / "weave.csv"
+    assert main(["simulate", "steering", "--manoeuvre", "weave", "--dt", "0.005", "--out",
+                 str(log)]) == 0  # fmt: skip
+    return log
+
+
+MAP = "[channels]\nsteering_torque_Nm = { signal = 'torque_Nm', unit = 'Nm' }\n"
+
+
+@pytest.mark.parametrize("reader", ["metrics", "channels", "map"])
+def test_a_spreadsheets_byte_order_mark_is_read_and_a_latin1_byte_named(
+    weave_csv, tmp_path, capsys, reader
+):
+    """A "CSV UTF-8" file starts with a byte-order mark (it read as a column named '\\ufefftime_s');
+    a latin-1 byte said "not a text CSV file". Every reader of CSV text: carfeel's own (metrics),
+    `carfeel channels` and a channel map's."""
+    channel_map = tmp_path / "map.toml"
+    channel_map.write_text(MAP)
+
+    def command(path):
+        return {
+            "metrics": ["metrics", "steering", str(path)],
+            "channels": ["channels", str(path)],
+            "map": ["metrics", "steering", str(path), "--channels", str(channel_map)],
+        }[reader]
+
+    bom = tmp_path / "bom.csv"
+    bom.write_bytes(b"\xef\xbb\xbf" + weave_csv.read_bytes())
+    capsys.readouterr()
+    code = main(command(bom))
+    err = capsys.readouterr().err
+    if reader == "map":  # the map leaves out the other channels: refused for them, not the BOM
+        assert code == 2 and "missing column(s)" in err
+    else:
+        assert code == 0, err
+    assert "\ufeff" not in err
+    latin = tmp_path / "latin.csv"
+    lines = weave_csv.read_bytes().split(b"\n")
+    lines[3] = lines[3] + b",\xe9"
+    latin.write_bytes(b"\n".join(lines))
+    assert main(command(latin)) == 2
+    assert "latin.csv, line 4: byte 0xe9 is not UTF-8 text; save the file as CSV UTF-8" in (
+        capsys.readouterr().err
+    )
+
+
+def test_metrics_refuse_an_angle_in_degrees(weave_csv, tmp_path, capsys):
+    """Issue 11: a weave in degrees gave a sensitivity 57 times too small."""
+    result = Result.from_csv(weave_csv)
+    degrees = tmp_path / "deg.csv"
+    Result(result.time_s, {**result.signals, "steering_angle_rad": np.degrees(
+        result["steering_angle_rad"])}).to_csv(degrees)  # fmt: skip
+    capsys.readouterr()
+    assert main(["metrics", "steering", str(degrees)]) == 2
+    err = capsys.readouterr().err
+    assert re.search(r"lateral_accel_m_s2 is 0\.017\d* times the steady-state Ay", err), err
+    assert "looks like degrees" in err
+    assert main(["metrics", "steering", str(weave_csv)]) == 0  # the same log in radians
+
+
+@pytest.mark.parametrize(
+    ("column", "value", "hint"),
+    [
+        ("steering_angle_rad", "25", "an angle in degrees? convert it to radians"),
+        ("speed_m_s", "200", "a speed in km/h or mph? convert it to m/s"),
+        ("torque_Nm", "350", "a torque in Ncm or Nmm? convert it to Nm"),
+    ],
+)
+def test_a_value_no_car_reaches_names_the_likely_unit(weave_csv, tmp_path, capsys, column,
+                                                      value, hint):  # fmt: skip
+    lines = weave_csv.read_text().splitlines()
+    index = lines[0].split(",").index(column)
+    row = lines[10].split(",")
+    row[index] = value
+    bad = tmp_path / "bad.csv"
+    bad.write_text("\n".join([*lines[:10], ",".join(row), *lines[11:]]) + "\n")
+    capsys.readouterr()
+    assert main(["metrics", "steering", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert f"bad.csv, line 11: {column} = {value}, beyond the" in err and hint in err
+
+
+def test_a_torque_column_that_never_changes_is_named(weave_csv, tmp_path, capsys):
+    """Issue 11: all-zero torque was reported as the opposite sign of Ay."""
+    result = Result.from_csv(weave_csv)
+    flat = tmp_path / "flat.csv"
+    Result(result.time_s, {**result.signals, "torque_Nm": np.zeros(len(result))}).to_csv(flat)
+    capsys.readouterr()
+    out = tmp_path / "p.toml"
+    for command in (["metrics", "steering", str(flat)], ["fit", "steering", str(flat), "--out",
+                                                         str(out)]):  # fmt: skip
+        assert main(command) == 2
+        assert "is 0 Nm in every row: the channel logged nothing" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_kgf_and_lbf_are_units_of_force(tmp_path):
+    """Issue 11: a force in kgf had no hint; a map now converts it (and a fit warns, see
+    test_run_outputs)."""
+    path = tmp_path / "t.csv"
+    path.write_text("time_s,push_kgf,push_lbf\n0,1,1\n0.01,8,2\n")
+    channel_map = tmp_path / "m.toml"
+    for signal, unit, factor in (("push_kgf", "kgf", 9.80665), ("push_lbf", "lbf", 4.448222)):
+        channel_map.write_text(
+            f"[channels]\nforce_N = {{ signal = '{signal}', unit = '{unit}' }}\n"
+        )
+        result = logs.read_channels(path, logs.load_map(channel_map))
+        assert result["force_N"][1] == pytest.approx({"kgf": 8, "lbf": 2}[unit] * factor, rel=1e-6)
+
+
+def test_a_force_no_hand_gives_stops_the_shift_fit(tmp_path, capsys):
+    """Issue 11: one 1e300 sample in a force trace and the shift fit wrote a preset."""
+    trace = tmp_path / "shift.csv"
+    assert main(["simulate", "shift", "--out", str(trace)]) == 0
+    lines = trace.read_text().splitlines()
+    index = lines[0].split(",").index("force_N")
+    row = lines[300].split(",")
+    row[index] = "1e300"
+    bad = tmp_path / "bad.csv"
+    bad.write_text("\n".join([*lines[:300], ",".join(row), *lines[301:]]) + "\n")
+    out = tmp_path / "p.toml"
+    capsys.readouterr()
+    assert main(["fit", "shift", str(bad), "--out", str(out)]) == 2
+    assert "bad.csv, line 301: force_N = 1e+300, beyond the 2000 no car reaches" in (
+        capsys.readouterr().err
+    )
+    assert not out.exists()

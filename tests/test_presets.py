@@ -137,3 +137,21 @@ def test_numpy_scalars_from_a_fit_are_written_as_plain_toml_numbers():
     assert "np.float64" not in text
     loaded = presets.shift_from_toml("fitted", text).params.gearbox
     assert loaded.in_gear_position_m == 0.0431 and type(loaded.in_gear_position_m) is float
+
+
+def test_the_shipped_presets_name_only_files_the_repository_has():
+    """Issue 11: paper-first-gear's comment named shared/seed/EQUATIONS.md, which a user of the
+    repository (or of the installed package) does not have. Any file a shipped preset names, in
+    its comments or its source text, exists in the repository."""
+    from pathlib import Path
+
+    repository = Path(__file__).resolve().parents[1]
+    pattern = re.compile(r"[\w./-]+\.(?:md|csv|toml|py|txt|pdf|json|png|html|dbc|mf4)\b")
+    named = set()
+    for kind in presets.PRESET_KINDS:
+        for name in presets.available(kind):
+            text = resources.files("carfeel.presets").joinpath(kind, f"{name}.toml").read_text()
+            named |= set(pattern.findall(text))
+    assert named, "the test sees no file names at all: check the pattern"
+    missing = sorted(n for n in named if not (repository / n).exists())
+    assert missing == []

@@ -87,7 +87,7 @@ def test_failed_write_keeps_the_existing_file(tmp_path, monkeypatch):
     [
         ("", "empty file"),
         ("a,b\n1,2\n", "no time_s column"),
-        ("time_s,x\n0,1\n0.1\n", "line 3: 1 fields, the header has 2"),
+        ("time_s,x\n0,1\n0.1\n", "line 3: 1 field, the header has 2"),
         ("time_s,x\nzero,1\n", "time_s must be numbers"),
     ],
 )

@@ -92,11 +92,6 @@ def test_array_and_scalar_evaluation_agree():
             assert a[i] == pytest.approx(s, rel=1e-12, abs=1e-15)
 
 
-def test_default_on_centre_gradient_is_in_the_measured_range():
-    gradient = law().k1_Nm_s2_m * G
-    assert 20.0 <= gradient <= 30.0  # Nm/g: measured cars and Segel's preferred 23 Nm/g
-
-
 def test_at_standstill_the_torque_does_not_depend_on_the_wheel_angle():
     c = car()
     rate = 1.3
@@ -129,16 +124,17 @@ def settle(vehicle: VehicleParams, speed: float, wheel_angle: float, seconds: fl
     return out
 
 
-def test_understeer_gradient_and_characteristic_speed_follow_from_the_parameters():
+def test_the_understeer_gradient_is_the_settled_cars_steer_beyond_ackermann():
+    """K_us against the transient model's own steady state (not its formula, which this test
+    once re-implemented): settled at a wheel angle, the front wheels turn L/R + K_us * Ay, so
+    (delta - L Ay / V^2) / Ay is K_us at every speed. The trapezoidal step is exact at steady
+    state: 1e-6. A neutral-steering car has no characteristic speed."""
     v = car().vehicle
-    a, b, m, L = v.cg_to_front_axle_m, v.cg_to_rear_axle_m, v.mass_kg, v.wheelbase_m
-    cf, cr = v.front_cornering_stiffness_N_rad, v.rear_cornering_stiffness_N_rad
-    k_us = m / L * (b / cf - a / cr)
-    assert v.understeer_gradient_rad_s2_m == pytest.approx(k_us, rel=1e-12)
-    assert v.characteristic_speed_m_s == pytest.approx(math.sqrt(L / k_us), rel=1e-12)
-    # The preset was built for about 100 km/h and 1.8 deg/g.
-    assert v.characteristic_speed_m_s * 3.6 == pytest.approx(100.0, abs=1.0)
-    assert v.understeer_gradient_deg_per_g == pytest.approx(1.79, abs=0.02)
+    for speed in (12.0, 27.8, 40.0):
+        out = settle(v, speed, 0.3)
+        ay = out.lateral_accel_m_s2
+        beyond_ackermann = 0.3 / v.steering_ratio - v.wheelbase_m * ay / speed**2
+        assert beyond_ackermann / ay == pytest.approx(v.understeer_gradient_rad_s2_m, rel=1e-6)
     assert neutral(v).characteristic_speed_m_s == math.inf
 
 
@@ -195,12 +191,24 @@ def test_low_speed_circle_needs_the_ackermann_angle():
 
 
 def test_kinematic_fallback_at_walking_speed():
-    v = car().vehicle
-    out = settle(v, 0.5, 2.0, seconds=0.01)
-    delta = 2.0 / v.steering_ratio
-    beta = math.atan(v.cg_to_rear_axle_m * math.tan(delta) / v.wheelbase_m)
-    assert out.sideslip_rad == pytest.approx(beta)
-    assert out.yaw_rate_rad_s == pytest.approx(0.5 * math.cos(beta) * math.tan(delta) / 2.46)
+    """At walking speed the car rolls without slip: the rear axle turns about the point L /
+    tan(delta) beside it, so the centre of gravity circles at sqrt(b^2 + (L / tan delta)^2) and
+    the yaw rate is V over that radius: geometry, checked on the path the model drives (a full
+    circle, fitted), not on its own formula. 1e-6: the position integrates exactly on a circle
+    up to the 1 ms step's chord."""
+    c = car()
+    v = c.vehicle
+    speed, wheel = 0.5, 8.0
+    result, _ = run(imposed_step, single_track.initial_state(), c, duration_s=62.0,
+                    inputs=lambda t: ImposedInputs(speed, wheel, 0.0))  # fmt: skip
+    x, y = result["x_m"], result["y_m"]
+    d, e, f = np.linalg.lstsq(np.column_stack([x, y, np.ones_like(x)]), -(x**2 + y**2),
+                              rcond=None)[0]  # fmt: skip
+    radius = math.sqrt(d * d / 4 + e * e / 4 - f)
+    delta = wheel / v.steering_ratio
+    expected = math.hypot(v.cg_to_rear_axle_m, v.wheelbase_m / math.tan(delta))
+    assert radius == pytest.approx(expected, rel=1e-6)
+    assert result["yaw_rate_rad_s"][-1] == pytest.approx(speed / expected, rel=1e-6)
 
 
 # ---------------------------------------------------------------- manoeuvres
@@ -396,8 +404,10 @@ def test_weave_metrics_of_the_default_car_match_its_parameters():
         c.vehicle.understeer_gradient_deg_per_g, rel=0.02
     )
     # On-centre gradient: K1 * g = 23.5 Nm/g at 0 g, lowered by the car's lag between wheel and
-    # Ay (the rate terms add in quadrature): within 10 %.
+    # Ay (the rate terms add in quadrature): within 10 %. And, measured, inside the 20-30 Nm/g
+    # of measured cars the preset's source claims (the claim once asserted on K1 itself).
     assert feel.torque_gradient_Nm_per_g == pytest.approx(c.torque.k1_Nm_s2_m * G, rel=0.1)
+    assert 20.0 <= feel.torque_gradient_Nm_per_g <= 30.0
     # Sensitivity: the steady-state gain at 100 km/h (1.74 g/100 deg), the 0.2 Hz dynamics
     # within 5 %.
     steady = steady_state_lateral_accel(100 / 3.6, math.radians(100.0), c.vehicle) / G

@@ -249,7 +249,13 @@ def test_fit_and_validate_from_the_command_line(tmp_path, capsys):
     checked = json.loads(capsys.readouterr().out)
     assert all(v["r2"] > 0.99 for v in checked.values())
     page = (check / "index.html").read_text()
-    assert "torque_gradient_Nm_per_g" in page and "measured" in page
+    assert "torque gradient at 0 g (Nm/g)" in page and "measured" in page
+    assert page.count("<tr>") == page.count("</tr>")  # issue 11: rows were left open
+    # Only the metrics a log gives are rows; the rest are named once, with the reason.
+    assert "<td>n/a</td><td>n/a</td>" not in page
+    assert "Feel metrics not given for this log" in page and "this run is not one" in page
+    fit_page = (fit_report / "index.html").read_text()
+    assert "<th>what it is</th>" in fit_page and "K4, tyre spin at standstill" in fit_page
 
 
 def test_malformed_logs_exit_2_from_the_command_line(tmp_path, capsys):
@@ -310,12 +316,77 @@ def test_units_and_signs_that_fit_well_but_wrongly_are_refused(kwargs, message):
 
 def test_km_h_read_as_m_s_is_warned_about():
     # At 100 km/h understeer makes the measured Ay 0.53x the steady state from a speed read 3.6x
-    # too high: within what another car could give, so a warning, not a refusal.
+    # too high: within what another car could give, so a warning, not a refusal. The warnings
+    # come from the checks before the fit (`_check_units`, which `fit_steering` returns them
+    # from): checked there, without a fit that costs seconds and adds nothing.
+    from carfeel.identification.steering_fit import _check_units
+
     base, _ = car()
     time, signals = weave_signals(km_h=True)
-    fit = fit_steering([read_log(Result(time, signals), "weave.csv")], base)
-    assert any("if it is in km/h, divide it by 3.6" in w for w in fit.warnings)
-    assert any("the measured Ay is 0.527 times" in w for w in fit.warnings)
+    warnings = _check_units([read_log(Result(time, signals), "weave.csv")], base.vehicle)
+    assert any("if it is in km/h, divide it by 3.6" in w for w in warnings)
+    assert any("the measured Ay is 0.527 times" in w for w in warnings)
+
+
+def test_an_angle_in_degrees_without_ay_is_refused_before_the_fit():
+    """Issue 11: a weave in degrees without an Ay column fitted to r2 0.9986 and wrote a preset
+    from angles of 11.7 "rad", beyond the car's 9.4 rad lock. Refused by name now, before any
+    fitting; and inside the lock (half the weave: 5.8 "rad"), the Ay the car would need at that
+    angle (5.7 g) gives it away."""
+    base, _ = car()
+    time, signals = weave_signals(degrees=True)
+    del signals["lateral_accel_m_s2"]
+    log = read_log(Result(time, signals), "weave.csv")
+    with pytest.raises(
+        InputError,
+        match=r"weave\.csv: steering_angle_rad reaches 11\.\d+, beyond "
+        r"the base car's lock of 9\.425 rad \(540 deg\): that looks like degrees",
+    ):
+        fit_steering([log], base)
+    signals["steering_angle_rad"] = 0.5 * signals["steering_angle_rad"]
+    log = read_log(Result(time, signals), "weave.csv")
+    with pytest.raises(
+        InputError,
+        match=r"without a lateral_accel_m_s2 column Ay comes from the "
+        r"base car.*reaches 5\.\d+ g.*steering_angle_rad looks like degrees",
+    ):
+        fit_steering([log], base)
+
+
+def test_logs_in_radians_without_ay_pass_the_unit_checks():
+    """The refusals above do not catch good logs: every test manoeuvre (parking to the lock, the
+    lane change at 0.76 g) without its Ay column, with the noise and offsets of `measured`."""
+    from carfeel.identification.steering_fit import _check_units
+
+    base, _ = car()
+    for seed in (0, 1):
+        _check_units(measured(excitation_runs(), seed=seed, with_ay=False), base.vehicle)
+
+
+def test_fit_vehicle_with_a_measured_ay_names_the_fix():
+    base, _ = car()
+    time, signals = weave_signals()
+    log = read_log(Result(time, signals), "weave.csv")
+    with pytest.raises(InputError, match=r"every log has lateral_accel_m_s2.*without --fit-veh"):
+        fit_steering([log], base, fit_vehicle=True)
+
+
+def test_a_torque_channel_that_logged_nothing_is_named():
+    """Issue 11: all-zero torque was reported as the opposite sign of Ay."""
+    time, signals = weave_signals()
+    signals["steering_torque_Nm"] = np.zeros_like(time)
+    with pytest.raises(InputError, match="steering_torque_Nm is 0 Nm in every row: the channel "
+                       "logged nothing"):  # fmt: skip
+        read_log(Result(time, signals), "zero.csv")
+    from carfeel.identification.steering_fit import _check_units
+
+    # Zero only where the car corners (a channel that drops out): not a sign flip either.
+    base, _ = car()
+    time, signals = weave_signals()
+    corner = np.abs(signals["lateral_accel_m_s2"]) > 1.0
+    signals["steering_torque_Nm"] = np.where(corner, 0.0, signals["steering_torque_Nm"])
+    with pytest.raises(InputError, match=r"exactly 0 in \d+% of the steady cornering"):
+        _check_units([read_log(Result(time, signals), "drop.csv")], base.vehicle)
 
 
 def test_time_in_milliseconds_is_named():

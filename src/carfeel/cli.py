@@ -2,12 +2,14 @@
 
 Exit codes: 0 done; 2 bad input (nothing run, nothing written over); 3 a real-time run stopped
 by a safety fault (the force was faded to zero; the summary says which); 130 and 143 a run
-stopped by SIGINT (Ctrl-C) or SIGTERM, after taking the force away (the shell's 128 + signal).
+stopped by SIGINT (Ctrl-C) or SIGTERM, after taking the force away (the shell's 128 + signal);
+141 when the output was closed early (`carfeel ... | head`, SIGPIPE).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from collections.abc import Sequence
 
@@ -77,6 +79,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except CarfeelError as exc:
         print(f"carfeel: error: {exc}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # the reader went away (`carfeel ... | head`): as the shell's tools
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141  # 128 + SIGPIPE
     except OSError as exc:  # the file system said no: name the file and the reason
         where = exc.filename if exc.filename is not None else "a file"
         print(f"carfeel: error: cannot use {where}: {exc.strerror or exc}", file=sys.stderr)

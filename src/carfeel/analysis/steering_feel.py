@@ -66,6 +66,17 @@ class SteeringFeel:
         return values
 
 
+LABELS = {
+    "torque_gradient_Nm_per_g": ("torque gradient at 0 g", "Nm/g"),
+    "torque_at_0_1g_Nm": ("torque at 0.1 g", "Nm"),
+    "deadband_g": ("torque deadband", "g"),
+    "hysteresis_Nm": ("torque hysteresis (at 0 g)", "Nm"),
+    "sensitivity_g_per_100deg": ("steering sensitivity", "g/100 deg"),
+    "understeer_gradient_deg_per_g": ("understeer gradient", "deg/g"),
+}
+"""Each metric's name for people, and its unit."""
+
+
 def _line(x: FloatArray, y: FloatArray) -> tuple[float, float]:
     """Least-squares (slope, intercept) of y against x."""
     slope, intercept = np.polyfit(x, y, 1)

@@ -18,6 +18,7 @@ __all__ = [
     "positive_float",
     "positive_int",
     "seed_arg",
+    "shown",
     "to_json",
 ]
 
@@ -45,11 +46,25 @@ def positive_int(text: str) -> int:
     return value
 
 
+MAX_SEED = 2**64 - 1
+"""Seeds are the 64-bit state of SplitMix64: a larger one would alias a smaller one."""
+
+
 def seed_arg(text: str) -> int:
     try:
-        return int(text)
+        value = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+        raise argparse.ArgumentTypeError(f"expected a whole number, got '{shown(text)}'") from None
+    if not 0 <= value <= MAX_SEED:
+        raise argparse.ArgumentTypeError(
+            f"expected a whole number from 0 to 2^64 - 1, got '{shown(text)}'"
+        )
+    return value
+
+
+def shown(text: str, limit: int = 40) -> str:
+    """A user's argument as a message echoes it: shortened when it is long (a 300-digit number)."""
+    return text if len(text) <= limit else f"{text[: limit - 12]}...{text[-9:]}"
 
 
 def finite(value: object) -> object:

@@ -13,7 +13,7 @@ from carfeel.commands.common import (
     sources_of,
     to_json,
 )
-from carfeel.errors import InputError
+from carfeel.io.outputs import check_folder
 
 
 def register(commands: Any) -> None:
@@ -32,7 +32,9 @@ def register(commands: Any) -> None:
         "time_s, speed_m_s, steering_angle_rad, steering_torque_Nm and optionally "
         "lateral_accel_m_s2 and steering_rate_rad_s (several files: one per manoeuvre).",
     )
-    fit_steer.add_argument("logs", nargs="+", metavar="LOG.csv")
+    fit_steer.add_argument("logs", nargs="+", metavar="LOG.csv",
+                           help="steering logs: CSV, or with carfeel[logs] Parquet, MDF4, CAN "
+                           "with --dbc (one per manoeuvre)")  # fmt: skip
     fit_steer.add_argument("--out", required=True, metavar="PRESET.toml", help="preset to write")
     fit_steer.add_argument("--base", default="b-segment", metavar="NAME|PATH",
                            help="car preset the fit starts from (default b-segment)")  # fmt: skip
@@ -53,7 +55,9 @@ def register(commands: Any) -> None:
         description="Fit the gear engagement to traces with time_s, position_m, force_N (the "
         "knob's position and force, as the paper's Fig. 5/6).",
     )
-    fit_shift.add_argument("traces", nargs="+", metavar="TRACE.csv")
+    fit_shift.add_argument("traces", nargs="+", metavar="TRACE.csv",
+                           help="shift traces (time_s, position_m, force_N), one or more "
+                           "engagements each")  # fmt: skip
     fit_shift.add_argument("--out", required=True, metavar="PRESET.toml", help="preset to write")
     fit_shift.add_argument("--base", default="paper-first-gear", metavar="NAME|PATH",
                            help="shift preset the fit starts from")  # fmt: skip
@@ -69,7 +73,8 @@ def register(commands: Any) -> None:
         "write one report (HTML + PNG): overlays, residuals and, for steering, the feel metrics "
         "measured and modelled side by side.",
     )
-    validate.add_argument("logs", nargs="+", metavar="LOG.csv")
+    validate.add_argument("logs", nargs="+", metavar="LOG.csv",
+                          help="steering logs or shift traces measured on the car")  # fmt: skip
     validate.add_argument("--preset", required=True, metavar="PRESET.toml",
                           help="the preset to check against the logs")  # fmt: skip
     validate.add_argument("--report", default=None, metavar="DIR",
@@ -85,10 +90,10 @@ def register(commands: Any) -> None:
 
 def _fit(args: argparse.Namespace) -> int:
     out = Path(args.out)
-    if out.suffix.lower() != ".toml":
-        raise InputError(f"--out {out}: expected a .toml file name for the preset")
-    check_writable(out, ".toml")
-    report_dir = Path(args.report) if args.report else None
+    check_writable(out, ".toml")  # names an empty --out, and a name that is not a .toml
+    report_dir = None if args.report is None else Path(args.report)
+    if report_dir is not None:
+        check_folder(report_dir)
     if args.kind == "steering":
         from carfeel.identification.workflows import Sources, fit_steering_logs, fit_summary
 
@@ -129,13 +134,13 @@ def _validate(args: argparse.Namespace) -> int:
     logs = [Path(p) for p in args.logs]
     with tempfile.TemporaryDirectory() as scratch:
         # Without --report the report is drawn in a scratch folder and thrown away.
-        folder = Path(args.report) if args.report else Path(scratch) / "report"
+        folder = Path(scratch) / "report" if args.report is None else Path(args.report)
         figures = validate(args.preset, logs, folder, Sources(*sources_of(args)), args.drift)
     if args.json:
         print(to_json(figures))
     else:
         for name, values in figures.items():
             print(f"{name}: " + ", ".join(f"{k} {v:.4g}" for k, v in values.items()))
-        if args.report:
+        if args.report is not None:
             print(f"wrote {Path(args.report) / 'index.html'}")
     return 0

@@ -11,11 +11,12 @@ from typing import Any
 
 import numpy as np
 
-from carfeel.analysis.steering_feel import SteeringFeel, steering_feel
+from carfeel.analysis.steering_feel import LABELS, SteeringFeel, steering_feel
 from carfeel.commands.common import source_options, sources_of, to_json
 from carfeel.errors import InputError
 from carfeel.io.presets import load_steering
 from carfeel.simulation.result import Result
+from carfeel.text import count
 
 REQUIRED_STEERING_COLUMNS = (
     "time_s",
@@ -26,14 +27,7 @@ REQUIRED_STEERING_COLUMNS = (
 )
 
 
-FEEL_LABELS = {
-    "torque_gradient_Nm_per_g": ("torque gradient at 0 g", "Nm/g"),
-    "torque_at_0_1g_Nm": ("torque at 0.1 g", "Nm"),
-    "deadband_g": ("torque deadband", "g"),
-    "hysteresis_Nm": ("torque hysteresis (at 0 g)", "Nm"),
-    "sensitivity_g_per_100deg": ("steering sensitivity", "g/100 deg"),
-    "understeer_gradient_deg_per_g": ("understeer gradient", "deg/g"),
-}
+FEEL_LABELS = LABELS
 
 
 def feel_lines(feel: SteeringFeel) -> list[str]:
@@ -72,7 +66,7 @@ def steering_metrics(
     The understeer gradient needs the steering ratio and wheelbase: from `preset` if given, else
     from the run's metadata file beside the CSV, else the default car preset.
     """
-    from carfeel.identification.common import read_results
+    from carfeel.identification.common import check_torque_logged, read_results
 
     result = read_results([csv_path], channels, dbc)[0]
     if "torque_Nm" not in result.names and "steering_torque_Nm" in result.names:
@@ -98,17 +92,41 @@ def steering_metrics(
             row = int(np.flatnonzero(bad)[0]) + 2
             raise InputError(f"{csv_path}, line {row}: {name} is not a finite number")
     if len(result) < 3:
-        raise InputError(f"{csv_path}: {len(result)} rows; the metrics need a run of samples")
+        raise InputError(
+            f"{csv_path}: {count(len(result), 'row')}; the metrics need a run of samples"
+        )
     steps = np.diff(result.time_s)
     if np.any(steps <= 0):
         row = int(np.flatnonzero(steps <= 0)[0]) + 3
         raise InputError(f"{csv_path}, line {row}: time_s does not increase from the row before")
+    check_torque_logged(str(csv_path), "torque_Nm", result["torque_Nm"])
     ratio, wheelbase, where = _car_geometry(csv_path, preset)
+    _check_angle_unit(csv_path, result, preset, ratio, wheelbase)
     feel = feel_of(result, ratio, wheelbase)
     note = (
         f"understeer gradient with steering ratio {ratio:g} and wheelbase {wheelbase:g} m {where}"
     )
     return replace(feel, notes=(*feel.notes, note))
+
+
+def _check_angle_unit(
+    csv_path: Path, result: Result, preset: str | None, ratio: float, wheelbase: float
+) -> None:
+    """An angle in degrees makes the sensitivity 57 times too small: Ay gives it away."""
+    from carfeel.identification.steering_fit import ay_gain, looks_like_degrees
+
+    vehicle = replace(
+        load_steering(preset or "b-segment").params.vehicle,
+        steering_ratio=ratio, wheelbase_m=wheelbase,
+    )  # fmt: skip
+    gain = ay_gain(result["speed_m_s"], result["steering_angle_rad"],
+                   result["lateral_accel_m_s2"], vehicle)  # fmt: skip
+    if looks_like_degrees(gain):
+        raise InputError(
+            f"{csv_path}: the measured lateral_accel_m_s2 is {gain:.3g} times the steady-state Ay "
+            "of the car from speed and steering_angle_rad (about 1 expected): the angle looks like "
+            "degrees; convert it to radians"
+        )
 
 
 def _car_geometry(csv_path: Path, preset: str | None) -> tuple[float, float, str]:

@@ -20,6 +20,7 @@ from carfeel.commands.common import (
     positive_float,
     positive_int,
     seed_arg,
+    shown,
 )
 from carfeel.commands.metrics import feel_lines, feel_of
 from carfeel.errors import CarfeelError, InputError
@@ -415,8 +416,8 @@ def run_hpattern(
     unknown = [g for g in config.sequence if g != NEUTRAL_GEAR and g not in names]
     if unknown:
         raise InputError(
-            f"--sequence: no gear {', '.join(unknown)} in layout {preset.name}; it has "
-            f"N, {', '.join(names)}"
+            f"--sequence: no gear {', '.join(shown(g) for g in unknown)} in layout {preset.name}; "
+            f"it has N, {', '.join(names)}"
         )
     if not 0.0 <= config.clutch <= 1.0:
         raise InputError(f"--clutch {config.clutch:g}: allowed 0 (released) .. 1 (pressed)")
@@ -436,8 +437,8 @@ def run_hpattern(
             entries[option] = gear_positions[value - 1]
         else:
             raise InputError(
-                f"--mistake {option}:{value}: allowed 1 .. {len(gear_positions)}, the K-th gear "
-                f"(not counting N) of --sequence {','.join(config.sequence)}"
+                f"--mistake {shown(f'{option}:{value}')}: allowed 1 .. {len(gear_positions)}, the "
+                f"K-th gear (not counting N) of --sequence {','.join(config.sequence)}"
             )
     duration = config.max_duration_s or 3.0 * len(config.sequence) + 5.0
     check_steps(duration, config.dt_s, config.substeps, HPATTERN_MAX_STEP_S)
@@ -763,15 +764,15 @@ def _simulate_hpattern(args: argparse.Namespace) -> int:
         kind, _, number = text.partition(":")
         if kind not in mistakes or not number.isdigit():
             raise InputError(
-                f"--mistake {text!r}: expected early-clutch:K or wall:K, K the position of a "
-                "gear in --sequence (1 for the first)"
+                f"--mistake '{shown(text)}': expected early-clutch:K or wall:K, K the position of "
+                "a gear in --sequence (1 for the first)"
             )
         if mistakes[kind]:
             raise InputError(f"--mistake {kind}: given twice; one {kind} mistake per run")
         if int(number) < 1:
             raise InputError(
-                f"--mistake {text!r}: K counts the gears of --sequence from 1 (not N); leave "
-                "--mistake out for a run without one"
+                f"--mistake '{shown(text)}': K counts the gears of --sequence from 1 (not N); "
+                "leave --mistake out for a run without one"
             )
         mistakes[kind] = int(number)
     config = HPatternRunConfig(

@@ -24,7 +24,7 @@ def register(commands: Any) -> None:
     )
     actions = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
     listen = actions.add_parser("listen", help="print what arrives; record the vehicle state")
-    listen.add_argument("source", metavar="SOURCE")
+    listen.add_argument("source", metavar="SOURCE", help="FORMAT:HOST:PORT to listen on")
     listen.add_argument("--duration", type=float, default=None, metavar="S",
                         help="seconds to listen (default: until Ctrl-C)")  # fmt: skip
     listen.add_argument("--record", metavar="FILE.csv", default=None,
@@ -32,8 +32,9 @@ def register(commands: Any) -> None:
     listen.add_argument("--json", action="store_true", help="print the summary as JSON")
     listen.set_defaults(handler=_listen)
     replay = actions.add_parser("replay", help="send a capture (datagrams concatenated)")
-    replay.add_argument("file", metavar="FILE")
-    replay.add_argument("--format", required=True, metavar="FORMAT")
+    replay.add_argument("file", metavar="FILE", help="the capture: its datagrams concatenated")
+    replay.add_argument("--format", required=True, metavar="FORMAT",
+                        help="the capture's format (one of the FORMATs above)")  # fmt: skip
     replay.add_argument("--to", required=True, metavar="HOST:PORT",
                         help="where to send (assetto: where to serve, as the game)")  # fmt: skip
     replay.add_argument("--rate-hz", type=float, default=None, metavar="R",

@@ -35,23 +35,34 @@ class Progress:
             print(file=sys.stderr)
 
 
-def write_checked_preset(kind: str, out: Path, text: str) -> None:
+def write_checked_preset(
+    kind: str, out: Path, text: str, staged: Path | None = None, hints: Sequence[str] = ()
+) -> None:
     """Write a fitted preset only if carfeel's own loader accepts it (ranges, cross-checks);
-    else InputError: a fit that leaves the physical ranges means the data, not the preset."""
+    else InputError naming `out`, with the fit's `hints` (its warnings): a fit that leaves the
+    physical ranges means the data, not the preset. With `staged` (from `Outputs.add`) the text
+    goes there and the command puts it in place; else it replaces `out` in one step."""
     from carfeel.io.presets import from_toml
 
     try:
         from_toml(kind, str(out), text)
     except PresetError as exc:
+        said = str(exc)
+        extra = [hint for hint in hints if hint.split(": ", 1)[-1] not in said]
+        found = "".join(f"\n  {hint}" for hint in extra)
+        found = f"\nthe fit warned:{found}" if found else ""
         raise InputError(
             f"the fit gives a {kind} preset that carfeel would refuse, so {out} is not written:"
-            f"\n{exc}\ncheck the logs' units and sign conventions (README, 'From your own car's "
-            "logs') and that they hold the manoeuvres the fit needs"
+            f"\n{exc}{found}\ncheck the logs' units and sign conventions (README, 'From your own "
+            "car's logs') and that they hold the manoeuvres the fit needs"
         ) from None
+    if staged is not None:
+        staged.write_text(text, encoding="utf-8")
+        return
     # Replaced in one step: a failure while writing leaves the user's file as it was.
-    staged = out.with_name(f".{out.name}.part")
-    staged.write_text(text)
-    os.replace(staged, out)
+    partial = out.with_name(f".{out.name}.part")
+    partial.write_text(text, encoding="utf-8")
+    os.replace(partial, out)
 
 
 def read_results(
@@ -100,6 +111,16 @@ PHYSICAL_LIMITS = {
 """Magnitudes no car's steering or gearshift reaches (about 3 turns of a wheel either way, 540
 km/h, 5 g, 200 kgf at a knob): beyond them a sample is a logging error, not a measurement."""
 
+UNIT_HINTS = {
+    "steering_angle_rad": "an angle in degrees? convert it to radians",
+    "steering_rate_rad_s": "a rate in deg/s? convert it to rad/s",
+    "speed_m_s": "a speed in km/h or mph? convert it to m/s",
+    "torque_Nm": "a torque in Ncm or Nmm? convert it to Nm",
+    "steering_torque_Nm": "a torque in Ncm or Nmm? convert it to Nm",
+    "position_m": "a position in mm? divide it by 1000",
+}
+"""The unit mistake each limit most often catches."""
+
 
 def check_physical(result: Result, path: Path) -> None:
     """Refuse values no car produces, and Ay at a standstill (a speed in the wrong unit or
@@ -113,10 +134,11 @@ def check_physical(result: Result, path: Path) -> None:
         beyond = np.flatnonzero(np.abs(values) > limit)
         if len(beyond):
             i = int(beyond[0])
+            hint = f" ({UNIT_HINTS[name]})" if name in UNIT_HINTS else ""
             raise InputError(
                 f"{path}, line {i + 2}: {name} = {float(values[i]):.4g}, beyond the {limit:g} no "
-                "car reaches: a logging error or a unit (check the channel map's scale), not a "
-                "measurement; remove the sample or fix the column"
+                f"car reaches: a logging error or a unit{hint}, not a measurement; remove the "
+                "sample or fix the column (or the channel map's unit and scale)"
             )
     if "speed_m_s" in result.names and "lateral_accel_m_s2" in result.names:
         speed = np.asarray(result["speed_m_s"])
@@ -129,3 +151,13 @@ def check_physical(result: Result, path: Path) -> None:
                     f"samples) yet Ay is {float(np.median(np.abs(ay[parked]))):.2g} m/s^2: a car "
                     "at rest has none; check the speed column (its unit, or the wrong signal)"
                 )
+
+
+def check_torque_logged(where: str, column: str, torque: np.ndarray) -> None:
+    """Refuse a torque channel that holds one value throughout: it logged nothing (all-zero
+    torque read as 'the opposite sign of Ay' before), or it is the wrong signal."""
+    if len(torque) > 1 and np.ptp(torque) == 0.0:
+        raise InputError(
+            f"{where}: {column} is {float(torque[0]):.4g} Nm in every row: the channel logged "
+            "nothing (or it is the wrong signal); check the column"
+        )

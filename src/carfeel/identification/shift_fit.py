@@ -79,6 +79,7 @@ from carfeel.models.gearshift import engagement
 from carfeel.models.gearshift.engagement import EngagementParams, EngagementState, Stage
 from carfeel.simulation.result import Result
 from carfeel.simulation.shift import ShiftParams
+from carfeel.text import count
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -94,6 +95,9 @@ NOISE_BAND = 3.0
 """Half-width of the plateau band, in sigmas of the position noise."""
 BAND_FLOOR_M = 2e-6
 MIN_PLATEAU_S = 0.04
+KGF_SUSPECT_N = 20.0
+"""A synchronization plateau below this at the knob is not a car's (a force in kgf reads 9.8x
+low)."""
 MIN_TRAVEL_M = 0.002
 HIGH_FORCE_FRACTION = 0.5
 LOW_FORCE_FRACTION = 0.1
@@ -150,6 +154,9 @@ class ShiftFit:
     trace's noise, the rms of the passage and stop fits, and each fitted value by its path in
     the preset (`gearbox.stop.stiffness_N_m`, `driver.push_force_N`, ...)."""
     warnings: tuple[str, ...]
+    sigmas: dict[str, float] = dataclasses.field(default_factory=dict)
+    """One standard deviation of each fitted value, by its path in the preset (NaN where the
+    traces cannot give one: too few engagements, or the value was repaired or kept)."""
 
 
 @dataclass(frozen=True)
@@ -214,6 +221,12 @@ def fit_shift(
     gb = base.gearbox
     x_sync = float(np.median([e.features.synchronization_position_m for e in found]))
     push = float(np.median([e.features.plateau_force_N for e in found]))
+    if push < KGF_SUSPECT_N:
+        warnings.append(
+            f"the synchronization holds the knob with {push:.3g} N, below the {KGF_SUSPECT_N:g} N "
+            "a car's synchronizer takes (the paper's: 78.5 N, 8 kgf): if force_N is in kgf, "
+            'multiply it by 9.80665 (unit = "kgf" in a channel map) and fit again'
+        )
     settled = float(np.median([e.features.settled_position_m for e in found]))
 
     count = [0]
@@ -223,7 +236,10 @@ def fit_shift(
         if progress is not None:
             progress(count[0], float(np.sqrt(np.mean(residual * residual))))
 
-    teeth, teeth_end, found, passage_rms = _fit_passage(found, gb, x_sync, settled, warnings, tick)
+    sigmas: dict[str, float] = {}
+    teeth, teeth_end, found, passage_rms = _fit_passage(
+        found, gb, x_sync, settled, warnings, tick, sigmas
+    )
     # The lever's mass from the free stretches, between the teeth the passage fit placed.
     _, free_figures = _fit_mass(prepared, found, gb, x_sync, teeth, teeth_end, settled, warnings)
     times = [e.features.synchronization_time_s for e in found]
@@ -246,7 +262,7 @@ def fit_shift(
             gb.engagement, sliding_friction_N=sliding, static_friction_N=sliding + margin
         ),
     )
-    gearbox, stop_rms = _fit_stop(found, gearbox, settled, warnings, tick)
+    gearbox, stop_rms = _fit_stop(found, gearbox, settled, warnings, tick, sigmas)
     # The driver lets go as far before the gear as in the base.
     early = gb.in_gear_position_m - base.driver.release_position_m
     driver = dataclasses.replace(
@@ -262,8 +278,16 @@ def fit_shift(
     for trace in prepared:
         figures[f"trace{trace.index}.position_noise_m"] = trace.sigma_m
         figures[f"trace{trace.index}.force_noise_N"] = trace.sigma_N
-    figures.update(_fitted_values(params))
-    return ShiftFit(params, tuple(e.features for e in found), figures, tuple(warnings))
+    fitted = _fitted_values(params)
+    figures.update(fitted)
+    sigmas.update(_median_sigmas(found, times))
+    drawn = sum(math.isfinite(e.features.tooth_resistance_N) for e in found)
+    sigmas.update(_tooth_law_sigmas(drawn, spread))
+    # A value `_fix_up` repaired is no longer the fitted one: no sigma for it.
+    as_fitted = _fitted_values(ShiftParams(gearbox, driver))
+    sigmas = {k: sigmas.get(k, math.nan) if v == as_fitted[k] else math.nan
+              for k, v in fitted.items()}  # fmt: skip
+    return ShiftFit(params, tuple(e.features for e in found), figures, tuple(warnings), sigmas)
 
 
 # --- reading and preparing a trace -------------------------------------------------------------
@@ -273,7 +297,7 @@ def _label(trace: object, index: int) -> str:
     name = getattr(trace, "name", None)
     if name is None and isinstance(trace, Result):
         name = trace.metadata.get("name")
-    return f"trace {index}" + (f" ({name})" if name else "")
+    return f"trace {index + 1}" + (f" ({name})" if name else "")  # counted from 1, as a user does
 
 
 def _columns(trace: Trace, label: str) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -317,7 +341,7 @@ def _first_non_number(values: Any) -> str:
         try:
             float(value)
         except (TypeError, ValueError):
-            return f"sample {i} is {str(value)!r}"
+            return f"sample {i + 1} is {str(value)!r}"
     return "it holds something else"
 
 
@@ -332,7 +356,8 @@ def checked_columns(trace: Trace, label: str) -> tuple[FloatArray, FloatArray, F
 def _check(label: str, t: FloatArray, x: FloatArray, f: FloatArray) -> None:
     if len(t) < MIN_SAMPLES:
         raise InputError(
-            f"{label}: {len(t)} samples; a fit or a validation needs at least {MIN_SAMPLES}"
+            f"{label}: {count(len(t), 'sample')}; a fit or a validation needs {MIN_SAMPLES} at "
+            "least"
         )
     for column, values in zip(REQUIRED, (t, x, f), strict=True):
         bad = np.flatnonzero(~np.isfinite(values))
@@ -340,20 +365,28 @@ def _check(label: str, t: FloatArray, x: FloatArray, f: FloatArray) -> None:
             at = f" (t = {t[bad[0]]:g} s)" if np.isfinite(t[bad[0]]) else ""
             raise InputError(
                 f"{label}: {column} holds {bad.size} NaN or infinite value(s), the first at "
-                f"sample {bad[0]}{at}; drop those samples (a gap is fine) or repair them"
+                f"sample {bad[0] + 1}{at}; drop those samples (a gap is fine) or repair them"
             )
     back = np.flatnonzero(np.diff(t) <= 0.0)
     if back.size:
         i = int(back[0]) + 1
         raise InputError(
-            f"{label}: time_s does not increase at sample {i} ({t[i - 1]:g} s, then {t[i]:g} s); "
-            "sort the samples by time and drop duplicates"
+            f"{label}: time_s does not increase at sample {i + 1} ({t[i - 1]:g} s, then "
+            f"{t[i]:g} s); sort the samples by time and drop duplicates"
         )
     span = float(np.max(np.abs(x)))
     if span > MAX_TRAVEL_M:
         raise InputError(
             f"{label}: position_m reaches {span:.4g}, beyond any gear lever's travel "
             f"({MAX_TRAVEL_M:g} m): if it is in mm, divide it by 1000"
+        )
+    low, high = (float(v) for v in np.percentile(x, (1, 99)))
+    if -low > 2.0 * max(high, MIN_TRAVEL_M):  # a pull-out may overshoot neutral a little
+        raise InputError(
+            f"{label}: position_m runs to {low * 1e3:.3g} mm and only to {high * 1e3:+.3g} mm "
+            "the other way; carfeel's knob position is + toward the gear (0 = "
+            "neutral): flip its sign (scale = -1 in a channel map), and force_N's too if a push "
+            "into gear reads negative"
         )
     dt = float(np.median(np.diff(t)))
     if dt > MAX_SAMPLE_PERIOD_S * (1.0 + 1e-6):  # 200 Hz itself, as a float step, passes
@@ -503,6 +536,24 @@ def _arrival(tr: _Trace, first_s: float, centre: float, band: float) -> float:
     return t if abs(t - first_s) <= 2.0 * tr.dt_s else first_s
 
 
+def _sign_hint(tr: _Trace) -> str:
+    """How to fix a trace with no engagement: the sign flip under which it has some, if any."""
+    for x_sign, f_sign, what in ((1.0, -1.0, "force_N"), (-1.0, -1.0, "position_m and force_N")):
+        flipped = replace(tr, x_med=x_sign * tr.x_med, f_med=f_sign * tr.f_med,
+                          f_wide=f_sign * tr.f_wide)  # fmt: skip
+        found = len(_plateaus(flipped)[0])
+        if found:
+            return (
+                f"with the sign of {what} flipped it holds {found} engagement(s): carfeel's force "
+                "is + pushing toward the gear and its position + toward the gear; flip the sign "
+                "(scale = -1 in a channel map)"
+            )
+    return (
+        "check that the trace holds a push into gear, position_m in m (+ toward the gear) and "
+        "force_N in N (+ pushing toward the gear)"
+    )
+
+
 def _segment(tr: _Trace, warnings: list[str]) -> list[_Found]:
     from scipy.signal import find_peaks
 
@@ -512,8 +563,7 @@ def _segment(tr: _Trace, warnings: list[str]) -> list[_Found]:
             f"{tr.label}: no engagement found: no stretch of at least {MIN_PLATEAU_S * 1e3:.0f} "
             f"ms where the knob stays within +-{band * 1e3:.2g} mm while pushed with more than "
             f"{f_high:.3g} N, and then moves on at least {MIN_TRAVEL_M * 1e3:g} mm toward the "
-            "gear; check that the trace holds a push into gear, position_m in m (+ toward the "
-            "gear) and force_N in N (+ pushing toward the gear)"
+            "gear; " + _sign_hint(tr)
         )
     g, x, f, dt = tr.grid_s, tr.x_med, tr.f_med, tr.dt_s
     found: list[_Found] = []
@@ -684,6 +734,7 @@ def _fit_passage(
     settled: float,
     warnings: list[str],
     tick: Callable[[FloatArray], None],
+    sigmas: dict[str, float],
 ) -> tuple[float, float, list[_Found], float]:
     """Teeth positions (m), the engagements with their synchronization time and teeth
     resistance filled in, and the fit's rms (m)."""
@@ -779,6 +830,11 @@ def _fit_passage(
         )
         updated.append(dataclasses.replace(e, features=features))
     rms = float(np.sqrt(np.mean(solution.fun**2))) * sigma
+    cov = _covariance(solution)
+    sigmas["gearbox.teeth_position_m"] = math.sqrt(cov[0, 0]) * 1e-3
+    sigmas["gearbox.teeth_end_position_m"] = (
+        math.sqrt(max(cov[0, 0] + cov[1, 1] + 2.0 * cov[0, 1], 0.0)) * 1e-3
+    )
     return float(teeth), float(teeth_end), updated, rms
 
 
@@ -947,6 +1003,7 @@ def _fit_stop(
     settled: float,
     warnings: list[str],
     tick: Callable[[FloatArray], None],
+    sigmas: dict[str, float],
 ) -> tuple[EngagementParams, float]:
     """Stop stiffness, damping and x_gear, simulating from the free travel through the stop."""
     cases = []
@@ -1002,7 +1059,62 @@ def _fit_stop(
     if not solution.success:
         warnings.append(f"the stop fit did not converge ({solution.message}); check the result")
     rms = float(np.sqrt(np.mean(solution.fun**2))) * sigma
+    cov = _covariance(solution)
+    for i, (path, unit) in enumerate((("gearbox.stop.stiffness_N_m", 1e3),
+                                      ("gearbox.stop.damping_N_s_m", 1.0),
+                                      ("gearbox.in_gear_position_m", 1e-3))):  # fmt: skip
+        sigmas[path] = math.sqrt(cov[i, i]) * unit
     return params_of(solution.x), rms
+
+
+def _covariance(solution: Any) -> FloatArray:
+    """Gauss-Newton covariance of a fit's unknowns (in their scaled units): (J^T J)^-1 times
+    the residuals' variance (they are in units of the noise, so about 1 for a model that fits).
+    Residuals correlated in time (what a model misses hangs together along a run) make it a lower
+    bound; an unknown the data cannot move gets an infinite variance."""
+    jac = np.asarray(solution.jac, dtype=float)
+    m, p = jac.shape
+    variance = float(np.sum(np.asarray(solution.fun) ** 2)) / max(m - p, 1)
+    _, s, vt = np.linalg.svd(jac, full_matrices=False)
+    weak = s <= 1e-10 * (s[0] if len(s) else 1.0)
+    cov = (vt[~weak].T / s[~weak] ** 2) @ vt[~weak] * variance
+    if weak.any():
+        loose = np.any(np.abs(vt[weak]) > 0.1, axis=0)
+        cov[loose, :] = math.inf
+        cov[:, loose] = math.inf
+    return np.asarray(cov)
+
+
+def _median_error(values: Sequence[float]) -> float:
+    """Standard error of the median of `values`: 1.2533 s / sqrt(n), the large-sample one of a
+    normal sample (within 5 % of the true one from n = 3 on); NaN from fewer than three."""
+    v = [x for x in values if math.isfinite(x)]
+    return 1.2533 * float(np.std(v, ddof=1)) / math.sqrt(len(v)) if len(v) >= 3 else math.nan
+
+
+def _median_sigmas(found: Sequence[_Found], times: Sequence[float]) -> dict[str, float]:
+    """The sigmas of the values that are medians over the engagements."""
+    return {
+        "gearbox.synchronization_position_m": _median_error(
+            [e.features.synchronization_position_m for e in found]
+        ),
+        "gearbox.synchronization_duration_s": _median_error(times),
+        "driver.push_force_N": _median_error([e.features.plateau_force_N for e in found]),
+    }
+
+
+def _tooth_law_sigmas(n: int, spread: float) -> dict[str, float]:
+    """Standard deviations of the uniform law's bounds estimated from n draws (`_tooth_law`): for
+    U(a, a + w), var(lower) = n w^2 / ((n + 1)(n + 2)(n - 1)) and var(spread) = 2 w^2 / ((n - 1)
+    (n + 2)) (from the moments of the extremes); none from one draw."""
+    if n < 2:
+        return {}
+    lower = spread * math.sqrt(n / ((n + 1) * (n + 2) * (n - 1)))
+    return {
+        "gearbox.engagement.sliding_friction_N": lower,
+        "gearbox.engagement.static_friction_N": lower,
+        "gearbox.tooth_force_spread_N": spread * math.sqrt(2.0 / ((n - 1) * (n + 2))),
+    }
 
 
 def _fix_up(params: ShiftParams, base: ShiftParams, warnings: list[str]) -> ShiftParams:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -12,11 +13,35 @@ from carfeel.identification import rms_r2
 from carfeel.identification.common import Progress, read_results, write_checked_preset
 from carfeel.identification.shift_fit import checked_columns, fit_shift, resimulate
 from carfeel.io import report
+from carfeel.io.outputs import Outputs
 from carfeel.io.presets import load_shift, to_toml
 from carfeel.simulation.result import Result
 from carfeel.simulation.shift import ShiftParams
+from carfeel.text import count
 
 COLUMNS = ("time_s", "position_m", "force_N")
+MEANINGS = {
+    "gearbox.synchronization_position_m": "where the knob meets the synchro ring (from neutral)",
+    "gearbox.synchronization_duration_s": "how long the ring holds the knob (the plateau)",
+    "gearbox.teeth_position_m": "where the sleeve meets the gear's dog teeth",
+    "gearbox.teeth_end_position_m": "where the teeth are passed (free travel to the stop)",
+    "gearbox.in_gear_position_m": "the knob's rest position in gear (x_gear)",
+    "gearbox.tooth_force_spread_N": "spread of the teeth's random extra resistance",
+    "gearbox.engagement.static_friction_N": "the teeth's static friction",
+    "gearbox.engagement.sliding_friction_N": "the teeth's sliding friction (the law's minimum)",
+    "gearbox.stop.stiffness_N_m": "the end stop's stiffness",
+    "gearbox.stop.damping_N_s_m": "the end stop's damping",
+    "driver.push_force_N": "the driver's push during synchronization (eq. 10's F_max)",
+}
+"""What each fitted shift parameter is, for reports."""
+SIGMA_NOTE = (
+    "One sigma from the traces' noise: Gauss-Newton for the values fitted by simulation (the "
+    "teeth, the stop), the standard error of the median over three or more engagements (ring, "
+    "duration, push) and the order statistics of the uniform law for the teeth's friction and "
+    "spread; n/a where the traces cannot give one. What the method itself misses (the teeth "
+    "trade with their resistance by about 0.1 mm; x_gear may sit below the settled position) "
+    "is not in them: take them as lower bounds."
+)
 
 
 def read_traces(
@@ -51,7 +76,8 @@ def _sections(
             report.Section(
                 f"Trace {i + 1}: {path}",
                 [
-                    f"{run.engagements} engagement(s); position rms error {rms * 1e3:.3g} mm, "
+                    f"{count(run.engagements, 'engagement')}; position rms error "
+                    f"{rms * 1e3:.3g} mm, "
                     f"r2 {r2:.4f}. The model is driven by the recorded force, "
                     "restarted at each arrival at the synchro ring, the teeth resisting with the "
                     "preset's mean (sliding friction + spread / 2).",
@@ -72,23 +98,44 @@ def fit_shift_traces(
     channels: Path | None = None,
     dbc: Path | None = None,
 ) -> dict[str, Any]:
-    """Fit the engagement to the traces; write the preset (and the report); the fit as data."""
+    """Fit the engagement to the traces; write the preset (and the report); the fit as data.
+    The preset and the report replace what was there only when both are done."""
+    outputs = Outputs()
+    staged = outputs.add(out, ".toml")
+    folder = outputs.add_folder(report_dir) if report_dir is not None else None
+    with outputs:
+        return _fit_shift_traces(
+            paths, out, staged, folder, base=base, show_progress=show_progress,
+            channels=channels, dbc=dbc,
+        )  # fmt: skip
+
+
+def _fit_shift_traces(
+    paths: Sequence[Path],
+    out: Path,
+    staged: Path,
+    folder: Path | None,
+    *,
+    base: str,
+    show_progress: bool,
+    channels: Path | None,
+    dbc: Path | None,
+) -> dict[str, Any]:
     preset = load_shift(base)
     traces = read_traces(paths, channels, dbc)
-    folder = report.prepare(report_dir) if report_dir is not None else None
     progress = Progress("fitting the shift", show_progress)
     fit = fit_shift(traces, preset.params, progress=progress)
     progress.done()
     params = fit.params
     lines = [
         f"Fitted by carfeel {__version__} to {', '.join(Path(p).name for p in paths)}, from "
-        f"the base preset {preset.name}: {len(fit.engagements)} engagement(s); position rms "
+        f"the base preset {preset.name}: {count(len(fit.engagements), 'engagement')}; position rms "
         f"error {fit.figures.get('rms_error_m', float('nan')) * 1e3:.3g} mm, r2 "
         f"{fit.figures.get('r2', float('nan')):.4f}.",
         *(f"warning: {w}" for w in fit.warnings),
     ]
     text = to_toml(out.stem, "\n".join(lines), {"gearbox": params.gearbox, "driver": params.driver})
-    write_checked_preset("shift", out, text)
+    write_checked_preset("shift", out, text, staged, fit.warnings)
     result: dict[str, Any] = {
         "rms_error": fit.figures.get("rms_error_m"),
         "rms_error_unit": "m",
@@ -96,6 +143,7 @@ def fit_shift_traces(
         "parameters": {
             k: v for k, v in fit.figures.items() if k.startswith(("gearbox.", "driver."))
         },
+        "uncertainties": dict(fit.sigmas),
         "figures": {
             k: v for k, v in fit.figures.items() if not k.startswith(("gearbox.", "driver."))
         },
@@ -104,10 +152,11 @@ def fit_shift_traces(
         "preset": str(out),
     }
     if folder is not None:
-        table = [["parameter", "value"]] + [
-            [k, report.number(v, 6)] for k, v in result["parameters"].items()
+        table = [["parameter", "value", "1 sigma", "what it is"]] + [
+            [k, report.number(v, 6), report.number(fit.sigmas.get(k), 2), MEANINGS.get(k, "")]
+            for k, v in result["parameters"].items()
         ]
-        summary = report.Section("Fit", [*lines], table)
+        summary = report.Section("Fit", [*lines, SIGMA_NOTE], table)
         sections, _ = _sections(params, traces, paths, folder)
         report.write(folder, f"Shift fit: {out.name}", [summary, *sections])
     return result
@@ -120,19 +169,26 @@ def validate_traces(
     channels: Path | None = None,
     dbc: Path | None = None,
 ) -> dict[str, Any]:
-    traces = read_traces(paths, channels, dbc)
-    folder = report.prepare(report_dir)
-    sections, figures = _sections(params, traces, paths, folder)
-    report.write(folder, "Validation of a shift preset", sections)
+    outputs = Outputs()
+    folder = outputs.add_folder(report_dir)
+    with outputs:  # the report replaces an older one only when it is complete
+        traces = read_traces(paths, channels, dbc)
+        sections, figures = _sections(params, traces, paths, folder)
+        report.write(folder, "Validation of a shift preset", sections)
     return figures
 
 
 def summary_text(result: dict[str, Any], out: Path) -> str:
     lines = [
-        f"fitted {len(result['engagements'])} engagement(s): position rms error "
+        f"fitted {count(len(result['engagements']), 'engagement')}: position rms error "
         f"{(result['rms_error'] or float('nan')) * 1e3:.3g} mm, r2 {result['r2']:.4f}",
     ]
-    lines += [f"  {k:44s} {v:.5g}" for k, v in result["parameters"].items()]
+    sigmas = result.get("uncertainties", {})
+    lines += [
+        f"  {k:44s} {v:10.5g}" + (f" +- {sigmas[k]:.2g}" if math.isfinite(sigmas.get(k, math.nan))
+                                  else "")
+        for k, v in result["parameters"].items()
+    ]  # fmt: skip
     lines += [f"warning: {w}" for w in result["warnings"]]
     lines.append(f"wrote {out}")
     return "\n".join(lines)

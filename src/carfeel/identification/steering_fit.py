@@ -61,15 +61,31 @@ import numpy.typing as npt
 
 from carfeel.errors import InputError
 from carfeel.identification import rms_r2
+from carfeel.identification.common import check_torque_logged
 from carfeel.models.steering.torque import SteeringTorqueParams, torque_terms
 from carfeel.models.vehicle.single_track import VehicleParams
 from carfeel.simulation.result import Result
 from carfeel.simulation.steering import SteeringCar
+from carfeel.text import count
 
 FloatArray = npt.NDArray[np.float64]
 REQUIRED = ("time_s", "speed_m_s", "steering_angle_rad", "steering_torque_Nm")
 K_NAMES = ("k1_Nm_s2_m", "k2", "k3", "k4_1_Nm", "k5_s_m_Nm", "k6_rad_s", "k7_Nm", "k8_rad_s",
            "k9_Nm_s_rad")  # fmt: skip
+MEANINGS = {
+    "k1_Nm_s2_m": "K1, aligning: on-centre torque per m/s^2 of Ay, Nm s^2/m (x 9.81: Nm/g)",
+    "k2": "K2, aligning saturation: tau0 = K1 Ay / (1 + K2 |Ay|^K3), (m/s^2)^-K3",
+    "k3": "K3, aligning saturation exponent",
+    "k4_1_Nm": "K4, tyre spin at standstill: tau1 = atan(rate / K6) / (K4 + K5 V), 1/Nm",
+    "k5_s_m_Nm": "K5, tyre spin falling with speed V, s/(m Nm)",
+    "k6_rad_s": "K6, steering rate at which the tyre spin builds, rad/s",
+    "k7_Nm": "K7, friction level: tau2 = K7 atan(rate / K8), Nm",
+    "k8_rad_s": "K8, steering rate within which the friction builds, rad/s",
+    "k9_Nm_s_rad": "K9, damping: tau3 = K9 rate, Nm s/rad",
+    "understeer_gradient_rad_s2_m": "the car's understeer gradient K_us (with --fit-vehicle), "
+    "rad per m/s^2",
+}
+"""What each fitted parameter is (the paper's eqs. 4-7), for reports."""
 LOWER = (1e-3, 0.0, 0.3, 1e-2, 0.0, 1e-2, 0.0, 1e-3, 0.0)
 UPPER = (50.0, 10.0, 3.0, 100.0, 100.0, 10.0, 20.0, 5.0, 5.0)
 SAVGOL_WINDOW_S = 0.081
@@ -258,7 +274,9 @@ def read_log(result: Result, name: str) -> SteeringLog:
             raise InputError(f"{name}: column {column} must hold numbers")
     time = result.time_s
     if len(time) < 50:
-        raise InputError(f"{name}: {len(time)} samples; a fit or a validation needs at least 50")
+        raise InputError(
+            f"{name}: {count(len(time), 'sample')}; a fit or a validation needs 50 at least"
+        )
     if np.any(np.diff(time) <= 0):
         row = int(np.flatnonzero(np.diff(time) <= 0)[0]) + 3
         raise InputError(f"{name}, line {row}: time_s does not increase")
@@ -278,17 +296,18 @@ def read_log(result: Result, name: str) -> SteeringLog:
     torque = result["steering_torque_Nm"][keep]
     if np.max(np.abs(angle)) > 20.0:
         raise InputError(
-            f"{name}: steering_angle_rad reaches {np.max(np.abs(angle)):.0f}: that looks like "
+            f"{name}: steering_angle_rad reaches {np.max(np.abs(angle)):.4g}: that looks like "
             "degrees; convert to radians"
         )
     if np.max(np.abs(speed)) > 100.0:
         raise InputError(
-            f"{name}: speed_m_s reaches {np.max(np.abs(speed)):.0f}: that looks like km/h; "
+            f"{name}: speed_m_s reaches {np.max(np.abs(speed)):.4g}: that looks like km/h; "
             "divide by 3.6"
         )
+    check_torque_logged(name, "steering_torque_Nm", torque)
     if np.max(np.abs(torque)) > 200.0:
         raise InputError(
-            f"{name}: steering_torque_Nm reaches {np.max(np.abs(torque)):.0f}: check the units "
+            f"{name}: steering_torque_Nm reaches {np.max(np.abs(torque)):.4g}: check the units "
             "(Nm at the steering wheel)"
         )
     t = time[keep]
@@ -450,8 +469,9 @@ def fit_steering(
     measured_ay = all(log.lateral_accel_m_s2 is not None for log in logs)
     if fit_vehicle and measured_ay:
         raise InputError(
-            "--fit-vehicle fits the understeer gradient from angle and torque: drop it when the "
-            "logs measure lateral_accel_m_s2"
+            "--fit-vehicle fits the understeer gradient where Ay is not measured, but every log "
+            "has lateral_accel_m_s2 (the car's understeer is in it already): run the fit "
+            "without --fit-vehicle"
         )
     if drift_s is not None and not drift_s > 0:
         raise InputError(f"--drift {drift_s:g}: the knot spacing must be a positive time in s")
@@ -770,44 +790,117 @@ def _kept_for_excitation(
     return kept
 
 
+QUASI_STEADY_AY_M_S2 = (1.0, 6.0)
+"""|Ay| range of the quasi-steady samples the unit checks compare (V > 5 m/s, |rate| < 0.2
+rad/s)."""
+MAX_MODEL_AY_G = 2.5
+"""The base car's Ay from a log's speed and angle beyond this (99th percentile, at speed) is not a
+car's: no road tyre holds 2.5 g, and an angle in degrees makes any Ay over 0.045 g exceed it."""
+
+
+def ay_ratio(
+    speed: FloatArray, angle: FloatArray, rate: FloatArray, ay: FloatArray,
+    vehicle: VehicleParams,
+) -> float | None:  # fmt: skip
+    """Median of a measured Ay over the car's steady-state Ay from speed and angle, on the
+    quasi-steady samples (None with fewer than 50 of them): about 1 for a log in SI units and a
+    car like `vehicle`, 1/57 for an angle in degrees."""
+    model = steady_ay(
+        speed, angle, vehicle.steering_ratio, vehicle.understeer_gradient_rad_s2_m,
+        vehicle.wheelbase_m,
+    )  # fmt: skip
+    low, high = QUASI_STEADY_AY_M_S2
+    usable = (speed > 5.0) & (np.abs(rate) < 0.2) & (np.abs(ay) > low) & (np.abs(ay) < high)
+    usable &= np.abs(model) > 0.1
+    if usable.sum() < 50:
+        return None
+    return float(np.median(ay[usable] / model[usable]))
+
+
+def ay_gain(speed: FloatArray, angle: FloatArray, ay: FloatArray, vehicle: VehicleParams) -> float:
+    """The least-squares gain of a measured Ay on the car's steady-state Ay from speed and angle,
+    over the samples at speed with |Ay| > 0.5 m/s^2 (NaN without any): for any manoeuvre, not
+    only quasi-steady ones (a weave's lag takes a few % off it), so a coarse check of units."""
+    model = steady_ay(
+        speed, angle, vehicle.steering_ratio, vehicle.understeer_gradient_rad_s2_m,
+        vehicle.wheelbase_m,
+    )  # fmt: skip
+    use = (speed > 5.0) & (np.abs(ay) > 0.5)
+    power = float(np.sum(model[use] ** 2))
+    return float(np.sum(ay[use] * model[use]) / power) if power > 0.0 else math.nan
+
+
+def looks_like_degrees(factor: float) -> bool:
+    """A measured Ay this many times the steady state from the angle: the angle in degrees."""
+    return 1 / 90 < factor < 1 / 35
+
+
 def _check_units(logs: Sequence[SteeringLog], vehicle: VehicleParams) -> list[str]:
     """Catch a log in the wrong units or sign, which would fit to a good r2 and a wrong preset;
     return warnings for what only looks suspicious. Each log is judged alone (one bad log among
     good ones would otherwise pass) and named.
 
+    The angle must stay within the base car's lock (a weave in degrees reaches 11.5 "rad").
     On quasi-steady samples (V > 5 m/s, |rate| < 0.2 rad/s, 1 < |Ay| < 6 m/s^2): a measured Ay
     must agree with the base car's steady state within a factor of 4 (a car's SR and K_us do not
-    stray further; degrees make it 1/57), with a warning beyond a factor of 1.6; and the torque
-    must mostly share Ay's sign (the aligning torque the driver holds, + with + Ay: a sign test,
-    which a log turning one way at constant Ay still passes). km/h read as m/s cannot be told
-    from Ay at speed (understeer flattens Ay(V): at 100 km/h it makes 0.53x), so speeds beyond
-    250 km/h get a warning too."""
+    stray further; degrees make it 1/57), with a warning beyond a factor of 1.6; without a
+    measured Ay, the steady state from speed and angle must stay under MAX_MODEL_AY_G (degrees
+    make it 57 times a car's); and the torque must mostly share Ay's sign (the aligning torque
+    the driver holds, + with + Ay: a sign test, which a log turning one way at constant Ay still
+    passes). km/h read as m/s cannot be told from Ay at speed (understeer flattens Ay(V): at 100
+    km/h it makes 0.53x), so speeds beyond 250 km/h get a warning too."""
     warnings = []
     for log in logs:
         name, speed, angle, torque = log.name, log.speed_m_s, log.angle_rad, log.torque_Nm
         top = float(np.max(speed))
         if top > 70.0:
             warnings.append(
-                f"{name}: speed_m_s reaches {top:.0f} m/s ({top * 3.6:.0f} km/h): if it is in "
+                f"{name}: speed_m_s reaches {top:.4g} m/s ({top * 3.6:.4g} km/h): if it is in "
                 "km/h, divide it by 3.6 and fit again"
+            )
+        widest = float(np.max(np.abs(angle)))
+        lock = vehicle.steering_lock_rad
+        if widest > 1.05 * lock:
+            raise InputError(
+                f"{name}: steering_angle_rad reaches {widest:.4g}, beyond the base car's lock of "
+                f"{lock:.4g} rad ({math.degrees(lock):.0f} deg): that looks like degrees (convert "
+                "to radians); for a car with a wider lock, give --base a preset of it"
             )
         ay_model = steady_ay(
             speed, angle, vehicle.steering_ratio, vehicle.understeer_gradient_rad_s2_m,
             vehicle.wheelbase_m,
         )  # fmt: skip
         measured = log.lateral_accel_m_s2
+        if measured is None and np.any(speed > 5.0):
+            peak_g = float(np.percentile(np.abs(ay_model[speed > 5.0]), 99)) / 9.80665
+            if peak_g > MAX_MODEL_AY_G:
+                hint = (
+                    "steering_angle_rad looks like degrees (convert it to radians)"
+                    if peak_g / math.degrees(1.0) < 1.5
+                    else "check the units of steering_angle_rad (rad at the wheel) and speed_m_s "
+                    "(m/s), or give --base a preset with this car's steering ratio"
+                )
+                raise InputError(
+                    f"{name}: without a lateral_accel_m_s2 column Ay comes from the base car, and "
+                    f"with this speed and steering angle it reaches {peak_g:.3g} g, beyond what "
+                    f"any car holds: {hint}"
+                )
         ay = measured if measured is not None else ay_model
-        steady = (speed > 5.0) & (np.abs(log.rate_rad_s) < 0.2) & (np.abs(ay) > 1.0)
-        steady &= np.abs(ay) < 6.0
+        low, high = QUASI_STEADY_AY_M_S2
+        steady = (speed > 5.0) & (np.abs(log.rate_rad_s) < 0.2) & (np.abs(ay) > low)
+        steady &= np.abs(ay) < high
         if steady.sum() < 50:
             continue
-        usable = steady & (np.abs(ay_model) > 0.1)
-        if measured is not None and usable.sum() >= 50:
-            factor = float(np.median(measured[usable] / ay_model[usable]))
+        factor = (
+            ay_ratio(speed, angle, log.rate_rad_s, measured, vehicle)
+            if measured is not None
+            else None
+        )
+        if factor is not None:
             if not 0.25 < factor < 4.0:
                 hint = (
                     "steering_angle_rad looks like degrees (convert to radians)"
-                    if 1 / 90 < factor < 1 / 35
+                    if looks_like_degrees(factor)
                     else "check the units of steering_angle_rad (rad at the wheel), speed_m_s "
                     "(m/s, not km/h) and lateral_accel_m_s2 (m/s^2, not g), and the sign of Ay; "
                     "for a car far from the base preset, give --base a preset with its "
@@ -823,7 +916,14 @@ def _check_units(logs: Sequence[SteeringLog], vehicle: VehicleParams) -> list[st
                     "from speed and angle: check the units of speed_m_s and steering_angle_rad, "
                     "or start from a base preset with this car's steering ratio and understeer"
                 )
-        agree = float(np.mean(np.sign(torque[steady]) == np.sign(ay[steady])))
+        held = torque[steady] != 0.0
+        if held.mean() < 0.5:
+            raise InputError(
+                f"{name}: steering_torque_Nm is exactly 0 in {1 - held.mean():.0%} of the steady "
+                "cornering, where a driver holds the aligning torque: a channel that logged "
+                "nothing (or the wrong signal); check the column"
+            )
+        agree = float(np.mean(np.sign(torque[steady][held]) == np.sign(ay[steady][held])))
         if agree < 0.2:
             raise InputError(
                 f"{name}: steering_torque_Nm has the opposite sign of Ay in {1 - agree:.0%} of the "

@@ -4,6 +4,7 @@ reports. Functions over paths and small configs; the CLI only parses and prints.
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -12,11 +13,12 @@ from typing import Any
 import numpy as np
 
 from carfeel import __version__
-from carfeel.analysis.steering_feel import steering_feel
+from carfeel.analysis.steering_feel import LABELS, SteeringFeel, steering_feel
 from carfeel.errors import InputError, PresetError
 from carfeel.identification import rms_r2
 from carfeel.identification.common import Progress, read_results, write_checked_preset
 from carfeel.identification.steering_fit import (
+    MEANINGS,
     SteeringFit,
     SteeringLog,
     fit_steering,
@@ -25,10 +27,12 @@ from carfeel.identification.steering_fit import (
     transient_ay,
 )
 from carfeel.io import report
+from carfeel.io.outputs import Outputs
 from carfeel.io.presets import load_steering, to_toml
 from carfeel.models.steering.torque import torque_terms
 from carfeel.simulation.result import Result
 from carfeel.simulation.steering import SteeringCar
+from carfeel.text import count
 
 FEEL_KEYS = (
     "torque_gradient_Nm_per_g", "torque_at_0_1g_Nm", "deadband_g", "hysteresis_Nm",
@@ -126,10 +130,7 @@ def steering_sections(
                           steering_ratio=ratio, wheelbase_m=base)
             for torque in (log.torque_Nm, model)
         )  # fmt: skip
-        table = [["metric", "measured", "model"]] + [
-            [key, report.number(getattr(measured, key)), report.number(getattr(simulated, key))]
-            for key in FEEL_KEYS
-        ]
+        table, missing = feel_table(measured, simulated)
         source = (
             "measured" if log.lateral_accel_m_s2 is not None else "from the transient car model"
         )
@@ -137,10 +138,31 @@ def steering_sections(
             f"Log {i + 1}: {log.name}",
             [f"rms error {rms:.4g} Nm, r2 {r2:.4f}, with the log's own torque offset "
              f"(mean {np.mean(offset):.3g} Nm, range {np.ptp(offset):.3g} Nm) removed; "
-             f"{raw_rms:.4g} Nm without it; {len(log.time_s)} samples, Ay {source}"],
+             f"{raw_rms:.4g} Nm without it; {count(len(log.time_s), 'sample')}, Ay {source}",
+             *missing],
             table, [figure],
         ))  # fmt: skip
     return sections, figures
+
+
+def feel_table(measured: SteeringFeel, model: SteeringFeel) -> tuple[list[list[str]], list[str]]:
+    """The feel metrics this log gives, measured and modelled side by side (an empty table if it
+    gives none), and one line naming those it does not give, with the reasons."""
+    given = [
+        key for key in FEEL_KEYS
+        if math.isfinite(getattr(measured, key)) or math.isfinite(getattr(model, key))
+    ]  # fmt: skip
+    table = [["metric", "measured", "model"]] + [
+        [f"{LABELS[key][0]} ({LABELS[key][1]})", report.number(getattr(measured, key)),
+         report.number(getattr(model, key))]
+        for key in given
+    ]  # fmt: skip
+    absent = [LABELS[key][0] for key in FEEL_KEYS if key not in given]
+    if not absent:
+        return table, []
+    why = "; ".join(dict.fromkeys(measured.notes)) or "the data do not give them"
+    line = f"Feel metrics not given for this log ({', '.join(absent)}): {why}."
+    return (table if given else []), [line]
 
 
 def fit_steering_logs(
@@ -156,10 +178,33 @@ def fit_steering_logs(
     holdout: float = 0.0,
 ) -> SteeringFit:
     """Fit the torque law to the logs; write the preset (and the report). With `holdout`, the
-    last fraction of each log is validated on, and both figures are in `fit.per_log`."""
+    last fraction of each log is validated on, and both figures are in `fit.per_log`. The
+    preset and the report are staged and replace what was there only when both are done."""
+    outputs = Outputs()
+    staged = outputs.add(out, ".toml")
+    folder = outputs.add_folder(report_dir) if report_dir is not None else None
+    with outputs:
+        return _fit_steering_logs(
+            paths, out, staged, folder, base=base, fit_vehicle=fit_vehicle,
+            show_progress=show_progress, sources=sources, drift_s=drift_s, holdout=holdout,
+        )  # fmt: skip
+
+
+def _fit_steering_logs(
+    paths: Sequence[Path],
+    out: Path,
+    staged: Path,
+    folder: Path | None,
+    *,
+    base: str,
+    fit_vehicle: bool,
+    show_progress: bool,
+    sources: Sources,
+    drift_s: float | None,
+    holdout: float,
+) -> SteeringFit:
     preset = load_steering(base)
     logs, held = load_logs(paths, sources, holdout)
-    folder = report.prepare(report_dir) if report_dir is not None else None
     progress = Progress("fitting K1..K9", show_progress)
     fit = fit_steering(logs, preset.params, fit_vehicle=fit_vehicle, drift_s=drift_s,
                        progress=progress)  # fmt: skip
@@ -187,11 +232,11 @@ def fit_steering_logs(
     car = fit.car
     tables = {"vehicle": car.vehicle, "torque": car.torque, "driver": car.driver}
     text = to_toml(out.stem, "\n".join(lines), tables)
-    write_checked_preset("steering", out, text)
+    write_checked_preset("steering", out, text, staged, fit.warnings)
     if folder is not None:
-        table = [["parameter", "value", "1 sigma", "status"]] + [
+        table = [["parameter", "value", "1 sigma", "status", "what it is"]] + [
             [e.name, report.number(e.value, 6), report.number(e.sigma, 2),
-             e.status if e.status == "fitted" else f"kept: {e.note}"]
+             "fitted" if e.status == "fitted" else e.note, MEANINGS.get(e.name, "")]
             for e in fit.estimates
         ]  # fmt: skip
         names, matrix = fit.correlation
@@ -250,10 +295,12 @@ def validate(
         car = load_steering(preset).params
     except PresetError as steering_error:
         return _validate_shift(preset, paths, report_dir, steering_error, sources)
-    logs, _ = load_logs(paths, sources)
-    folder = report.prepare(report_dir)
-    sections, figures = steering_sections(car, logs, folder, drift_s=drift_s)
-    report.write(folder, f"Validation of {Path(preset).name}", sections)
+    outputs = Outputs()
+    folder = outputs.add_folder(report_dir)
+    with outputs:  # the report replaces an older one only when it is complete
+        logs, _ = load_logs(paths, sources)
+        sections, figures = steering_sections(car, logs, folder, drift_s=drift_s)
+        report.write(folder, f"Validation of {Path(preset).name}", sections)
     return figures
 
 

@@ -72,7 +72,8 @@ UNITS: dict[str, tuple[str, float]] = {
     "nm": ("N m", 1.0), "n m": ("N m", 1.0), "n*m": ("N m", 1.0), "n.m": ("N m", 1.0),
     "ncm": ("N m", 0.01), "nmm": ("N m", 1e-3),
     "m": ("m", 1.0), "mm": ("m", 1e-3), "cm": ("m", 1e-2),
-    "n": ("N", 1.0), "kn": ("N", 1e3),
+    "n": ("N", 1.0), "kn": ("N", 1e3), "kgf": ("N", _G), "kp": ("N", _G),
+    "lbf": ("N", 4.4482216152605),
 }  # fmt: skip
 """Unit names (case-insensitive) -> (SI unit, factor)."""
 
@@ -233,12 +234,11 @@ TIME_NAMES = ("time_s", "time", "timestamp", "t", "Time")
 
 def _csv(path: Path) -> list[Signal]:
     import csv
+    import io
 
-    try:
-        with path.open(newline="", encoding="utf-8") as handle:
-            rows = list(csv.reader(handle))
-    except UnicodeDecodeError:
-        raise InputError(f"{path}: not a text CSV file") from None
+    from carfeel.simulation.result import read_csv_text
+
+    rows = list(csv.reader(io.StringIO(read_csv_text(path), newline="")))
     if len(rows) < 2:
         raise InputError(f"{path}: no samples (a header row, then one row per sample)")
     header, body = rows[0], rows[1:]

@@ -101,17 +101,55 @@ def _mark_peaks(ax: Any, t: np.ndarray, force: np.ndarray, stages: np.ndarray) -
         "engagement": "engagement peak",
         "stop": "stop impact",
     }
+    fig = ax.figure
+    fig.canvas.draw()  # the layout, so that the labels can be placed in display units
+    renderer = fig.canvas.get_renderer()
+    trace = ax.transData.transform(np.column_stack([t, force]))
+    frame = ax.get_window_extent(renderer)
+    taken: list[tuple[float, float, float, float]] = []
     for name, label in labels.items():
         mask = stages == name
         if not mask.any():
             continue
         i = int(np.flatnonzero(mask)[np.argmax(force[mask])])
-        # Above and right of the peak, on a white ground with a leader, clear of the trace.
+        text = f"{label}\n{force[i]:.1f} N"
+        probe = ax.text(0.0, 0.0, text, fontsize=8)
+        size = probe.get_window_extent(renderer)
+        probe.remove()
+        half_w, half_h = size.width / 2 + 4.0, size.height / 2 + 4.0
+        anchor = trace[i]
+        # Nearest place around the peak whose box holds no part of the trace, stays inside the
+        # axes and clear of the labels placed before: the label never hides the curve.
+        centre = anchor + np.array([half_w + 10.0, half_h + 10.0])
+        for radius in (35.0, 55.0, 80.0, 110.0, 150.0, 200.0, 260.0):
+            found = False
+            for angle in np.radians([45, 135, 90, 0, 180, 315, 225, 270, 20, 160, 70, 110]):
+                c = anchor + radius * np.array([np.cos(angle), np.sin(angle)])
+                box = (c[0] - half_w, c[1] - half_h, c[0] + half_w, c[1] + half_h)
+                if not (frame.x0 < box[0] and box[2] < frame.x1 and frame.y0 < box[1]
+                        and box[3] < frame.y1):  # fmt: skip
+                    continue
+                hits = ((trace[:, 0] >= box[0]) & (trace[:, 0] <= box[2])
+                        & (trace[:, 1] >= box[1]) & (trace[:, 1] <= box[3]))  # fmt: skip
+                if hits.any() or any(
+                    box[0] < o[2] and o[0] < box[2] and box[1] < o[3] and o[1] < box[3]
+                    for o in taken
+                ):
+                    continue
+                centre, found = c, True
+                break
+            if found:
+                break
+        taken.append((centre[0] - half_w, centre[1] - half_h, centre[0] + half_w,
+                      centre[1] + half_h))  # fmt: skip
+        offset = (centre - anchor) * 72.0 / fig.dpi  # display pixels -> points
         ax.annotate(
-            f"{label}\n{force[i]:.1f} N",
+            text,
             xy=(t[i], force[i]),
-            xytext=(14, -34 if name == "synchronization" else 22),
+            xytext=(float(offset[0]), float(offset[1])),
             textcoords="offset points",
+            ha="center",
+            va="center",
             fontsize=8,
             color=STAGE_COLOURS[name],
             bbox={"boxstyle": "round,pad=0.2", "fc": "white", "ec": "none", "alpha": 0.85},
@@ -190,7 +228,7 @@ def plot_steering(
     ax_t.set_xlabel("time [s]")
     ax_t.set_ylabel("steering wheel torque [Nm]")
     ax_t.grid(alpha=0.3)
-    ax_t.legend(fontsize=8, loc="upper right", framealpha=0.6)
+    ax_t.legend(fontsize=8, loc="best", framealpha=0.8)  # where it hides the least of the curves
     ax_t.set_title("torque and its terms vs time")
 
     x_loop, x_label = (
@@ -232,7 +270,8 @@ def plot_steering(
         ax_extra.set_title("path" + (" and ISO 3888-1 cones" if lanes else ""))
     else:
         for name, (colour, label) in TERM_COLOURS.items():
-            ax_extra.plot(x_loop, result[name], color=colour, lw=1.0, label=label)
+            if name in result.names:  # the paper's terms, or the physical model's
+                ax_extra.plot(x_loop, result[name], color=colour, lw=1.0, label=label)
         ax_extra.set_xlabel(x_label)
         ax_extra.set_ylabel("term [Nm]")
         ax_extra.legend(fontsize=8)
@@ -363,6 +402,34 @@ def plot_recording(result: Result, path: str | Path, title: str = "Real-time run
     return _save(fig, plt, path)
 
 
+def _residual_histogram(ax: Any, residual: np.ndarray, unit: str) -> None:
+    """A histogram of the residual within 4 interquartile ranges of its quartiles (about 6 sigma
+    of a normal residual; a few outliers would squash the rest into one bar), saying how many
+    samples fall outside the range shown."""
+    finite = residual[np.isfinite(residual)]
+    q1, q3 = (float(v) for v in np.percentile(finite, (25, 75)))
+    low = max(q1 - 4.0 * (q3 - q1), float(finite.min()))
+    high = min(q3 + 4.0 * (q3 - q1), float(finite.max()))
+    if not high > low:
+        low, high = low - 1e-9, high + 1e-9
+    inside = (finite >= low) & (finite <= high)
+    ax.hist(finite[inside], bins=80, range=(low, high), color="#1f77b4")
+    ax.set_xlabel(f"model - measured [{unit}]")
+    ax.set_ylabel("samples")
+    outside = int(np.count_nonzero(~inside))
+    rms = float(np.sqrt(np.mean(finite**2)))
+    ax.set_title(
+        f"rms {rms:.3g} {unit}"
+        + (f"; {outside} of {len(finite)} samples beyond the range shown" if outside else ""),
+        fontsize=9,
+    )
+
+
+MEASURED = {"color": "black", "lw": 0.7, "zorder": 3}
+MODEL = {"color": "#d62728", "lw": 2.2, "alpha": 0.55, "zorder": 2}
+"""The model drawn broad and translucent under the measured line: where they agree both show."""
+
+
 def plot_torque_validation(
     time_s: np.ndarray,
     lateral_accel_m_s2: np.ndarray,
@@ -375,23 +442,20 @@ def plot_torque_validation(
     plt = _pyplot()
     fig, (ax_t, ax_a, ax_r) = plt.subplots(1, 3, figsize=(15, 4.5), layout="constrained")
     fig.suptitle(title)
-    ax_t.plot(time_s, measured_Nm, color="#999999", lw=0.8, label="measured")
-    ax_t.plot(time_s, model_Nm, color="#d62728", lw=1.0, label="model")
+    ax_t.plot(time_s, model_Nm, label="model", **MODEL)
+    ax_t.plot(time_s, measured_Nm, label="measured", **MEASURED)
     ax_t.set_xlabel("time [s]")
     ax_t.set_ylabel("steering wheel torque [Nm]")
     ax_t.legend(fontsize=8)
     ax_t.grid(alpha=0.3)
     ay_g = lateral_accel_m_s2 / 9.80665
-    ax_a.plot(ay_g, measured_Nm, ".", color="#999999", ms=1, label="measured")
-    ax_a.plot(ay_g, model_Nm, ".", color="#d62728", ms=1, label="model")
+    ax_a.plot(ay_g, model_Nm, ".", color="#d62728", ms=2.5, alpha=0.4, label="model", zorder=2)
+    ax_a.plot(ay_g, measured_Nm, ".", color="black", ms=0.8, label="measured", zorder=3)
     ax_a.set_xlabel("lateral acceleration [g]")
     ax_a.set_ylabel("torque [Nm]")
+    ax_a.legend(fontsize=8, markerscale=6)
     ax_a.grid(alpha=0.3)
-    residual = model_Nm - measured_Nm
-    ax_r.hist(residual, bins=80, color="#1f77b4")
-    ax_r.set_xlabel("model - measured [Nm]")
-    ax_r.set_ylabel("samples")
-    ax_r.set_title(f"rms {np.sqrt(np.mean(residual**2)):.3f} Nm")
+    _residual_histogram(ax_r, model_Nm - measured_Nm, "Nm")
     return _save(fig, plt, path)
 
 
@@ -412,21 +476,25 @@ def plot_shift_validation(
     ax_r = fig.add_subplot(grid[1, 0], sharex=ax_t)
     ax_l = fig.add_subplot(grid[:, 1])
     fig.suptitle(title)
-    ax_t.plot(time_s, measured_m * 1e3, color="#999999", lw=1.0, label="measured position")
-    ax_t.plot(time_s, model_m * 1e3, color="#d62728", lw=1.0, label="model position")
+    ax_t.plot(time_s, model_m * 1e3, label="model position", **MODEL)
+    ax_t.plot(time_s, measured_m * 1e3, label="measured position", **MEASURED)
     ax_t.set_ylabel("knob position [mm]")
     ax_f = ax_t.twinx()
-    ax_f.plot(time_s, force_N, color="#1f77b4", lw=0.6, alpha=0.6)
+    ax_f.plot(time_s, force_N, color="#1f77b4", lw=0.6, alpha=0.6, label="measured force")
     ax_f.set_ylabel("force at the knob [N]", color="#1f77b4")
-    ax_t.legend(fontsize=8, loc="upper left")
+    ax_t.set_zorder(ax_f.get_zorder() + 1)  # the positions (and the legend) over the force
+    ax_t.patch.set_visible(False)
+    lines = ax_t.get_legend_handles_labels()
+    more = ax_f.get_legend_handles_labels()
+    ax_t.legend(lines[0] + more[0], lines[1] + more[1], fontsize=8, loc="center right")
     ax_t.grid(alpha=0.3)
     ax_r.plot(time_s, (model_m - measured_m) * 1e3, color="#d62728", lw=0.8)
     ax_r.axhline(0.0, color="black", lw=0.5)
     ax_r.set_xlabel("time [s]")
-    ax_r.set_ylabel("residual [mm]")
+    ax_r.set_ylabel("model - measured [mm]")
     ax_r.grid(alpha=0.3)
-    ax_l.plot(measured_m * 1e3, force_N, color="#999999", lw=0.8, label="measured")
-    ax_l.plot(model_m * 1e3, force_N, color="#d62728", lw=0.8, label="model")
+    ax_l.plot(model_m * 1e3, force_N, label="model", **MODEL)
+    ax_l.plot(measured_m * 1e3, force_N, label="measured", **MEASURED)
     ax_l.set_xlabel("knob position [mm]")
     ax_l.set_ylabel("force at the knob [N]")
     ax_l.legend(fontsize=8)

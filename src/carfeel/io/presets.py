@@ -237,7 +237,8 @@ def describe_range(key: str) -> str:
     low, high, low_in, high_in = RANGES[key]
     name = key.split(".")[-1]
     unit = unit_of(name)
-    return f"{low:g} {'<=' if low_in else '<'} value {'<=' if high_in else '<'} {high:g} {unit}"
+    text = f"{low:g} {'<=' if low_in else '<'} value {'<=' if high_in else '<'} {high:g}"
+    return f"{text} {unit}" if unit else text
 
 
 @dataclass(frozen=True, slots=True)
@@ -355,6 +356,11 @@ def _convert(kind: Any, value: Any, full: str, problems: list[str]) -> Any:
         if isinstance(value, bool) or not isinstance(value, int):
             problems.append(f"{full} = {value!r}: expected a whole number, {_expected(full, kind)}")
             return _MISSING
+        if abs(value) > 10**15:  # beyond every range (and beyond a float, from 10^309)
+            problems.append(
+                f"{full} = a {len(str(abs(value)))}-digit number: expected {_expected(full, kind)}"
+            )
+            return _MISSING
         return value if _checked(full, float(value), problems) else _MISSING
     if kind is float:
         if isinstance(value, bool) or not isinstance(value, int | float):
@@ -372,9 +378,8 @@ def _checked(full: str, value: float, problems: list[str]) -> bool:
     key = range_key(full)
     if key in RANGES and not _in_range(key, value):
         name = key.split(".")[-1]
-        problems.append(
-            f"{full} = {value:g} {unit_of(name)} is out of range: allowed {describe_range(key)}"
-        )
+        shown = " ".join(part for part in (f"{value:g}", unit_of(name)) if part)
+        problems.append(f"{full} = {shown} is out of range: allowed {describe_range(key)}")
         return False
     return True
 

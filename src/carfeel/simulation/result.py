@@ -17,6 +17,7 @@ import numpy as np
 import numpy.typing as npt
 
 from carfeel.errors import InputError
+from carfeel.text import count
 
 
 @dataclass(frozen=True)
@@ -105,24 +106,7 @@ class Result:
         line; it is dropped instead of rejected.
         """
         source = Path(path)
-        try:
-            data = source.read_bytes()
-        except FileNotFoundError:
-            raise InputError(f"{source}: no such file") from None
-        except IsADirectoryError:
-            raise InputError(f"{source}: a folder, not a CSV file") from None
-        try:
-            # utf-8-sig: a spreadsheet's "CSV UTF-8" starts with a byte-order mark.
-            text = data.decode("utf-8-sig")
-        except UnicodeDecodeError as exc:
-            line = data[: exc.start].count(b"\n") + 1
-            raise InputError(
-                f"{source}, line {line}: byte 0x{data[exc.start]:02x} is not UTF-8 text; save "
-                "the file as CSV UTF-8 (a spreadsheet's export, or iconv -f latin1 -t utf-8)"
-            ) from None
-        if "\x00" in text:
-            raise InputError(f"{source}: not a text CSV file (it holds NUL bytes)")
-        rows = list(csv.reader(io.StringIO(text, newline="")))
+        rows = list(csv.reader(io.StringIO(read_csv_text(source), newline="")))
         if not rows:
             raise InputError(f"{source}: empty file, expected a header row with time_s")
         header, body = rows[0], rows[1:]
@@ -143,7 +127,8 @@ class Result:
         for line_no, row in enumerate(body, start=2):
             if len(row) != len(header):
                 raise InputError(
-                    f"{source}, line {line_no}: {len(row)} fields, the header has {len(header)}"
+                    f"{source}, line {line_no}: {count(len(row), 'field')}, the header has "
+                    f"{len(header)}"
                 )
         signals: dict[str, np.ndarray] = {}
         for index, name in enumerate(header):
@@ -153,6 +138,28 @@ class Result:
         if time.dtype.kind != "f":
             raise InputError(f"{source}: time_s must be numbers, in seconds")
         return cls(time, signals)
+
+
+def read_csv_text(source: Path) -> str:
+    """A CSV file's text: UTF-8, a byte-order mark dropped (a spreadsheet's "CSV UTF-8"); a byte
+    that is not UTF-8 is named with its line and the fix (the one place CSV text is decoded)."""
+    try:
+        data = source.read_bytes()
+    except FileNotFoundError:
+        raise InputError(f"{source}: no such file") from None
+    except IsADirectoryError:
+        raise InputError(f"{source}: a folder, not a CSV file") from None
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = data[: exc.start].count(b"\n") + 1
+        raise InputError(
+            f"{source}, line {line}: byte 0x{data[exc.start]:02x} is not UTF-8 text; save "
+            "the file as CSV UTF-8 (a spreadsheet's export, or iconv -f latin1 -t utf-8)"
+        ) from None
+    if "\x00" in text:
+        raise InputError(f"{source}: not a text CSV file (it holds NUL bytes)")
+    return text
 
 
 def _format_column(values: np.ndarray) -> list[str]:
