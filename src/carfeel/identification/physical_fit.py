@@ -51,7 +51,6 @@ from carfeel.identification import physical_batch, rms_r2
 from carfeel.identification.steering_fit import (
     BLOCK_S,
     MAX_DELAY_S,
-    MIN_DELAY_STEP_S,
     PARKING_SPEED_M_S,
     Estimate,
     SteeringFit,
@@ -98,6 +97,8 @@ STATE_WEIGHTS = np.array([
     0.1,  # Ay: through the load transfer
 ])  # fmt: skip
 BATCH_CHECK_NM = 1e-3
+RESCAN_S = 0.005
+"""After the fit, a delay scan that finds a better minimum further than this starts it again."""
 FD_STEP = 1e-3
 """Forward-difference step, relative to a parameter's scale."""
 MAX_BATCH = 2048
@@ -492,7 +493,9 @@ def excitation(
     the deadband (boost = gain * excess^2: 2 Nm^2 per unit of gain at the least); friction needs
     4 reversals of the steering; the damping 1 % of the samples above 10 m/s steered faster
     than 1 rad/s; the trail 5 % at speed with |Ay| > 1 m/s^2; mu 1 % beyond LIMIT_G (measured
-    Ay, else the base model's)."""
+    Ay, else the base model's), or parking: the dry-park moment the patches slide at is
+    (2/3) mu Fz r_patch, so parked the model sees mu too (kept at the base's while parking is
+    fitted, a wrong mu went into the assist gain: +12 % on the command line test's logs)."""
     speed = np.concatenate([log.speed_m_s for log in logs])
     rate = np.concatenate([log.rate_rad_s for log in logs])
     torque = np.concatenate([log.torque_Nm for log in logs])
@@ -536,10 +539,11 @@ def excitation(
             "kept from the base preset: the logs hardly corner at speed (|Ay| > 1 m/s^2 above "
             "10 m/s); add a weave"
         )
-    if np.mean(np.abs(ay) > LIMIT_G * STANDARD_GRAVITY_M_S2) < 0.01:
+    if np.mean(np.abs(ay) > LIMIT_G * STANDARD_GRAVITY_M_S2) < 0.01 and parked.mean() < 0.01:
         kept[index["friction_coefficient"]] = (
             f"kept from the base preset: Ay stays under {LIMIT_G:g} g, where the tyres' grip "
-            "is not yet felt; add a circle driven to the limit"
+            "is not yet felt, and the logs have no parking (where the patches slide at a moment "
+            "proportional to it); add a circle driven to the limit"
         )
     return kept
 
@@ -551,7 +555,7 @@ def fit_physical(
     drift_s: float | None = None,
     estimate_delay: bool = True,
     progress: Callable[[int, float], None] | None = None,
-) -> SteeringFit:
+) -> PhysicalFit:
     """Fit PARAMETERS (and a torque offset per log and the torque's delay) to the logs; what
     they cannot identify keeps the base's value (status "kept", with the reason)."""
     if not logs:
@@ -570,8 +574,9 @@ def fit_physical(
     data = _data(logs, runs, drift_s)
     n_par, n_off = len(PARAMETERS), data.offsets.shape[1]
     base_x = np.array([value_of(base, p) for p in PARAMETERS])
-    lower = np.array([p.lower for p in PARAMETERS] + [-5.0] * n_off)
-    upper = np.array([p.upper for p in PARAMETERS] + [5.0] * n_off)
+    # x: the model's parameters, the torque's delay (s), the offsets' coefficients (Nm).
+    lower = np.array([p.lower for p in PARAMETERS] + [-MAX_DELAY_S] + [-5.0] * n_off)
+    upper = np.array([p.upper for p in PARAMETERS] + [MAX_DELAY_S] + [5.0] * n_off)
     wanted: dict[int, set[int]] = {}
     for index, begin in zip(pieces.run, pieces.begin, strict=True):
         wanted.setdefault(index, set()).add(begin)
@@ -581,33 +586,41 @@ def fit_physical(
     for run, ay_grid in zip(runs, ref.lateral_accel_m_s2, strict=True):
         t = logs[run.log].time_s[run.samples]
         sim_ay[run.log][run.samples] = np.interp(t, run.grid_s, ay_grid)
-    free = np.ones(n_par + n_off, dtype=bool)
+    free = np.ones(n_par + 1 + n_off, dtype=bool)
+    free[n_par] = estimate_delay
     notes: dict[int, str] = {}
     for i, why in excitation(logs, sim_ay, base).items():
         free[i], notes[i] = False, why
-    x = np.concatenate([base_x, np.zeros(n_off)])
-    x[n_par:] = _offsets(data, [t[None, :] for t in ref.torque_Nm], 0.0)
+    x = np.concatenate([base_x, [0.0], np.zeros(n_off)])
+    grids = [t[None, :] for t in ref.torque_Nm]
+    if estimate_delay:
+        # Placed first by a scan on the base model (the cost has a minimum every period of a
+        # weave), then fitted with the rest: a CAN delay of tens of ms left out of the first
+        # solve pushed its parameters to their bounds.
+        x[n_par] = _scan_delay(data, grids, x)
+    x[n_par + 1 :] = _offsets(data, grids, float(x[n_par]))
     mu_index = NAMES.index("friction_coefficient")
     if free[mu_index]:
         x[mu_index] = _mu_start(logs, sim_ay, base_x[mu_index])
-    delay = 0.0
-    period = min(float(np.median(np.diff(log.time_s))) for log in logs)
     counter = [0]
-    for _ in range(4 if estimate_delay else 1):
-        x, free, grids = _solve(data, batch, base, x, free, notes, lower, upper, delay, counter,
-                                progress)  # fmt: skip
-        if not estimate_delay:
-            break
+    excited, excited_notes = free.copy(), dict(notes)
+    x, free, grids = _solve(data, batch, base, x, free, notes, lower, upper, counter, progress)
+    if estimate_delay:
         found = _scan_delay(data, grids, x)
-        if abs(found - delay) < max(0.5 * period, MIN_DELAY_STEP_S):
-            break
-        delay = found
+        if abs(found - x[n_par]) > RESCAN_S:  # a better minimum elsewhere: solve from there
+            x[n_par] = found
+            free, notes = excited, excited_notes  # what stops at a bound, decided afresh
+            x[:n_par][~free[:n_par]] = base_x[~free[:n_par]]
+            x, free, grids = _solve(data, batch, base, x, free, notes, lower, upper, counter,
+                                    progress)  # fmt: skip
+    delay = float(x[n_par])
     # The figures from the pure model; the covariance from the batch at the same point (the
     # same run to rounding: their largest difference is reported by `batch_check_Nm`).
     final = reference(with_values(base, x[:n_par]).physical(), runs)
-    model = data.predict([t[None, :] for t in final.torque_Nm], delay)[0] + data.offsets @ x[n_par:]
+    model = data.predict([t[None, :] for t in final.torque_Nm], delay)[0]
+    model = model + data.offsets @ x[n_par + 1 :]
     r = model - data.torque_Nm
-    batch_r, jac = _evaluate(data, batch, base, x, free, delay, counter, exact=True)
+    batch_r, jac = _evaluate(data, batch, base, x, free, counter, exact=True)
     check = float(np.max(np.abs(batch_r - r)))
     scale = float(1.4826 * np.median(np.abs(r - np.median(r)))) or 0.1
     covariance, _ = _sandwich(jac[:, free], r, scale, data.blocks)
@@ -633,7 +646,7 @@ def fit_physical(
             "solution (its pieces did not join up): the uncertainties are approximate"
         )
     per_log: dict[str, dict[str, float]] = {}
-    offset_values = data.offsets @ x[n_par:]
+    offset_values = data.offsets @ x[n_par + 1 :]
     for log, rows in zip(logs, data.log_rows, strict=True):
         log_rms, log_r2 = rms_r2(data.torque_Nm[rows], model[rows])
         per_log[log.name] = {
@@ -691,7 +704,7 @@ def _scan_delay(data: _Data, grids: Sequence[FloatArray], x: FloatArray) -> floa
 
     point = [g[:1] for g in grids]
     n_par = len(PARAMETERS)
-    r0 = data.predict(point, 0.0)[0] + data.offsets @ x[n_par:] - data.torque_Nm
+    r0 = data.predict(point, float(x[n_par]))[0] + data.offsets @ x[n_par + 1 :] - data.torque_Nm
     scale = float(1.4826 * np.median(np.abs(r0 - np.median(r0)))) or 0.1
 
     def cost(delay: float) -> float:
@@ -712,12 +725,12 @@ def _scan_delay(data: _Data, grids: Sequence[FloatArray], x: FloatArray) -> floa
 
 def _evaluate(
     data: _Data, batch: Batch, base: SteeringCar, x: FloatArray, free: npt.NDArray[np.bool_],
-    delay: float, counter: list[int], exact: bool = False,
+    counter: list[int], exact: bool = False,
 ) -> tuple[FloatArray, FloatArray]:  # fmt: skip
     """The residual at x (model + offsets - measured) and d residual / d x (every entry; the
     held ones' columns zero), in one batch: forward differences for the model's parameters
     (the neighbours cost little more than the point: numpy's overhead is per step, not per
-    element), the offsets' basis for theirs."""
+    element), the simulated torque's slope for the delay, the offsets' basis for theirs."""
     n_par = len(PARAMETERS)
     sets = [with_values(base, x[:n_par]).physical()]
     neighbours = []
@@ -733,12 +746,15 @@ def _evaluate(
     counter[0] += len(sets)
     sweeps = max(len(batch.pieces.run), MAX_SWEEPS) if exact else MAX_SWEEPS
     grids, _, _ = batch.run(sets, x, neighbours, max_sweeps=sweeps)
+    delay = float(x[n_par])
     predicted = data.predict(grids, delay)
-    r = predicted[0] + data.offsets @ x[n_par:] - data.torque_Nm
+    r = predicted[0] + data.offsets @ x[n_par + 1 :] - data.torque_Nm
     jac = np.zeros((len(r), len(x)))
     for j, (i, h) in enumerate(neighbours, start=1):
         jac[:, i] = (predicted[j] - predicted[0]) / h
-    jac[:, n_par:] = data.offsets
+    slopes = [np.gradient(g[:1], DT_S, axis=1) for g in grids]
+    jac[:, n_par] = -data.predict(slopes, delay)[0]  # the model's torque at t - delay
+    jac[:, n_par + 1 :] = data.offsets
     return r, jac
 
 
@@ -748,11 +764,11 @@ class _Objective:
 
     def __init__(
         self, data: _Data, batch: Batch, base: SteeringCar, x: FloatArray,
-        free: npt.NDArray[np.bool_], idx: npt.NDArray[np.intp], delay: float,
-        counter: list[int], progress: Callable[[int, float], None] | None,
+        free: npt.NDArray[np.bool_], idx: npt.NDArray[np.intp], counter: list[int],
+        progress: Callable[[int, float], None] | None,
     ) -> None:  # fmt: skip
         self.data, self.batch, self.base, self.x, self.free = data, batch, base, x, free
-        self.idx, self.delay, self.counter, self.progress = idx, delay, counter, progress
+        self.idx, self.counter, self.progress = idx, counter, progress
         self.key = b""
         self.value: tuple[FloatArray, FloatArray] = (np.zeros(0), np.zeros((0, 0)))
 
@@ -760,8 +776,7 @@ class _Objective:
         if z.tobytes() != self.key:
             x = self.x.copy()
             x[self.idx] = z
-            r, jac = _evaluate(self.data, self.batch, self.base, x, self.free, self.delay,
-                               self.counter)  # fmt: skip
+            r, jac = _evaluate(self.data, self.batch, self.base, x, self.free, self.counter)
             self.key, self.value = z.tobytes(), (r, jac[:, self.idx])
             if self.progress is not None:
                 self.progress(self.counter[0], float(np.sqrt(np.mean(r * r))))
@@ -777,7 +792,7 @@ class _Objective:
 def _solve(
     data: _Data, batch: Batch, base: SteeringCar, x0: FloatArray,
     free0: npt.NDArray[np.bool_], notes: dict[int, str], lower: FloatArray, upper: FloatArray,
-    delay: float, counter: list[int], progress: Callable[[int, float], None] | None,
+    counter: list[int], progress: Callable[[int, float], None] | None,
 ) -> tuple[FloatArray, npt.NDArray[np.bool_], list[FloatArray]]:  # fmt: skip
     """A trust-region fit of the free entries; what stops at a bound or in an unconstrained
     direction is kept from the base and the rest fitted again (at most twice). Returns x, the
@@ -789,7 +804,7 @@ def _solve(
     x_all, free = x0.copy(), free0.copy()
     for attempt in range(3):
         idx = np.flatnonzero(free)
-        evaluate = _Objective(data, batch, base, x_all, free, idx, delay, counter, progress)
+        evaluate = _Objective(data, batch, base, x_all, free, idx, counter, progress)
         z0 = np.clip(x_all[idx], lower[idx] + 1e-9, upper[idx] - 1e-9)
         first = evaluate(z0)[0]
         scale = float(1.4826 * np.median(np.abs(first - np.median(first)))) or 0.1
