@@ -20,9 +20,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the tests' log builder
 
-from carfeel.identification.physical_fit import NAMES, fit_physical  # noqa: E402
-from carfeel.identification.steering_fit import SteeringLog, fit_steering  # noqa: E402
-from tests.physical_logs import TRUE, base_car, clean_runs, measured  # noqa: E402
+from carfeel.identification.physical_fit import NAMES, fit_physical
+from carfeel.identification.steering_fit import SteeringLog, fit_steering
+from tests.physical_logs import TRUE, base_car, clean_runs, measured
 
 
 def logs_for(seed: int, repeat: int) -> list[SteeringLog]:

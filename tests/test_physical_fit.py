@@ -246,7 +246,7 @@ def test_fit_and_validate_the_physical_model_from_the_command_line(tmp_path, cap
 
 def weave_log(tmp_path, **edit):
     """The weave as a CSV log, its columns edited."""
-    (name, run), = clean_runs(("weave",))  # fmt: skip
+    ((_, run),) = clean_runs(("weave",))
     signals = {
         "speed_m_s": run["speed_m_s"], "steering_angle_rad": run["steering_angle_rad"],
         "steering_rate_rad_s": run["steering_rate_rad_s"], "steering_torque_Nm": run["torque_Nm"],
@@ -337,3 +337,28 @@ def test_the_true_car_differs_from_the_base_in_every_fitted_parameter():
     for p in PARAMETERS:
         a, b = physical_fit.value_of(base, p), physical_fit.value_of(truth, p)
         assert abs(a - b) >= 0.1 * abs(b), p.name
+
+
+def test_a_long_gap_starts_the_model_again_and_its_start_is_not_scored():
+    """A 2 s dropout (over GAP_RESTART_S) cuts a log into two stretches, each simulated from
+    the model's own start, whose first SETTLE_S is not scored; a 0.2 s one is bridged."""
+    (log,) = measured(clean_runs(("fast-sine-80kmh",)), noise=False)
+    t = log.time_s
+    for gap_s, stretches in ((2.0, 2), (0.2, 1)):
+        keep = (t < 3.0) | (t >= 3.0 + gap_s)
+        cut = dataclasses.replace(
+            log, time_s=t[keep], speed_m_s=log.speed_m_s[keep], angle_rad=log.angle_rad[keep],
+            rate_rad_s=log.rate_rad_s[keep], torque_Nm=log.torque_Nm[keep],
+            lateral_accel_m_s2=None,
+        )  # fmt: skip
+        runs = runs_of([cut])
+        assert len(runs) == stretches
+        data = physical_fit._data([cut], runs, None)
+        starts = [cut.time_s[run.samples[0]] for run in runs]
+        scored = data.time_s
+        for start in starts:
+            assert not np.any((scored >= start) & (scored < start + physical_fit.SETTLE_S))
+        assert len(scored) == sum(
+            int(np.sum(cut.time_s[r.samples] >= s + physical_fit.SETTLE_S))
+            for r, s in zip(runs, starts, strict=True)
+        )

@@ -27,10 +27,12 @@ def register(commands: Any) -> None:
     fit_kinds = fit.add_subparsers(dest="kind", metavar="KIND", required=True)
     fit_steer = fit_kinds.add_parser(
         "steering",
-        help="K1..K9 of the torque law from steering logs",
+        help="K1..K9 of the torque law (or the physical model) from steering logs",
         description="Fit the steering torque law (K1..K9, robust least squares) to logs with "
         "time_s, speed_m_s, steering_angle_rad, steering_torque_Nm and optionally "
-        "lateral_accel_m_s2 and steering_rate_rad_s (several files: one per manoeuvre).",
+        "lateral_accel_m_s2 and steering_rate_rad_s (several files: one per manoeuvre); with "
+        "--steering-model physical, the physical model's assist gains, frictions, EPS damping, "
+        "pneumatic trail and mu, by simulating it with the logged angle and speed.",
     )
     fit_steer.add_argument("logs", nargs="+", metavar="LOG.csv")
     fit_steer.add_argument("--out", required=True, metavar="PRESET.toml", help="preset to write")

@@ -71,8 +71,9 @@ DT_S = 1e-3
 SETTLE_S = 0.5
 SEGMENT_S = 1.0
 BURN_IN_S = 0.25
-"""The pieces' length and their run-in: the car's modes (0.3 s at most), the rack's (0.1 s) and
-the tyres' lag are forgotten within it."""
+"""The pieces' length and their run-in (simulated before the piece, from the state there): most
+of a wrong start dies out in it (the rack's modes in 0.1 s, the car's in 0.3 s), so the sweeps
+join up sooner."""
 FUSION_HZ = 1.0
 """Crossover of the angle's complementary filter (`fused_angle`)."""
 GAP_RESTART_S = 1.0
@@ -101,7 +102,7 @@ RESCAN_S = 0.005
 """After the fit, a delay scan that finds a better minimum further than this starts it again."""
 FD_STEP = 1e-3
 """Forward-difference step, relative to a parameter's scale."""
-MAX_BATCH = 2048
+MAX_BATCH = 1024
 """Largest batch (sets x pieces) simulated at once: bigger ones run in groups."""
 
 
@@ -196,12 +197,10 @@ def fused_angle(log: SteeringLog) -> FloatArray:
     the logged angle as it is otherwise.
 
     The rim meets the torsion bar and the column's stick spring (about 215 Nm/rad together):
-    0.02 deg of angle noise is 0.075 Nm of torque noise, and through the frictions' stick
-    elements a bias (column friction +2.8 %, measured on the acceptance logs). A low-pass on
-    the angle rounds off the quick steers instead (at 20 Hz it raised the rms of noise-free
-    logs from 0.019 to 0.12 Nm). The logged rate carries those quick steers; its noise,
-    integrated, wanders by about 0.003 deg within a second, and the angle's, above 1 Hz, is
-    gone. Measured on the acceptance logs with noise on the angle only: the bias under 0.2 %.
+    0.02 deg of angle noise is 0.075 Nm of torque noise and, through the frictions' stick
+    elements, a bias. Measured on the acceptance logs with noise on the angle alone: as logged,
+    up to 1.7 % (the rack friction); low-passed at 20 Hz, 0.43 %; fused, 0.02 %. The rate's
+    integral wanders by about 0.003 deg within a second; the angle's noise above 1 Hz is gone.
     A rate derived from the angle adds nothing, so then the angle is used as logged."""
     if not log.rate_logged:
         return log.angle_rad
@@ -221,9 +220,9 @@ def runs_of(logs: Sequence[SteeringLog]) -> list[Run]:
         angle = fused_angle(log)
         cuts = np.concatenate([[0], np.flatnonzero(np.diff(t) > GAP_RESTART_S) + 1, [len(t)]])
         for a, b in itertools.pairwise(cuts.tolist()):
-            if b - a < 2:
-                continue
             steps = math.floor((t[b - 1] - t[a]) / DT_S + 1e-9)
+            if steps < 1:
+                continue
             grid = t[a] + DT_S * np.arange(steps + 1)
             seg = slice(a, b)
             # The angle between samples from the angle and the rate at both ends (cubic Hermite):
@@ -280,7 +279,7 @@ def reference(
 @dataclass
 class Pieces:
     """The runs cut into pieces for `physical_batch`: piece p of run `run[p]` starts at grid
-    point `begin[p]` (its burn-in) and is scored over grid points (`score[p]`, `end[p]`];
+    point `begin[p]` (its run-in) and is scored over grid points (`score[p]`, `end[p]`];
     `before[p]` is the piece before it in its run (-1 for a run's first), whose state after
     row `row[p]` of its own window is where piece p starts."""
 
@@ -311,8 +310,8 @@ def pieces_of(runs: Sequence[Run]) -> Pieces:
 class Batch:
     """Every piece of every run, for several parameter sets at once (`physical_batch`), swept
     until the pieces join up: each piece starts from the state the piece before it in its run
-    reached there, for the same set, within SWEEP_TOL. Then every set's torque is the pure
-    model's run over the whole log (to SWEEP_TOL in the states: about 1e-5 Nm).
+    reached there, for the same set, within SWEEP_TOL_NM. Then every set's torque is the pure
+    model's run over the whole log, to about that.
 
     A sweep's starts are guessed from the last evaluation: its point's states moved to first
     order by the neighbours' (finite-difference) sensitivities, so near the solution one sweep
