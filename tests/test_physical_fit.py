@@ -194,12 +194,13 @@ def write_logs(folder, names, delay_s=0.0, seed=5):
 
 def test_fit_and_validate_the_physical_model_from_the_command_line(tmp_path, capsys):
     """Parking, the weave and the fast sine with the torque logged 40 ms late; fitted on the
-    first 70 % of each log; the preset keeps the base car's tables with the fitted values in
-    them, runs, and validates against the logs."""
+    first 70 % of each log, the offset let drift (knots 10 s apart); the preset keeps the base
+    car's tables with the fitted values in them, runs, and validates against the logs."""
     paths = write_logs(tmp_path, ("park-0kmh", "weave", "fast-sine-80kmh"), delay_s=0.04)
     out, fit_report = tmp_path / "mine.toml", tmp_path / "fit"
     assert main(["fit", "steering", *paths, "--steering-model", "physical", "--out", str(out),
-                 "--report", str(fit_report), "--holdout", "0.3", "--json"]) == 0  # fmt: skip
+                 "--report", str(fit_report), "--holdout", "0.3", "--drift", "10",
+                 "--json"]) == 0  # fmt: skip
     printed = json.loads(capsys.readouterr().out)
     assert printed["steering_model"] == "physical"
     # 40 ms, as a CAN message queued behind others: found within 5 ms (a sample is 5 ms).
@@ -232,7 +233,7 @@ def test_fit_and_validate_the_physical_model_from_the_command_line(tmp_path, cap
     paths = write_logs(undelayed, ("park-0kmh", "weave", "fast-sine-80kmh"), seed=6)
     check = tmp_path / "check"
     assert main(["validate", "--steering-model", "physical", "--preset", str(out), *paths,
-                 "--report", str(check), "--json"]) == 0  # fmt: skip
+                 "--report", str(check), "--drift", "10", "--json"]) == 0  # fmt: skip
     figures = json.loads(capsys.readouterr().out)
     assert set(figures) == set(paths)
     for values in figures.values():
@@ -362,3 +363,17 @@ def test_a_long_gap_starts_the_model_again_and_its_start_is_not_scored():
             int(np.sum(cut.time_s[r.samples] >= s + physical_fit.SETTLE_S))
             for r, s in zip(runs, starts, strict=True)
         )
+
+
+def test_without_logged_ay_the_excitation_of_mu_is_judged_on_the_base_model():
+    """The limit run without its Ay column: the base model's Ay (driven by the logged angle)
+    goes past 0.6 g, so mu is fitted; the weave's stays under it, so mu is kept."""
+    base = base_car()
+    limit = measured(clean_runs(("limit",)), noise=False, with_ay=False)
+    weave = measured(clean_runs(("weave",)), noise=False, with_ay=False)
+    index = NAMES.index("friction_coefficient")
+    for logs, kept in ((limit, False), (weave, True)):
+        runs = runs_of(logs)
+        ref = reference(base.physical(), runs)
+        sim = [np.interp(logs[0].time_s, runs[0].grid_s, ref.lateral_accel_m_s2[0])]
+        assert (index in physical_fit.excitation(logs, sim, base)) == kept
