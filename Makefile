@@ -40,6 +40,7 @@ bench: $(VENV)/.installed-test
 	$(BIN)/python benchmarks/bench_fit.py
 	$(BIN)/python benchmarks/bench_fit_bias.py
 	$(BIN)/python benchmarks/bench_shift_fit.py
+	$(BIN)/python benchmarks/bench_physical_fit.py
 	$(BIN)/python benchmarks/bench_sweep.py
 	$(BIN)/python benchmarks/bench_fmu.py
 

@@ -13,6 +13,7 @@ from carfeel.commands.common import (
     sources_of,
     to_json,
 )
+from carfeel.errors import InputError
 from carfeel.io.outputs import check_folder
 
 
@@ -27,10 +28,12 @@ def register(commands: Any) -> None:
     fit_kinds = fit.add_subparsers(dest="kind", metavar="KIND", required=True)
     fit_steer = fit_kinds.add_parser(
         "steering",
-        help="K1..K9 of the torque law from steering logs",
+        help="K1..K9 of the torque law (or the physical model) from steering logs",
         description="Fit the steering torque law (K1..K9, robust least squares) to logs with "
         "time_s, speed_m_s, steering_angle_rad, steering_torque_Nm and optionally "
-        "lateral_accel_m_s2 and steering_rate_rad_s (several files: one per manoeuvre).",
+        "lateral_accel_m_s2 and steering_rate_rad_s (several files: one per manoeuvre); with "
+        "--steering-model physical, the physical model's assist gains, frictions, EPS damping, "
+        "pneumatic trail and mu, by simulating it with the logged angle and speed.",
     )
     fit_steer.add_argument("logs", nargs="+", metavar="LOG.csv",
                            help="steering logs: CSV, or with carfeel[logs] Parquet, MDF4, CAN "
@@ -47,6 +50,7 @@ def register(commands: Any) -> None:
     fit_steer.add_argument("--holdout", type=float, default=0.0, metavar="FRACTION",
                            help="validate on the last FRACTION of each log, fit on the rest; "
                            "both figures side by side")  # fmt: skip
+    _steering_model_option(fit_steer, "the model to fit")
     source_options(fit_steer)
     fit_steer.add_argument("--json", action="store_true", help="print the fit as one JSON object")
     fit_shift = fit_kinds.add_parser(
@@ -83,9 +87,29 @@ def register(commands: Any) -> None:
     validate.add_argument("--drift", type=positive_float, metavar="SECONDS",
                           help="remove each log's own drifting torque offset (knots this far "
                           "apart) before the figures; default a constant one")  # fmt: skip
+    _steering_model_option(validate, "the steering model to run against the logs")
     source_options(validate)
     validate.add_argument("--json", action="store_true", help="print the figures as JSON")
     validate.set_defaults(handler=_validate)
+
+
+def _steering_model_option(parser: Any, what: str) -> None:
+    parser.add_argument(
+        "--steering-model", choices=("paper", "physical"), default="paper",
+        help=f"{what}: paper (K1..K9 of the paper's law, the default) or physical (brush "
+        "tyres and the EPS steering system, re-simulated from the logs)",
+    )  # fmt: skip
+
+
+def _physical_options(args: argparse.Namespace) -> None:
+    """Refuse what makes no sense with the physical model, with the reason."""
+    if getattr(args, "fit_vehicle", False):
+        raise InputError(
+            "--fit-vehicle fits the paper law's understeer gradient from the logged angle and "
+            "torque; the physical model drives the base car's own tyres with the logged angle, "
+            "so drop --fit-vehicle (or give --base a preset of this car, with its cornering "
+            "stiffnesses)"
+        )
 
 
 def _fit(args: argparse.Namespace) -> int:
@@ -94,6 +118,22 @@ def _fit(args: argparse.Namespace) -> int:
     report_dir = None if args.report is None else Path(args.report)
     if report_dir is not None:
         check_folder(report_dir)
+    if args.kind == "steering" and args.steering_model == "physical":
+        from carfeel.identification.physical_workflows import fit_physical_logs
+        from carfeel.identification.workflows import Sources, fit_summary
+
+        _physical_options(args)
+        fit = fit_physical_logs(
+            [Path(p) for p in args.logs], out, base=args.base, report_dir=report_dir,
+            show_progress=not args.json, sources=Sources(*sources_of(args)), drift_s=args.drift,
+            holdout=args.holdout,
+        )  # fmt: skip
+        if args.json:
+            print(to_json({"steering_model": "physical", **fit.as_dict()}))
+        else:
+            print("physical steering model: " + fit_summary(fit))
+            print(f"wrote {out}" + (f" and {report_dir / 'index.html'}" if report_dir else ""))
+        return 0
     if args.kind == "steering":
         from carfeel.identification.workflows import Sources, fit_steering_logs, fit_summary
 
@@ -135,7 +175,14 @@ def _validate(args: argparse.Namespace) -> int:
     with tempfile.TemporaryDirectory() as scratch:
         # Without --report the report is drawn in a scratch folder and thrown away.
         folder = Path(scratch) / "report" if args.report is None else Path(args.report)
-        figures = validate(args.preset, logs, folder, Sources(*sources_of(args)), args.drift)
+        if args.steering_model == "physical":
+            from carfeel.identification.physical_workflows import validate_physical
+
+            figures = validate_physical(
+                args.preset, logs, folder, Sources(*sources_of(args)), args.drift
+            )
+        else:
+            figures = validate(args.preset, logs, folder, Sources(*sources_of(args)), args.drift)
     if args.json:
         print(to_json(figures))
     else:

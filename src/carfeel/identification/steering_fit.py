@@ -115,6 +115,8 @@ class SteeringLog:
     rate_rad_s: FloatArray
     torque_Nm: FloatArray
     lateral_accel_m_s2: FloatArray | None
+    rate_logged: bool = False
+    """The rate is the log's own (as logged, or low-passed), not derived from the angle."""
 
 
 @dataclass(frozen=True)
@@ -322,7 +324,9 @@ def read_log(result: Result, name: str) -> SteeringLog:
         else None
     )
     speed = lowpass(t, speed, CUTOFF_HZ["speed_m_s"])
-    return SteeringLog(name, t, speed, angle, rate, torque, ay)
+    return SteeringLog(
+        name, t, speed, angle, rate, torque, ay, "steering_rate_rad_s" in result.names
+    )
 
 
 def steady_ay(
