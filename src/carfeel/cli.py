@@ -18,6 +18,7 @@ from carfeel.commands import (
     devices,
     identify,
     metrics,
+    panel,
     presets,
     run,
     simulate,
@@ -56,7 +57,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"carfeel {__version__}")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
-    families = (demo, simulate, metrics, run, identify, channels, devices, presets, telemetry)
+    families = (demo, simulate, metrics, run, identify, channels, devices, presets, telemetry,
+                panel)  # fmt: skip
     for family in families:
         family.register(commands)
     return parser
