@@ -314,7 +314,8 @@ def main(
 
     if cpu is not None and hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {cpu})
-    priority = raise_priority()
+    # Wall clock only: a simulated run has no deadline, and would starve the panel's side.
+    priority = raise_priority() if run_kwargs.get("clock", "wall") == "wall" else "normal"
     # The recorder's and the file threads must not hold the GIL for 5 ms while a tick waits.
     sys.setswitchinterval(2e-4)
     shm = ring.attach(shm_name)

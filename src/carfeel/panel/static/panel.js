@@ -22,6 +22,7 @@ const TERM_LABELS = {
 let options = null;
 let session = { state: "idle" };
 let buf = {};
+let engaged = [];            // every gear engaged in this session, in order
 let engagement = null;       // {x: [], f: [], ff: []} of the engagement under way (or the last)
 let lastStage = null;
 let dirty = true;
@@ -101,7 +102,7 @@ async function start() {
   $("start").disabled = true;
   try {
     const s = await api("POST", "api/session", startBody());
-    buf = {}; engagement = null; lastStage = null;
+    buf = {}; engagement = null; lastStage = null; engaged = [];
     setSession(s);
     say("start-msg", "running: " + s.model + " on " + (s.device ? s.device.name : s.run.device));
   } catch (e) {
@@ -255,7 +256,8 @@ function setSession(s) {
   if (before.recording && !s.recording) listRecordings();
   if (before.state !== s.state && s.state === "ended") {
     const stopped = s.summary ? s.summary.stopped : "?";
-    say("start-msg", "ended: stopped by " + stopped + (s.faults && s.faults.length ? " (" + s.faults[0] + ")" : ""), s.faults && s.faults.length);
+    const why = { stopped: "stopped on request", duration: "its duration ran out", fault: "a safety fault faded the force out", SIGINT: "Ctrl-C", SIGTERM: "SIGTERM" }[stopped] || stopped;
+    say("start-msg", "ended: " + why + (s.faults && s.faults.length ? " (" + s.faults[0] + ")" : ""), s.faults && s.faults.length);
     $("summary").textContent = s.text || "";
     $("summary-box").classList.remove("hidden");
     listRecordings();
@@ -280,7 +282,7 @@ function describeEvent(e) {
     case "recording": return t + "recording " + e.path;
     case "recorded": return t + "recorded " + e.path + ` (${e.rows} rows)`;
     case "fault": return "FAULT: " + e.faults.join("; ");
-    case "ended": return "ended: stopped by " + e.stopped;
+    case "ended": return "ended (" + e.stopped + ")";
     case "orphaned": return "loop orphaned: " + e.message;
     default: return e.event + (e.message ? ": " + e.message : "");
   }
@@ -293,6 +295,7 @@ function append(columns) {
     for (const v of values) b.push(v);
     if (b.length > KEEP) b.splice(0, b.length - KEEP);
   }
+  for (const e of columns.event || []) if (e && e.startsWith("engage ")) engaged.push(e.slice(7));
   trackEngagement(columns, n);
   dirty = true;
 }
@@ -469,19 +472,16 @@ function drawGearbox() {
   $("gear").classList.toggle("neutral", !gear || gear === "N");
   $("stage").textContent = stage ? stage.replace("_", " ") : "–";
   $("stage").style.background = STAGE_COLORS[stage] || "transparent";
-  const summary = session.summary;
-  $("gears").textContent = (summary && summary.gears ? summary.gears : engagedGears()).join(" ") || "–";
+  const list = session.summary && session.summary.gears ? session.summary.gears : engaged;
+  $("gears").textContent = list.length ? (list.length > 16 ? "… " : "") + list.slice(-16).join(" ") : "–";
+  $("gears").dataset.count = list.length;
+  $("gears-count").textContent = list.length ? `(${list.length})` : "";
 }
 function lastOf(values) {
   // The newest value that is not blank (the rows of the final fade carry no model state).
   if (!values) return "";
   for (let i = values.length - 1; i >= 0 && i >= values.length - 200; i--) if (values[i]) return values[i];
   return "";
-}
-function engagedGears() {
-  const out = [];
-  for (const e of buf.event || []) if (e && e.startsWith("engage")) out.push(e.split(" ")[1]);
-  return out.slice(-20);
 }
 function drawEngagement() {
   const { ctx, w, h } = canvasOf("force-position");
