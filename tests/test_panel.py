@@ -8,6 +8,7 @@ a real process spawned as `carfeel panel` spawns it; nothing here asserts a wall
 from __future__ import annotations
 
 import csv
+import itertools
 import json
 import os
 import signal
@@ -16,16 +17,17 @@ import sys
 import textwrap
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 
 pytest.importorskip("starlette", reason="the panel needs carfeel[panel]")
 pytest.importorskip("httpx2", reason="Starlette's TestClient needs httpx2 (carfeel[test])")
 
-from starlette.testclient import TestClient  # noqa: E402
+from starlette.testclient import TestClient
 
-from carfeel.panel import ring  # noqa: E402
-from carfeel.panel.server import PanelConfig, create_app  # noqa: E402
+from carfeel.panel import ring
+from carfeel.panel.server import PanelConfig, create_app
 
 JSON = {"Content-Type": "application/json"}
 SEQUENCE = ",".join(["N", "1", "2", "3", "4", "N"] * 4)
@@ -36,15 +38,17 @@ def client_for(folder: Path, token: str | None = None) -> TestClient:
     return TestClient(app)
 
 
-def post(client: TestClient, path: str, body: object, **kwargs: object):
+def post(client: TestClient, path: str, body: object, **kwargs: Any):
     return client.post(path, content=json.dumps(body), headers=JSON, **kwargs)
 
 
-def wait_for(client: TestClient, predicate, timeout_s: float = 120.0, what: str = "") -> dict:
+def wait_for(
+    client: TestClient, predicate, timeout_s: float = 120.0, what: str = ""
+) -> dict[str, Any]:
     """Poll the session until `predicate(session)`; the loop runs in simulated time, so the
     wait is the loop's process's speed on a loaded machine, hence the generous limit."""
     deadline = time.monotonic() + timeout_s
-    session: dict = {}
+    session: dict[str, Any] = {}
     while time.monotonic() < deadline:
         session = client.get("/api/session").json()
         if predicate(session):
@@ -58,8 +62,8 @@ def wait_for(client: TestClient, predicate, timeout_s: float = 120.0, what: str 
 def synchronization_runs(path: Path) -> list[tuple[float, float]]:
     """(start time, duration) of every stretch the recording spent in `synchronization`."""
     runs = []
-    start = None
-    last = None
+    start: float | None = None
+    last = 0.0
     with path.open(newline="") as f:
         for row in csv.DictReader(f):
             if not row.get("time_s") or row.get("stage") in (None, "nan"):
@@ -79,7 +83,9 @@ def test_a_session_streams_tunes_records_and_stops(tmp_path):
     with client_for(tmp_path) as client:
         assert client.get("/api/session").json() == {"state": "idle"}
         options = client.get("/api/options").json()
-        assert "hpattern" in options["models"] and "virtual:joystick" in options["devices"]["joystick"]
+        assert (
+            "hpattern" in options["models"] and "virtual:joystick" in options["devices"]["joystick"]
+        )
         start = post(client, "/api/session", {
             "model": "hpattern", "device": "virtual:joystick", "clock": "simulated",
             "sequence": SEQUENCE, "duration_s": 600, "force": True,
@@ -188,6 +194,7 @@ def _is_panel_segment(path: Path) -> bool:
 
 def test_bad_input_is_refused_with_the_reason(tmp_path):
     with client_for(tmp_path) as client:
+
         def error(path: str, body: object) -> str:
             response = post(client, path, body)
             assert response.status_code == 400, response.text
@@ -202,8 +209,11 @@ def test_bad_input_is_refused_with_the_reason(tmp_path):
         assert "no '..'" in error("/api/session", {"preset": "saved:..", "force": True})
         assert "no session" in error("/api/tune", {"values": {"walls.stiffness_N_m": 1e4}})
         assert "no session" in error("/api/recording", {"name": "x"})
-        response = client.post("/api/session", content="model=hpattern",
-                               headers={"Content-Type": "application/x-www-form-urlencoded"})
+        response = client.post(
+            "/api/session",
+            content="model=hpattern",
+            headers={"Content-Type": "application/x-www-form-urlencoded"},
+        )
         assert response.status_code == 400 and "JSON" in response.json()["error"]
         # File names cannot leave the panel's folder.
         for name in ("../escape", "a/b", "..", ".hidden", "x" * 200):
@@ -235,9 +245,12 @@ def test_the_token_host_and_origin_guard(tmp_path):
         with client.websocket_connect("/api/stream?token=s3cret-token") as ws:
             assert ws.receive_json()["type"] == "session"
         # A page elsewhere (another origin) cannot open the stream, token or not.
-        with pytest.raises(WebSocketDisconnect), client.websocket_connect(
-            "/api/stream?token=s3cret-token", headers={"Origin": "http://evil.example"}
-        ) as ws:
+        with (
+            pytest.raises(WebSocketDisconnect),
+            client.websocket_connect(
+                "/api/stream?token=s3cret-token", headers={"Origin": "http://evil.example"}
+            ) as ws,
+        ):
             ws.receive_json()
         # Nor reach the panel under another host name (DNS rebinding).
         assert client.get("/api/options?token=s3cret-token",
@@ -301,7 +314,8 @@ def test_the_ring_never_hands_out_a_lapped_row():
         assert writer.command() == ("c", 0)
         assert reader.send(("c", 99))
         writer.status(tuple(float(i) for i in range(len(ring.STATUS))))
-        assert reader.status()["guard_rms"] == 1.0
+        status = reader.status()
+        assert status is not None and status["guard_rms"] == 1.0
         del rows
         reader.close()
         writer.close()
@@ -363,7 +377,9 @@ def test_the_loop_fades_out_when_the_panel_dies(tmp_path):
     assert max(commands) > 0.1, "no force was on when the panel died: the test tests nothing"
     assert commands[-1] == 0.0
     slew = sidecar["max_slew_per_s"] / sidecar["rate_hz"]
-    steps = [abs(float(b["command_0"]) - float(a["command_0"])) for a, b in zip(rows, rows[1:])]
+    steps = [
+        abs(float(b["command_0"]) - float(a["command_0"])) for a, b in itertools.pairwise(rows)
+    ]
     assert max(steps[-50:]) <= slew * (1 + 1e-6)  # the fade respects the slew limit
 
 

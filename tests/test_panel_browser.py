@@ -101,12 +101,16 @@ def test_the_page_loads_without_console_errors(page: Any) -> None:
     assert page.eval_on_selector_all("#preset option", "o => o.map(x => x.value)") == [
         "5r", "5r-reverse-left", "6r"]  # fmt: skip
     page.select_option("#model", "steering")
-    assert "virtual:wheel" in page.eval_on_selector_all("#device option", "o => o.map(x => x.value)")
+    assert "virtual:wheel" in page.eval_on_selector_all(
+        "#device option", "o => o.map(x => x.value)"
+    )
     page.wait_for_timeout(500)
     assert page.problems == []
 
 
-def test_a_session_started_from_the_page(page: Any, panel: tuple[str, Path], tmp_path: Path) -> None:
+def test_a_session_started_from_the_page(
+    page: Any, panel: tuple[str, Path], tmp_path: Path
+) -> None:
     page.select_option("#model", "hpattern")
     page.select_option("#clock", "simulated")
     page.fill("#sequence", SEQUENCE)
@@ -133,8 +137,7 @@ def test_a_session_started_from_the_page(page: Any, panel: tuple[str, Path], tmp
     page.click("#apply")
     page.wait_for_function("document.querySelector('#tune-msg').textContent.startsWith('applied')")
     # Four more engagements after it, then the recording is stopped from the page.
-    page.wait_for_function(
-        "document.querySelector('#events').textContent.includes('tuned:')")
+    page.wait_for_function("document.querySelector('#events').textContent.includes('tuned:')")
     count = int(page.get_attribute("#gears", "data-count") or 0)
     page.wait_for_function(f"Number(document.querySelector('#gears').dataset.count) >= {count + 4}")
     page.click("#record")
@@ -164,7 +167,8 @@ def test_a_session_started_from_the_page(page: Any, panel: tuple[str, Path], tmp
     page.click("#recordings button.plot")
     page.wait_for_function(
         "document.querySelector('#plot-img').complete && "
-        "document.querySelector('#plot-img').naturalWidth > 500")
+        "document.querySelector('#plot-img').naturalWidth > 500"
+    )
     page.click("#plot-close")
 
     page.click("#stop")
@@ -190,4 +194,5 @@ def test_a_steering_session_shows_its_views(page: Any) -> None:
     page.wait_for_function("document.querySelector('#state').textContent === 'ENDED'")
     # Chromium logs the refusal's HTTP 400 as a console error: that one, and nothing else.
     assert page.problems == [
-        "Failed to load resource: the server responded with a status of 400 (Bad Request)"]
+        "Failed to load resource: the server responded with a status of 400 (Bad Request)"
+    ]

@@ -78,17 +78,25 @@ class RingError(RuntimeError):
     """A segment that is not a panel's, or a message too large for its slot."""
 
 
+def _buffer(shm: shared_memory.SharedMemory) -> memoryview:
+    buf = shm.buf
+    if buf is None:  # pragma: no cover - a closed segment
+        raise RingError(f"shared memory {shm.name} is closed")
+    return buf
+
+
 def create() -> shared_memory.SharedMemory:
     """A new, zeroed segment (the panel's; it unlinks it when the session is over)."""
     shm = shared_memory.SharedMemory(create=True, size=SIZE)
-    shm.buf[:STATUS_OFFSET] = bytes(STATUS_OFFSET)
-    _HEADER.pack_into(shm.buf, 0, MAGIC, VERSION, ROW_CAPACITY, MAX_COLUMNS)
+    buf = _buffer(shm)
+    buf[:STATUS_OFFSET] = bytes(STATUS_OFFSET)
+    _HEADER.pack_into(buf, 0, MAGIC, VERSION, ROW_CAPACITY, MAX_COLUMNS)
     return shm
 
 
 def attach(name: str) -> shared_memory.SharedMemory:
     shm = shared_memory.SharedMemory(name=name)
-    magic, version, *_ = _HEADER.unpack_from(shm.buf, 0)
+    magic, version, *_ = _HEADER.unpack_from(_buffer(shm), 0)
     if magic != MAGIC or version != VERSION:
         shm.close()
         raise RingError(f"shared memory {name} is not a carfeel panel's (version {VERSION})")
@@ -115,7 +123,7 @@ class LoopSide:
         if columns > MAX_COLUMNS:
             raise RingError(f"{columns} columns: a panel's ring holds at most {MAX_COLUMNS}")
         self.shm = shm
-        self.buf = shm.buf
+        self.buf: memoryview = _buffer(shm)
         self.columns = columns
         self._row = struct.Struct(f"<{columns}d")
         self._status = struct.Struct(f"<{len(STATUS)}d")
@@ -159,7 +167,7 @@ class LoopSide:
         return message
 
     def close(self) -> None:
-        self.buf = None
+        del self.buf
         self.shm.close()
 
 
@@ -171,14 +179,15 @@ class PanelSide:
 
         self._np = np
         self.shm = shm
+        self.buf: memoryview = _buffer(shm)
         self.rows = np.ndarray(
-            (ROW_CAPACITY, MAX_COLUMNS), dtype="<f8", buffer=shm.buf, offset=ROWS_OFFSET
+            (ROW_CAPACITY, MAX_COLUMNS), dtype="<f8", buffer=self.buf, offset=ROWS_OFFSET
         )
         self._events_read = 0
         self._lock = threading.Lock()
 
     def _counter(self, offset: int) -> int:
-        value: int = _U64.unpack_from(self.shm.buf, offset)[0]
+        value: int = _U64.unpack_from(self.buf, offset)[0]
         return value
 
     @property
@@ -208,7 +217,7 @@ class PanelSide:
         if start > self._events_read:
             out.append(("lost", start - self._events_read))
         for k in range(start, end):
-            out.append(_get(self.shm.buf, EVENTS_OFFSET + (k % EVENT_SLOTS) * EVENT_SLOT_BYTES))
+            out.append(_get(self.buf, EVENTS_OFFSET + (k % EVENT_SLOTS) * EVENT_SLOT_BYTES))
         self._events_read = end
         return out
 
@@ -219,7 +228,7 @@ class PanelSide:
             before = self._counter(STATUS_VERSION)
             if before == 0:
                 return None
-            values = fmt.unpack_from(self.shm.buf, STATUS_OFFSET)
+            values = fmt.unpack_from(self.buf, STATUS_OFFSET)
             if before % 2 == 0 and self._counter(STATUS_VERSION) == before:
                 return dict(zip(STATUS, values, strict=True))
         return None
@@ -231,11 +240,11 @@ class PanelSide:
             written = self._counter(COMMANDS_WRITTEN)
             if written - self._counter(COMMANDS_READ) >= COMMAND_SLOTS:
                 return False
-            _put(self.shm.buf, COMMANDS_OFFSET + (written % COMMAND_SLOTS) * COMMAND_SLOT_BYTES,
+            _put(self.buf, COMMANDS_OFFSET + (written % COMMAND_SLOTS) * COMMAND_SLOT_BYTES,
                  COMMAND_SLOT_BYTES, message)  # fmt: skip
-            _U64.pack_into(self.shm.buf, COMMANDS_WRITTEN, written + 1)
+            _U64.pack_into(self.buf, COMMANDS_WRITTEN, written + 1)
             return True
 
     def close(self) -> None:
-        del self.rows
+        del self.rows, self.buf
         self.shm.close()

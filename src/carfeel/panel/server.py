@@ -289,9 +289,7 @@ class Session:
 
     def decode(self, name: str, values: Any) -> list[Any]:
         vocabulary = self.vocabulary
-        return [
-            vocabulary.get(v, "") if not math.isnan(v) else "" for v in values.tolist()
-        ]
+        return [vocabulary.get(v, "") if not math.isnan(v) else "" for v in values.tolist()]
 
     def describe(self) -> dict[str, Any]:
         ready = self.ready or {}
@@ -463,12 +461,12 @@ class Panel:
         if model not in MODELS:
             raise InputError(f"model {model!r}: choose one of {', '.join(MODELS)}")
         run: dict[str, Any] = {"model": model}
-        for key, kind in (("device", str), ("mode", str), ("hand", str), ("clock", str),
-                          ("telemetry", str), ("synchronizer", str), ("aligning", str)):  # fmt: skip
+        texts = ("device", "mode", "hand", "clock", "telemetry", "synchronizer", "aligning")
+        for key in texts:
             value = body.get(key)
             if value is None or value == "":
                 continue
-            if not isinstance(value, kind):
+            if not isinstance(value, str):
                 raise InputError(f"{key} {value!r}: expected a string")
             run[key] = value
         for key in ("speed_kmh", "duration_s", "rate_hz", "device_delay_ms"):
@@ -512,7 +510,8 @@ class Panel:
         run = self.run_of(body)
         model = run["model"]
         name = run["preset"] or DEFAULT_PRESETS[model]
-        loader = {"shift": load_shift, "hpattern": load_hpattern, "steering": load_steering}
+        loader: dict[str, Callable[[str], Any]] = {
+            "shift": load_shift, "hpattern": load_hpattern, "steering": load_steering}  # fmt: skip
         loaded = loader[model](name)
         preset = loaded.params if model != "hpattern" else loaded
         physics = None if run.get("synchronizer") is None else run["synchronizer"] == "physics"
@@ -737,7 +736,7 @@ class Guard:
             await receive()  # the connect message
             await send({"type": "websocket.close", "code": 1008, "reason": problem[:120]})
             return
-        response = _error(problem.startswith("token") and 401 or 403, problem)
+        response = _error((problem.startswith("token") and 401) or 403, problem)
         await response(scope, receive, send)
 
     def problem(self, scope: Scope, headers: dict[str, str]) -> str | None:
@@ -771,7 +770,9 @@ class Guard:
 def create_app(config: PanelConfig) -> Starlette:
     panel = Panel(config)
 
-    def api(handler: Callable[[Request], Awaitable[Any]]) -> Callable[[Request], Awaitable[Response]]:
+    def api(
+        handler: Callable[[Request], Awaitable[Any]],
+    ) -> Callable[[Request], Awaitable[Response]]:
         async def endpoint(request: Request) -> Response:
             try:
                 result = await handler(request)
@@ -863,7 +864,7 @@ def create_app(config: PanelConfig) -> Starlette:
     ]
     app = Starlette(routes=routes, lifespan=panel.lifespan)
     app.state.panel = panel
-    app.add_middleware(Guard, config=config)  # type: ignore[arg-type]
+    app.add_middleware(Guard, config=config)
     return app
 
 

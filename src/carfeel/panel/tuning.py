@@ -123,8 +123,7 @@ def set_path(obj: Any, path: str, value: Any) -> Any:
 def preset_path(model: str, path: str) -> str:
     """A tunable's path in the loaded preset object (ShiftParams, HPatternPreset, SteeringCar)."""
     if model == "hpattern":
-        table, _, rest = path.partition(".")
-        return f"shift.{path}" if table == "gearbox" else f"setup.{path}"
+        return f"shift.{path}" if path.startswith("gearbox.") else f"setup.{path}"
     return path
 
 
@@ -140,18 +139,24 @@ def renderer_path(model: str, path: str) -> str:
 
 
 def values_of(model: str, preset: Any) -> dict[str, float]:
-    return {t.path: float(get_path(preset, preset_path(model, t.path))) for t in tunables_for(model)}
+    return {
+        t.path: float(get_path(preset, preset_path(model, t.path))) for t in tunables_for(model)
+    }
 
 
 def checked_value(path: str, value: object) -> float:
     """A tuned value as a float within its preset range, or InputError naming the range."""
     tunable = BY_PATH[path]
     if isinstance(value, bool) or not isinstance(value, int | float):
-        raise InputError(f"{path} = {value!r}: expected a number, {describe_range(range_key(path))}")
+        raise InputError(
+            f"{path} = {value!r}: expected a number, {describe_range(range_key(path))}"
+        )
     number = float(value)
     low, high, low_in, high_in = tunable.bounds
-    inside = math.isfinite(number) and (number >= low if low_in else number > low) and (
-        number <= high if high_in else number < high
+    inside = (
+        math.isfinite(number)
+        and (number >= low if low_in else number > low)
+        and (number <= high if high_in else number < high)
     )
     if not inside:
         raise InputError(

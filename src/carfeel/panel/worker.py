@@ -83,7 +83,7 @@ class Observer:
         side = self.side
         assert side is not None
         codes = self.codes
-        side.row([v if v.__class__ is not str else codes.get(v) or self._code(v) for v in row])  # type: ignore[misc]
+        side.row([v if v.__class__ is not str else codes.get(v) or self._code(v) for v in row])
         self.ticks += 1
         self.time_s = row[0]  # type: ignore[assignment]
         if self._recorder is not None:
