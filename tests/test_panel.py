@@ -229,10 +229,17 @@ def test_the_token_host_and_origin_guard(tmp_path):
         assert client.get("/api/options").status_code == 401
         assert client.get("/").status_code == 401
         assert client.get("/api/options?token=wrong-token").status_code == 401
-        assert client.get("/api/options?token=s3cret-token").status_code == 200
         bearer = {"Authorization": "Bearer s3cret-token"}
         assert client.get("/api/options", headers=bearer).status_code == 200
         assert client.get("/static/panel.js", headers=bearer).status_code == 200
+        assert client.get("/static/panel.js").status_code == 401
+        # The page opened with ?token= gets it as a same-site cookie for its own requests.
+        page = client.get("/?token=s3cret-token")
+        assert page.status_code == 200
+        assert "SameSite=Strict" in page.headers["set-cookie"]
+        assert "HttpOnly" in page.headers["set-cookie"]
+        assert client.get("/static/panel.js").status_code == 200
+        client.cookies.clear()
         assert client.get("/static/panel.js").status_code == 401
         refused = post(client, "/api/session", {"model": "hpattern", "force": True})
         assert refused.status_code == 401
@@ -328,8 +335,8 @@ PARENT = textwrap.dedent(
     import sys, time
     from pathlib import Path
     from carfeel.panel.server import Session
-    run = {"model": "hpattern", "device": "virtual:joystick", "clock": "wall",
-           "duration_s": 600.0, "sequence": tuple("N12341N" * 20), "calibrate": False}
+    run = {"model": "hpattern", "device": "virtual:joystick", "clock": "simulated",
+           "duration_s": 3600.0, "sequence": tuple("N12341N" * 200), "calibrate": False}
     session = Session(run, None, None)
     session.start(None)
     while session.ready is None:
@@ -347,7 +354,8 @@ PARENT = textwrap.dedent(
 @pytest.mark.skipif(not hasattr(os, "getppid") or sys.platform != "linux", reason="Linux")
 def test_the_loop_fades_out_when_the_panel_dies(tmp_path):
     """SIGKILL the panel's process: nobody watches the device any more, so the loop's process
-    stops on its own, through the fade, and keeps what it recorded."""
+    stops on its own, through the fade, and keeps what it recorded. (Simulated time: the loop
+    runs as it would, and a loaded machine's stalls cannot end it first.)"""
     record = tmp_path / "orphan.csv"
     parent = subprocess.Popen(
         [sys.executable, "-c", PARENT, str(record)], stdout=subprocess.PIPE, text=True
@@ -360,6 +368,7 @@ def test_the_loop_fades_out_when_the_panel_dies(tmp_path):
         while not (tmp_path / "orphan.part.csv").exists() and time.monotonic() < deadline:
             time.sleep(0.05)
         time.sleep(2.0)  # the virtual hand is shifting: forces are on
+        assert _alive(loop_pid), "the loop ended before the test could kill its parent"
         parent.send_signal(signal.SIGKILL)
         parent.wait(timeout=10)
         deadline = time.monotonic() + 30

@@ -9,6 +9,7 @@ wall-clock figure. chromium comes from the distribution (`make test` installs it
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import os
@@ -55,19 +56,19 @@ def _need_browser() -> Any:
     return sync_playwright
 
 
-@pytest.fixture(scope="module")
-def panel(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[str, Path]]:
-    """`carfeel panel --port 0` in a subprocess: (its URL, its folder)."""
-    folder = tmp_path_factory.mktemp("panel")
+@contextlib.contextmanager
+def serving(folder: Path, *options: str) -> Iterator[str]:
+    """`carfeel panel --port 0 ...` in a subprocess; its URL (as printed, token included)."""
     process = subprocess.Popen(
-        [sys.executable, "-m", "carfeel.cli", "panel", "--port", "0", "--dir", str(folder)],
+        [sys.executable, "-m", "carfeel.cli", "panel", "--port", "0", "--dir", str(folder),
+         *options],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
     try:
         line = process.stdout.readline() if process.stdout else ""
         match = re.search(r"(http://\S+)", line)
-        assert match, f"carfeel panel did not print its URL: {line!r} {process.stderr.read()}"  # type: ignore[union-attr]
-        yield match.group(1), folder
+        assert match, f"carfeel panel did not print its URL: {line!r}"
+        yield match.group(1)
     finally:
         process.terminate()
         try:
@@ -75,6 +76,13 @@ def panel(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[str, Path]
         except subprocess.TimeoutExpired:  # pragma: no cover - uvicorn's shutdown hung
             process.kill()
             raise AssertionError("carfeel panel did not stop within 30 s of SIGTERM") from None
+
+
+@pytest.fixture(scope="module")
+def panel(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[str, Path]]:
+    folder = tmp_path_factory.mktemp("panel")
+    with serving(folder) as url:
+        yield url, folder
 
 
 @pytest.fixture
@@ -196,3 +204,21 @@ def test_a_steering_session_shows_its_views(page: Any) -> None:
     assert page.problems == [
         "Failed to load resource: the server responded with a status of 400 (Bad Request)"
     ]
+
+
+def test_a_panel_with_a_token_serves_its_page_to_its_url_only(tmp_path: Path) -> None:
+    sync_playwright = _need_browser()
+    with serving(tmp_path, "--token", "a-long-secret") as url, sync_playwright() as p:
+        assert url.endswith("/?token=a-long-secret")
+        browser = p.chromium.launch(executable_path=str(CHROMIUM), args=ARGS, headless=True)
+        tab = browser.new_page()
+        problems: list[str] = []
+        tab.on("console", lambda m: problems.append(m.text) if m.type == "error" else None)
+        tab.on("pageerror", lambda e: problems.append(str(e)))
+        assert tab.goto(url.split("?")[0]).status == 401  # without the token
+        problems.clear()  # chromium logs that refusal as a console error
+        tab.goto(url)
+        tab.wait_for_function("document.querySelectorAll('#model option').length === 3")
+        tab.wait_for_function("window.panelStats.frames > 0")  # the stream connected
+        assert problems == [], problems
+        browser.close()

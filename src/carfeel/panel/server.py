@@ -367,6 +367,7 @@ class Panel:
             yield
         finally:
             self.closing.set()
+            await asyncio.sleep(2.0 / self.config.stream_hz)  # the streams see it and end
             await self.shutdown()
 
     async def shutdown(self) -> None:
@@ -718,7 +719,11 @@ def _error(status: int, message: str) -> JSONResponse:
 
 class Guard:
     """Refuses what lacks the token, comes with a foreign Host, or (a WebSocket) a foreign
-    Origin: a page elsewhere in the user's browser must not reach a device."""
+    Origin: a page elsewhere in the user's browser must not reach a device. The page is opened
+    with ?token=T; the answer sets it as a SameSite=Strict cookie, so that the page's own
+    stylesheet, script and stream carry it (and no other site's requests do)."""
+
+    COOKIE = "carfeel_token"
 
     def __init__(self, app: ASGI, config: PanelConfig) -> None:
         self.app, self.config = app, config
@@ -728,43 +733,64 @@ class Guard:
             await self.app(scope, receive, send)
             return
         headers = {k.decode("latin-1").lower(): v.decode("latin-1") for k, v in scope["headers"]}
-        problem = self.problem(scope, headers)
+        problem, from_query = self.problem(scope, headers)
         if problem is None:
+            if from_query and scope["type"] == "http" and self.config.token is not None:
+                send = self._with_cookie(send, self.config.token)
             await self.app(scope, receive, send)
             return
         if scope["type"] == "websocket":
             await receive()  # the connect message
             await send({"type": "websocket.close", "code": 1008, "reason": problem[:120]})
             return
-        response = _error((problem.startswith("token") and 401) or 403, problem)
+        response = _error(401 if problem.startswith("token") else 403, problem)
         await response(scope, receive, send)
 
-    def problem(self, scope: Scope, headers: dict[str, str]) -> str | None:
+    def _with_cookie(self, send: Send, token: str) -> Send:
+        cookie = f"{self.COOKIE}={token}; HttpOnly; SameSite=Strict; Path=/".encode()
+
+        async def sending(message: MutableMapping[str, Any]) -> None:
+            if message["type"] == "http.response.start":
+                message["headers"] = [*message.get("headers", []), (b"set-cookie", cookie)]
+            await send(message)
+
+        return sending
+
+    def problem(self, scope: Scope, headers: dict[str, str]) -> tuple[str | None, bool]:
+        """What is wrong with the request (None: nothing), and whether its token came in
+        the query string."""
         host = headers.get("host", "")
         name = host.rsplit(":", 1)[0] if not host.endswith("]") else host
         if self.config.hosts and name not in self.config.hosts and host not in self.config.hosts:
-            return f"host {host!r} is not this panel's"
+            return f"host {host!r} is not this panel's", False
         origin = headers.get("origin")
-        if scope["type"] == "websocket" and origin is not None:
-            origin_host = origin.split("://", 1)[-1]
-            if origin_host != host:
-                return f"origin {origin!r} is not this panel's page"
+        if scope["type"] == "websocket" and origin and origin.split("://", 1)[-1] != host:
+            return f"origin {origin!r} is not this panel's page", False
         token = self.config.token
         if token is None:
-            return None
+            return None, False
+        from http.cookies import SimpleCookie
+        from urllib.parse import parse_qs
+
         given = headers.get("authorization", "")
         given = given[7:] if given.lower().startswith("bearer ") else ""
+        from_query = False
         if not given:
-            query = scope.get("query_string", b"").decode("latin-1")
-            for part in query.split("&"):
-                key, _, value = part.partition("=")
-                if key == "token":
-                    from urllib.parse import unquote
-
-                    given = unquote(value)
+            query = parse_qs(scope.get("query_string", b"").decode("latin-1"))
+            if query.get("token"):
+                given, from_query = query["token"][0], True
+        if not given and "cookie" in headers:
+            cookies: SimpleCookie = SimpleCookie()
+            with contextlib.suppress(Exception):
+                cookies.load(headers["cookie"])
+            if self.COOKIE in cookies:
+                given = cookies[self.COOKIE].value
         if not given or not hmac.compare_digest(given.encode(), token.encode()):
-            return "token missing or wrong: open the URL the panel printed (it has ?token=...)"
-        return None
+            return (
+                "token missing or wrong: open the URL the panel printed (it has ?token=...)",
+                False,
+            )
+        return None, from_query
 
 
 def create_app(config: PanelConfig) -> Starlette:

@@ -27,6 +27,7 @@ let engagement = null;       // {x: [], f: [], ff: []} of the engagement under w
 let lastStage = null;
 let dirty = true;
 let socket = null;
+window.panelStats = { frames: 0, rows: 0, lost: 0 };   // what this page received (benchmarks)
 
 // -- the API ------------------------------------------------------------------------------------
 function withToken(url) {
@@ -325,6 +326,9 @@ function connect() {
   socket = new WebSocket(withToken(url.toString()));
   socket.onmessage = (m) => {
     const msg = JSON.parse(m.data);
+    window.panelStats.frames += 1;
+    if (msg.columns && msg.columns.time_s) window.panelStats.rows += msg.columns.time_s.length;
+    if (msg.lost) window.panelStats.lost += msg.lost;
     if (msg.session) setSession(msg.session);
     else if (msg.state && msg.state !== session.state) setSession({ ...session, state: msg.state });
     if (msg.columns) append(msg.columns);
