@@ -211,12 +211,13 @@ def test_a_panel_with_a_token_serves_its_page_to_its_url_only(tmp_path: Path) ->
     with serving(tmp_path, "--token", "a-long-secret") as url, sync_playwright() as p:
         assert url.endswith("/?token=a-long-secret")
         browser = p.chromium.launch(executable_path=str(CHROMIUM), args=ARGS, headless=True)
+        refused = browser.new_page()
+        assert refused.goto(url.split("?")[0]).status == 401  # without the token
+        refused.close()
         tab = browser.new_page()
         problems: list[str] = []
         tab.on("console", lambda m: problems.append(m.text) if m.type == "error" else None)
         tab.on("pageerror", lambda e: problems.append(str(e)))
-        assert tab.goto(url.split("?")[0]).status == 401  # without the token
-        problems.clear()  # chromium logs that refusal as a console error
         tab.goto(url)
         tab.wait_for_function("document.querySelectorAll('#model option').length === 3")
         tab.wait_for_function("window.panelStats.frames > 0")  # the stream connected
