@@ -50,26 +50,76 @@ uvicorn.Server(uvicorn.Config(app, log_level="warning", ws_ping_interval=None)).
 """
 
 
-def _reference(seconds: float, queue: Any) -> None:
+def _reference(seconds: float, hand: str, queue: Any) -> None:
     from carfeel.panel.worker import raise_priority
     from carfeel.realtime.session import RealtimeRun, run_realtime
 
     os.sched_setaffinity(0, {LOOP_CPU})
     priority = raise_priority()
     result = run_realtime(
-        RealtimeRun(model="hpattern", duration_s=seconds, sequence=SEQUENCE, calibrate=False)
+        RealtimeRun(
+            model="hpattern", duration_s=seconds, sequence=SEQUENCE, calibrate=False, hand=hand
+        )
     )
     queue.put((result.as_dict(), priority))
 
 
-def reference(seconds: float) -> dict[str, Any]:
+def reference(seconds: float, hand: str) -> dict[str, Any]:
     ctx = multiprocessing.get_context("spawn")
     queue = ctx.Queue()
-    process = ctx.Process(target=_reference, args=(seconds, queue))
+    process = ctx.Process(target=_reference, args=(seconds, hand, queue))
     process.start()
     summary, priority = queue.get(timeout=seconds + 120)
     process.join()
     return summary | {"priority": priority}
+
+
+class _Timed:
+    """Times the loop between its first and its last tick (process time), doing nothing else;
+    wraps the panel's observer when given one."""
+
+    def __init__(self, inner: Any = None) -> None:
+        self.inner, self.first, self.last, self.ticks = inner, 0.0, 0.0, 0
+
+    def prepare(self, parts: Any) -> None:
+        if self.inner is not None:
+            self.inner.prepare(parts)
+
+    def started(self, chain: Any) -> None:
+        if self.inner is not None:
+            self.inner.started(chain)
+
+    def tick(self, row: tuple[object, ...]) -> bool:
+        now = time.process_time()
+        if not self.ticks:
+            self.first = now
+        self.last, self.ticks = now, self.ticks + 1
+        return bool(self.inner.tick(row)) if self.inner is not None else False
+
+
+def observer_cost(seconds: float) -> tuple[float, float]:
+    """CPU per tick of the loop without and with the panel's observer writing the ring (same
+    process, simulated clock, hand none: the loop's own work and nothing else), us; the best
+    of two runs each, interleaved."""
+    from carfeel.panel import ring
+    from carfeel.panel.worker import Observer
+    from carfeel.realtime.session import RealtimeRun, run_realtime
+
+    run = RealtimeRun(model="hpattern", duration_s=seconds, clock="simulated", hand="none",
+                      calibrate=False)  # fmt: skip
+    costs: dict[bool, list[float]] = {False: [], True: []}
+    for watched in (False, True, False, True):
+        shm = ring.create()
+        inner = Observer(shm, None, None) if watched else None
+        timed = _Timed(inner)
+        run_realtime(run, observer=timed)
+        costs[watched].append((timed.last - timed.first) / (timed.ticks - 1) * 1e6)
+        if inner is not None:
+            inner.close()
+        else:
+            shm.close()
+        shm.unlink()
+    return min(costs[False]), min(costs[True])
 
 
 def _call(port: int, method: str, path: str, body: object = None) -> dict[str, Any]:
@@ -87,11 +137,11 @@ def stalled_client(port: int) -> socket.socket:
     sock = socket.create_connection(("127.0.0.1", port))
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
     key = base64.b64encode(os.urandom(16)).decode()
-    sock.sendall(
+    request = (
         f"GET /api/stream HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\n"
-        f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n\r\n"
-        .encode()
+        f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n"
     )
+    sock.sendall(request.encode() + b"\r\n")
     answer = b""
     while b"\r\n\r\n" not in answer:
         answer += sock.recv(1)
@@ -100,7 +150,9 @@ def stalled_client(port: int) -> socket.socket:
     return sock
 
 
-def panel_session(port: int, seconds: float, client: str, browser: Any) -> dict[str, Any]:
+def panel_session(
+    port: int, seconds: float, hand: str, client: str, browser: Any
+) -> dict[str, Any]:
     """One session through the panel while `client` ("browser" or "stalled") watches."""
     page = stalled = None
     if client == "browser":
@@ -111,7 +163,7 @@ def panel_session(port: int, seconds: float, client: str, browser: Any) -> dict[
         stalled = stalled_client(port)
     _call(port, "POST", "/api/session", {
         "model": "hpattern", "duration_s": seconds, "sequence": ",".join(SEQUENCE),
-        "calibrate": False, "force": True,
+        "calibrate": False, "hand": hand, "force": True,
     })  # fmt: skip
     deadline = time.monotonic() + seconds + 120
     session = _call(port, "GET", "/api/session")
@@ -141,6 +193,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=15.0)
     parser.add_argument("--repeats", type=int, default=2)
+    parser.add_argument("--hand", choices=("none", "script"), default="none",
+                        help="the virtual hand: none (default: the loop's own cost) or script "
+                        "(its 10 kHz plant and driver cost about 1 ms a tick on a loaded "
+                        "2-core VM, and its stalls end runs)")  # fmt: skip
     args = parser.parse_args()
     try:
         from playwright.sync_api import sync_playwright
@@ -152,15 +208,18 @@ def main() -> None:
     print(
         f"CPython {platform.python_version()}, {os.cpu_count()} cores; loops pinned to core "
         f"{LOOP_CPU}, this script, the panel's server and chromium to core {PANEL_CPU}; "
-        f"{args.seconds:g} s per run; load average {os.getloadavg()[0]:.1f}"
+        f"{args.seconds:g} s per run, hand {args.hand}; load average {os.getloadavg()[0]:.1f}"
+    )
+    plain, watched = observer_cost(5.0)
+    print(
+        f"CPU per tick, simulated clock, hand none, best of two: the loop {plain:.1f} us, with "
+        f"the panel's observer writing the ring {watched:.1f} us (+{watched - plain:.1f} us)"
     )
     folder = Path(tempfile.mkdtemp(prefix="bench-panel-"))
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
         port = probe.getsockname()[1]
-    server = subprocess.Popen(
-        [sys.executable, "-c", SERVER, str(folder), str(port), str(LOOP_CPU)]
-    )
+    server = subprocess.Popen([sys.executable, "-c", SERVER, str(folder), str(port), str(LOOP_CPU)])
     try:
         for _ in range(200):
             try:
@@ -172,14 +231,19 @@ def main() -> None:
         with sync_playwright() as p:
             browser = p.chromium.launch(executable_path=CHROMIUM, args=ARGS, headless=True)
             for k in range(args.repeats):
-                results["ref"].append(reference(args.seconds))
+                results["ref"].append(reference(args.seconds, args.hand))
                 describe(f"[{k + 1}] reference (carfeel run)", results["ref"][-1])
-                results["browser"].append(panel_session(port, args.seconds, "browser", browser))
+                results["browser"].append(
+                    panel_session(port, args.seconds, args.hand, "browser", browser)
+                )
                 describe(f"[{k + 1}] panel + headless chromium", results["browser"][-1])
-                results["stalled"].append(panel_session(port, args.seconds, "stalled", browser))
+                results["stalled"].append(
+                    panel_session(port, args.seconds, args.hand, "stalled", browser)
+                )
                 describe(f"[{k + 1}] panel + a stalled client", results["stalled"][-1])
             browser.close()
-        print(f"loop priority: {results['ref'][0]['priority']}")
+        print(f"loop priority: {results['ref'][0]['priority']}; load average now "
+              f"{os.getloadavg()[0]:.1f}")  # fmt: skip
         for run in results["browser"]:
             c = run["client"]
             print(

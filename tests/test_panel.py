@@ -402,3 +402,38 @@ def _alive(pid: int) -> bool:
             return f.read().split(") ")[-1].split()[0] != "Z"
     except OSError:
         return False
+
+
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        (["--port", "70000"], "--port 70000: allowed 0 .. 65535"),
+        (["--host", "my laptop"], "--host 'my laptop': give an IP address"),
+        (["--token", "short"], "--token: at least 8 printable characters"),
+        (["--dir", "{file}"], "it is a file, not a folder"),
+        (["--dir", "{missing}/panel"], "does not exist"),
+    ],
+)
+def test_carfeel_panel_refuses_bad_options(tmp_path, capsys, options, message):
+    from carfeel.cli import main
+
+    (tmp_path / "a-file").write_text("")
+    paths = {"file": str(tmp_path / "a-file"), "missing": str(tmp_path / "nowhere")}
+    assert main(["panel", *(o.format(**paths) for o in options)]) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_carfeel_panel_refuses_a_port_in_use(tmp_path, capsys):
+    import socket
+
+    from carfeel.cli import main
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen(1)
+        port = taken.getsockname()[1]
+        assert main(["panel", "--port", str(port), "--dir", str(tmp_path / "p")]) == 2
+    err = capsys.readouterr().err
+    assert f"cannot listen on 127.0.0.1:{port}" in err and "choose another --port" in err
+    assert "Traceback" not in err
+    assert not (tmp_path / "p").exists()  # nothing created by a run that could not start

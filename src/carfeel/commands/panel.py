@@ -76,6 +76,7 @@ def _handle(args: argparse.Namespace) -> int:
             f"carfeel panel needs the extra carfeel[panel] ({exc.name} is missing): "
             "pip install 'carfeel[panel]'"
         ) from None
+    sock = listen(args.host, args.port)  # before anything is created: a port in use is exit 2
     folder.mkdir(exist_ok=True)
     hosts: tuple[str, ...] = ("127.0.0.1", "localhost", "[::1]")
     if args.host not in LOCAL:
@@ -84,7 +85,6 @@ def _handle(args: argparse.Namespace) -> int:
     config = uvicorn.Config(app, host=args.host, port=args.port, log_level="warning",
                             timeout_graceful_shutdown=5, ws_ping_interval=None)  # fmt: skip
     server = uvicorn.Server(config)
-    sock = listen(args.host, args.port)
     port = sock.getsockname()[1]
     url_host = "127.0.0.1" if args.host in ("0.0.0.0", "::") else args.host
     if ":" in url_host:

@@ -126,6 +126,8 @@ class Session:
         self.events: deque[dict[str, Any]] = deque(maxlen=200)
         self.faults: list[str] = []
         self.recording: str | None = None
+        self.engaged: list[str] = []
+        """Every gear engaged so far, in order (the loop's own list, one event per gear)."""
         self.tuning_history: list[dict[str, Any]] = []
         self.shm = ring.create()
         self.side = ring.PanelSide(self.shm)
@@ -222,6 +224,10 @@ class Session:
         elif kind == "vocabulary":
             self.vocabulary[event[1]] = event[2]
             return
+        elif kind == "engaged":
+            self.engaged.extend(event[1])
+            self.changed.set()
+            return
         elif kind == "tuning":
             record |= {"changes": event[1], "time_s": event[2]}
         elif kind == "tuned":
@@ -303,6 +309,7 @@ class Session:
             "text": self.text,
             "faults": self.faults,
             "recording": Path(self.recording).name if self.recording else None,
+            "engaged": self.engaged,
             "columns": list(self.columns),
             "events": list(self.events)[-30:],
             "health": self.health,

@@ -64,12 +64,15 @@ class Observer:
         self._threads: list[threading.Thread] = []
         self._faults = 0
         self.priority = ""
+        self.gears: list[str] | None = None
+        self._engaged = 0
 
     # -- the session's hooks ---------------------------------------------------------------
     def prepare(self, parts: Any) -> None:
         self.parts = parts
         renderer = parts.renderer
         self.renderer = getattr(renderer, "inner", renderer)  # telemetry wraps the model's
+        self.gears = getattr(self.renderer, "gears", None)
         self.model = str(parts.metadata["model"])
         self.rate_hz = float(parts.metadata["rate_hz"])
         self.side = ring.LoopSide(self.shm, len(parts.columns))
@@ -94,6 +97,10 @@ class Observer:
                 self._take_opened()
             elif len(self._opening) > MAX_PENDING_ROWS:
                 del self._opening[0]
+        gears = self.gears
+        if gears is not None and len(gears) != self._engaged:
+            side.event(("engaged", list(gears[self._engaged :]), self.time_s))
+            self._engaged = len(gears)
         if self.ramps:
             ramp = self.ramps[0]
             was = ramp.started

@@ -22,7 +22,6 @@ const TERM_LABELS = {
 let options = null;
 let session = { state: "idle" };
 let buf = {};
-let engaged = [];            // every gear engaged in this session, in order
 let engagement = null;       // {x: [], f: [], ff: []} of the engagement under way (or the last)
 let lastStage = null;
 let dirty = true;
@@ -103,7 +102,7 @@ async function start() {
   $("start").disabled = true;
   try {
     const s = await api("POST", "api/session", startBody());
-    buf = {}; engagement = null; lastStage = null; engaged = [];
+    buf = {}; engagement = null; lastStage = null;
     setSession(s);
     say("start-msg", "running: " + s.model + " on " + (s.device ? s.device.name : s.run.device));
   } catch (e) {
@@ -246,7 +245,8 @@ function setSession(s) {
   pill.textContent = (s.state || "idle").toUpperCase();
   pill.className = "pill " + (s.state || "idle");
   if (s.device) {
-    $("where").textContent = `${s.model} on ${s.device.name}, ${s.run.mode || "impedance"}, ${fmt(s.rate_hz)} Hz`;
+    const clock = s.run.clock === "simulated" ? "simulated clock" : "wall clock";
+    $("where").textContent = `${s.model} · ${s.device.name} · ${s.run.mode || "impedance"} · ${fmt(s.rate_hz)} Hz · ${clock}`;
   }
   const steering = s.model === "steering";
   $("gearbox-views").classList.toggle("hidden", steering);
@@ -296,7 +296,6 @@ function append(columns) {
     for (const v of values) b.push(v);
     if (b.length > KEEP) b.splice(0, b.length - KEEP);
   }
-  for (const e of columns.event || []) if (e && e.startsWith("engage ")) engaged.push(e.slice(7));
   trackEngagement(columns, n);
   dirty = true;
 }
@@ -386,12 +385,12 @@ function frame(ctx, w, h, spec) {
   ctx.font = "12px DejaVu Sans, sans-serif";
   ctx.strokeStyle = "#2a3440"; ctx.fillStyle = "#8b98a5"; ctx.lineWidth = 1;
   ctx.textAlign = "center"; ctx.textBaseline = "top";
-  for (const v of niceTicks(x0, x1, Math.max(2, Math.floor(pw / 80)))) {
+  for (const v of niceTicks(x0, x1, Math.max(4, Math.floor(pw / 70)))) {
     ctx.beginPath(); ctx.moveTo(X(v), m.t); ctx.lineTo(X(v), m.t + ph); ctx.stroke();
     ctx.fillText(fmt(v), X(v), m.t + ph + 4);
   }
   ctx.textAlign = "right"; ctx.textBaseline = "middle";
-  for (const v of niceTicks(y0, y1, Math.max(3, Math.floor(ph / 40)))) {
+  for (const v of niceTicks(y0, y1, Math.max(4, Math.floor(ph / 35)))) {
     ctx.beginPath(); ctx.moveTo(m.l, Y(v)); ctx.lineTo(m.l + pw, Y(v)); ctx.stroke();
     ctx.fillText(fmt(v), m.l - 6, Y(v));
   }
@@ -476,7 +475,7 @@ function drawGearbox() {
   $("gear").classList.toggle("neutral", !gear || gear === "N");
   $("stage").textContent = stage ? stage.replace("_", " ") : "–";
   $("stage").style.background = STAGE_COLORS[stage] || "transparent";
-  const list = session.summary && session.summary.gears ? session.summary.gears : engaged;
+  const list = session.engaged || [];
   $("gears").textContent = list.length ? (list.length > 16 ? "… " : "") + list.slice(-16).join(" ") : "–";
   $("gears").dataset.count = list.length;
   $("gears-count").textContent = list.length ? `(${list.length})` : "";
@@ -499,7 +498,7 @@ function drawEngagement() {
     for (const [name, label, color] of [["synchronization_position_m", "ring", STAGE_COLORS.synchronization], ["teeth_position_m", "teeth", STAGE_COLORS.engagement], ["in_gear_position_m", "in gear", STAGE_COLORS.in_gear]]) {
       const x = f.X(g[name] * 1e3);
       ctx.strokeStyle = color; ctx.beginPath(); ctx.moveTo(x, f.m.t); ctx.lineTo(x, f.m.t + f.ph); ctx.stroke();
-      ctx.fillStyle = color; ctx.textAlign = "center"; ctx.textBaseline = "top"; ctx.fillText(label, x, f.m.t + 22);
+      ctx.fillStyle = color; ctx.textAlign = "center"; ctx.textBaseline = "bottom"; ctx.fillText(label, x, f.m.t + f.ph - 4);
     }
     ctx.setLineDash([]);
   }
@@ -526,7 +525,7 @@ function drawPattern() {
   for (const gear of L.gears) {
     const y = planes[gear.plane], d = gear.direction;
     const [x0, y0] = P(d > 0 ? xmax : -cw / 2, y - sw / 2), [x1, y1] = P(d > 0 ? cw / 2 : -xmax, y + sw / 2);
-    ctx.fillStyle = gear.name === engaged ? "#12324f" : "#0b1015";
+    ctx.fillStyle = gear.name === engaged ? "#1b4a75" : "#0b1015";
     ctx.fillRect(x0, y0, x1 - x0, y1 - y0);
     // ring, teeth and in-gear marks across the slot
     for (const [pos, color] of [[g.synchronization_position_m, STAGE_COLORS.synchronization], [g.teeth_position_m, STAGE_COLORS.engagement], [g.in_gear_position_m, STAGE_COLORS.in_gear]]) {
@@ -681,7 +680,17 @@ function draw() {
   requestAnimationFrame(draw);
 }
 
+function stageLegend() {
+  const box = $("stage-legend");
+  for (const [name, color] of Object.entries(STAGE_COLORS)) {
+    const chip = document.createElement("span");
+    chip.innerHTML = `<i style="background:${color}"></i>${name.replace("_", " ")}`;
+    box.appendChild(chip);
+  }
+}
+
 // -- start --------------------------------------------------------------------------------------
+stageLegend();
 $("model").onchange = modelChanged;
 $("device").onchange = () => $("device-custom-row").classList.toggle("hidden", $("device").value !== "other...");
 $("start").onclick = start;
