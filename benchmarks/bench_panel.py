@@ -71,7 +71,8 @@ def reference(seconds: float, hand: str) -> dict[str, Any]:
     process.start()
     summary, priority = queue.get(timeout=seconds + 120)
     process.join()
-    return summary | {"priority": priority}
+    out: dict[str, Any] = {**summary, "priority": priority}
+    return out
 
 
 class _Timed:
