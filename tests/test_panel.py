@@ -80,6 +80,7 @@ def synchronization_runs(path: Path) -> list[tuple[float, float]]:
 
 
 def test_a_session_streams_tunes_records_and_stops(tmp_path):
+    before = panel_segments()
     with client_for(tmp_path) as client:
         assert client.get("/api/session").json() == {"state": "idle"}
         options = client.get("/api/options").json()
@@ -178,10 +179,12 @@ def test_a_session_streams_tunes_records_and_stops(tmp_path):
         ended = wait_for(client, lambda s: s["state"] == "ended", what="the end")
         assert ended["summary"]["stopped"] == "stopped" and not ended["faults"]
         assert {"1", "2", "3", "4"} <= set(ended["summary"]["gears"])
-    # The panel's end unlinks its shared memory.
-    assert not list(Path("/dev/shm").glob("psm_*")) or all(
-        not _is_panel_segment(p) for p in Path("/dev/shm").glob("psm_*")
-    )
+    # The panel's end unlinks its shared memory (segments of other panels may exist).
+    assert panel_segments() <= before
+
+
+def panel_segments() -> set[Path]:
+    return {p for p in Path("/dev/shm").glob("psm_*") if _is_panel_segment(p)}
 
 
 def _is_panel_segment(path: Path) -> bool:
@@ -437,3 +440,49 @@ def test_carfeel_panel_refuses_a_port_in_use(tmp_path, capsys):
     assert f"cannot listen on 127.0.0.1:{port}" in err and "choose another --port" in err
     assert "Traceback" not in err
     assert not (tmp_path / "p").exists()  # nothing created by a run that could not start
+
+
+def test_the_panel_stops_promptly_with_a_stream_open_and_a_session_running(tmp_path):
+    """SIGTERM to `carfeel panel` while a WebSocket client is connected (and reads nothing)
+    and a session runs: uvicorn's shutdown must not wait on the stream, and the loop's
+    process is stopped through its fade, not left behind."""
+    import re
+
+    from websockets.sync.client import connect
+
+    before = panel_segments()
+    process = subprocess.Popen(
+        [sys.executable, "-m", "carfeel.cli", "panel", "--port", "0", "--dir", str(tmp_path)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        line = process.stdout.readline() if process.stdout else ""
+        match = re.search(r"http://([\d.]+:\d+)/", line)
+        assert match, line
+        address = match.group(1)
+        import urllib.request
+
+        request = urllib.request.Request(
+            f"http://{address}/api/session", method="POST", headers=JSON,
+            data=json.dumps({"model": "hpattern", "clock": "simulated", "duration_s": 3600,
+                             "sequence": SEQUENCE, "force": True}).encode(),
+        )  # fmt: skip
+        with urllib.request.urlopen(request, timeout=180) as answer:
+            session = json.load(answer)
+        loop_pid = session["loop_process"]["pid"]
+        with connect(f"ws://{address}/api/stream") as ws:
+            ws.recv(timeout=30)
+            process.send_signal(signal.SIGTERM)
+            process.wait(timeout=20)  # raises if the shutdown hangs
+        # uvicorn shuts down gracefully, then re-raises the signal (the shell's 143).
+        assert process.returncode == -signal.SIGTERM, (
+            process.stderr.read() if process.stderr else ""
+        )
+        deadline = time.monotonic() + 10
+        while _alive(loop_pid) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not _alive(loop_pid), "the loop's process outlived the panel"
+    finally:
+        if process.poll() is None:
+            process.kill()
+    assert panel_segments() <= before  # this panel's segment is gone

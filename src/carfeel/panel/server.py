@@ -55,7 +55,8 @@ MAX_FRAME_ROWS = 2000
 """A client that falls further behind than this (2 s at 1 kHz) skips to the newest rows."""
 STRING_COLUMNS = ("region", "gear", "event", "stage")
 NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,79}$")
-START_TIMEOUT_S = 60.0
+START_TIMEOUT_S = 180.0
+"""Spawn, imports and the sizing: seconds on a quiet machine, a minute on a loaded one."""
 STOP_TIMEOUT_S = 10.0
 KINDS = {"shift": "shift", "hpattern": "hpattern", "steering": "steering"}
 
@@ -539,7 +540,7 @@ class Panel:
                 session.pump()
             if session.state == "starting":
                 session.stop()
-                raise InputError("the loop's process did not start within a minute")
+                raise InputError(f"the loop's process did not start within {START_TIMEOUT_S:g} s")
             if session.state == "failed":
                 raise InputError(session.error or "the session could not start")
             return session
