@@ -415,6 +415,7 @@ def _alive(pid: int) -> bool:
         (["--token", "short"], "--token: at least 8 printable characters"),
         (["--dir", "{file}"], "it is a file, not a folder"),
         (["--dir", "{missing}/panel"], "does not exist"),
+        (["--loop-cpu", "4096"], "--loop-cpu 4096: this machine has cores 0 .."),
     ],
 )
 def test_carfeel_panel_refuses_bad_options(tmp_path, capsys, options, message):

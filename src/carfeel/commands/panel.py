@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import ipaddress
+import os
 import secrets
 import socket
 from pathlib import Path
@@ -37,6 +38,10 @@ def register(commands: Any) -> None:
                        help="where recordings and saved presets go (default ./carfeel-panel); "
                        "no file name given on the page leaves it")  # fmt: skip
     panel.add_argument("--open", action="store_true", help="open the page in the browser")
+    panel.add_argument("--loop-cpu", type=int, default=None, metavar="N",
+                       help="pin the loop's process to core N (Linux); run the panel and the "
+                       "browser on the others (taskset -c ...) so that they cannot take its "
+                       "time")  # fmt: skip
     panel.set_defaults(handler=_handle)
 
 
@@ -57,6 +62,12 @@ def check(args: argparse.Namespace) -> tuple[str | None, Path]:
         raise InputError("--token: at least 8 printable characters, no spaces")
     if token is None and host not in LOCAL:
         token = secrets.token_urlsafe(18)
+    cores = os.cpu_count() or 1
+    if args.loop_cpu is not None:
+        if not hasattr(os, "sched_setaffinity"):
+            raise InputError("--loop-cpu: this system cannot pin a process to a core")
+        if not 0 <= args.loop_cpu < cores:
+            raise InputError(f"--loop-cpu {args.loop_cpu}: this machine has cores 0 .. {cores - 1}")
     folder = Path(args.dir)
     if folder.exists() and not folder.is_dir():
         raise InputError(f"--dir {folder}: it is a file, not a folder")
@@ -81,7 +92,7 @@ def _handle(args: argparse.Namespace) -> int:
     hosts: tuple[str, ...] = ("127.0.0.1", "localhost", "[::1]")
     if args.host not in LOCAL:
         hosts = ()  # reached by whatever name the network gives it; the token guards it
-    app = create_app(PanelConfig(folder=folder, token=token, hosts=hosts))
+    app = create_app(PanelConfig(folder=folder, token=token, hosts=hosts, loop_cpu=args.loop_cpu))
     config = uvicorn.Config(app, host=args.host, port=args.port, log_level="warning",
                             timeout_graceful_shutdown=5, ws_ping_interval=None)  # fmt: skip
     server = uvicorn.Server(config)
