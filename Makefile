@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 OUT ?= carfeel-demo
 
-.PHONY: demo test lint bench mutate clean
+.PHONY: demo test lint bench mutate clean chromium
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -16,7 +16,7 @@ $(VENV)/.installed: pyproject.toml | $(BIN)/python
 	touch $@
 
 $(VENV)/.installed-test: pyproject.toml | $(BIN)/python
-	$(BIN)/python -m pip install --quiet -e '.[test,logs,batch,fmu]'
+	$(BIN)/python -m pip install --quiet -e '.[test,logs,batch,fmu,panel]'
 	touch $(VENV)/.installed $@
 
 demo: $(VENV)/.installed
@@ -27,7 +27,16 @@ lint: $(VENV)/.installed-test
 	$(BIN)/ruff format --check src tests benchmarks
 	$(BIN)/mypy
 
-test: lint
+# The panel's browser tests drive Debian's chromium (Playwright cannot download a browser here).
+CHROMIUM ?= /usr/bin/chromium
+chromium:
+	@if [ ! -x $(CHROMIUM) ]; then \
+		if [ "$$(id -u)" = 0 ]; then apt-get update -qq && apt-get install -y -qq chromium; \
+		else echo "make: $(CHROMIUM) is missing and this is not root: the panel's browser tests" \
+			"will be skipped (as root: apt-get install chromium)"; fi; \
+	fi
+
+test: lint chromium
 	command -v cc >/dev/null || (apt-get update && apt-get install -y gcc)  # FMU export's compiler
 	$(BIN)/python -m pytest
 
@@ -43,6 +52,7 @@ bench: $(VENV)/.installed-test
 	$(BIN)/python benchmarks/bench_physical_fit.py
 	$(BIN)/python benchmarks/bench_sweep.py
 	$(BIN)/python benchmarks/bench_fmu.py
+	$(BIN)/python benchmarks/bench_panel.py
 
 # Mutation testing (mutmut) of the models, the rendering and the safety chain ([tool.mutmut] in
 # pyproject.toml); MUTANTS="carfeel.realtime.safety*" narrows it. Hours on two cores for all of

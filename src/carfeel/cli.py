@@ -21,6 +21,7 @@ from carfeel.commands import (
     export,
     identify,
     metrics,
+    panel,
     presets,
     run,
     simulate,
@@ -61,7 +62,7 @@ def build_parser() -> argparse.ArgumentParser:
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
     families = (demo, simulate, metrics, run, identify, channels, devices, presets, telemetry,
-                sweep, export)  # fmt: skip
+                sweep, export, panel)  # fmt: skip
     for family in families:
         family.register(commands)
     return parser

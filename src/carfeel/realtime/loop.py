@@ -14,6 +14,7 @@ import gc
 import math
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
+from typing import Protocol
 
 from carfeel.realtime.clock import Clock
 from carfeel.realtime.devices.base import Device, DeviceLost
@@ -69,6 +70,28 @@ class LoopSummary:
 
     def as_dict(self) -> dict[str, object]:
         return asdict(self)
+
+
+@dataclass(frozen=True, slots=True)
+class SafetyChain:
+    """The loop's safety chain, for an observer to read between ticks (never to change)."""
+
+    limiter: ForceLimiter
+    watchdog: Watchdog
+    guard: OscillationGuard | None
+    passivity: PassivityController | None
+
+
+class LoopObserver(Protocol):
+    """Watches a run from the loop's own thread (a live panel), at a bounded cost per tick.
+
+    `started` is called once, before the start-up pulses; `tick` after every command with the
+    row a recorder gets (the fade at the end included). `tick` returning True asks the loop to
+    stop, through the same fade as a stop request."""
+
+    def started(self, chain: SafetyChain) -> None: ...
+
+    def tick(self, row: tuple[object, ...]) -> bool: ...
 
 
 def _percentile(sorted_values: list[float], fraction: float) -> float:
@@ -132,8 +155,10 @@ def run_loop(
     limits: SafetyLimits,
     recorder: Recorder | None = None,
     should_stop: Callable[[], bool] = lambda: False,
+    observer: LoopObserver | None = None,
 ) -> LoopSummary:
-    """Run until the duration ends, `should_stop()` says so, or a fault has faded out.
+    """Run until the duration ends, `should_stop()` (or the observer) says so, or a fault has
+    faded out.
 
     The device is commanded to zero force before this returns, whatever happened.
     """
@@ -170,6 +195,9 @@ def run_loop(
     stopped = "duration"
     polarity = [1.0] * axes
     frozen = False
+    asked = False
+    if observer is not None:
+        observer.started(SafetyChain(limiter, watchdog, guard, passivity))
     origin = clock.now_ns()
     try:
         if config.calibrate:
@@ -242,10 +270,12 @@ def run_loop(
                     watchdog.fault(f"{trouble} at t = {t:.3f} s")
             if recorder is not None:
                 recorder.append((t, int(overrun), *safe, int(watchdog.faulted), *row))
+            if observer is not None:
+                asked = observer.tick((t, int(overrun), *safe, int(watchdog.faulted), *row))
             if watchdog.finished:
                 stopped = "fault"
                 break
-            if should_stop():
+            if asked or should_stop():
                 stopped = "stopped"
                 break
         if stopped != "fault":
@@ -261,6 +291,8 @@ def run_loop(
                 device.command(tuple(f * s for f, s in zip(safe, polarity, strict=True)), t)
                 if recorder is not None:
                     recorder.append((t, 0, *safe, int(watchdog.faulted), *blank))
+                if observer is not None:
+                    observer.tick((t, 0, *safe, int(watchdog.faulted), *blank))
     finally:
         if frozen:
             gc.unfreeze()

@@ -141,6 +141,11 @@ class ShiftRenderer:
         self.substeps = 1
         """Model steps per tick (the loop at 1 kHz, the model up to 10 kHz)."""
 
+    def retune(self, gearbox: EngagementParams) -> None:
+        """New gearbox parameters from the next tick on (call between ticks, with validated
+        parameters; a live panel calls it in neutral, blending old into new over a ramp)."""
+        self.gearbox = gearbox
+
     def tick(
         self, sample: DeviceSample, dt_s: float
     ) -> tuple[tuple[float, ...], tuple[object, ...]]:
@@ -222,6 +227,11 @@ class HPatternRenderer:
         self.gears: list[str] = []
         self.substeps = 1
         """Model steps per tick (the loop at 1 kHz, the model up to 10 kHz)."""
+
+    def retune(self, pattern: HPatternParams) -> None:
+        """New gearbox parameters from the next tick on (call between ticks, with validated
+        parameters; a live panel calls it in neutral, blending old into new over a ramp)."""
+        self.pattern = pattern
 
     def _model_xy(self) -> tuple[float, float, float, float]:
         s = self.state
@@ -381,6 +391,20 @@ class SteeringRenderer:
         """(speed m/s, added damping at the device Nm*s/rad), rising speeds."""
         self._scheduled_for = math.nan
         self._spin_rate = self._added = 0.0
+
+    def retune(self, car: SteeringCar, schedule: tuple[tuple[float, float], ...]) -> None:
+        """New car parameters from the next tick on (call between ticks), with the damping
+        `schedule` sized for them (a renderer built with `car` has it); the friction's stick
+        spring follows K7. A live panel blends old into new over a ramp."""
+        self.car, self.schedule = car, schedule
+        fs, ps = self.scaling.force_scale, self.scaling.position_scale
+        level = fs * car.torque.k7_Nm * math.pi / 2.0
+        r = self.rendering
+        self.friction_stiffness = min(
+            level / (r.stick_angle_rad * ps), r.friction_share * self.sizing.stiffness
+        )
+        self.friction_slip = level / self.friction_stiffness if level else 0.0
+        self._scheduled_for = math.nan
 
     def tire_spin_rate(self, speed_m_s: float) -> float:
         """K6, raised where needed so the tire spin's slope at zero rate fits its cap, rad/s."""

@@ -233,6 +233,16 @@ class OscillationGuard:
         self.worst_rms = 0.0
         """Largest smoothed band rms of the command seen, device units (for the summary)."""
 
+    @property
+    def current_rms(self) -> float:
+        """The largest smoothed band rms of the command now, device units (a live view)."""
+        return math.sqrt(max(self._force_ms))
+
+    @property
+    def held_s(self) -> float:
+        """How long the limit-cycle condition has held so far (a fault past hold_s)."""
+        return self._for
+
     def check(
         self, commands: tuple[float, ...], positions: tuple[float, ...], dt_s: float
     ) -> str | None:

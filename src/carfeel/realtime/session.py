@@ -11,7 +11,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 from carfeel import __version__
 from carfeel.errors import InputError
@@ -22,6 +22,7 @@ from carfeel.realtime.loop import (
     CALIBRATION_PULSE_S,
     CALIBRATION_SETTLE_S,
     LoopConfig,
+    LoopObserver,
     LoopSummary,
     run_loop,
 )
@@ -376,9 +377,35 @@ def _refuse_soft(info: DeviceInfo, sizing: Sizing, run: RealtimeRun) -> None:
         )
 
 
-def run_realtime(run: RealtimeRun, announce: Callable[[], None] | None = None) -> RealtimeResult:
+@dataclass(frozen=True, slots=True)
+class RunParts:
+    """What a run is built of, handed to a `SessionObserver` just before the loop starts."""
+
+    renderer: Renderer
+    info: DeviceInfo
+    sizing: Sizing
+    scaling: Scaling
+    limits: SafetyLimits
+    columns: tuple[str, ...]
+    """The rows' columns, as a recording's."""
+    metadata: dict[str, Any]
+    """A recording's sidecar."""
+
+
+class SessionObserver(LoopObserver, Protocol):
+    """A loop observer (a live panel) that is also shown the run's parts before it starts."""
+
+    def prepare(self, parts: RunParts) -> None: ...
+
+
+def run_realtime(
+    run: RealtimeRun,
+    announce: Callable[[], None] | None = None,
+    observer: SessionObserver | None = None,
+) -> RealtimeResult:
     """Render a model on a device at a fixed rate; record and summarize. `announce` is called
-    once everything is checked and the device is open, just before the loop starts."""
+    once everything is checked and the device is open, just before the loop starts; then
+    `observer.prepare`, and the observer watches the loop (`LoopObserver`)."""
     _check(run)
     wheel = run.model == "steering"
     preset_name = run.preset or DEFAULT_PRESETS[run.model]
@@ -395,7 +422,7 @@ def run_realtime(run: RealtimeRun, announce: Callable[[], None] | None = None) -
         receiver = Receiver(Source.parse(run.telemetry))
     try:
         return _run_realtime(run, announce, receiver, preset_name, calibration_s, ready_s, kind,
-                             delay)  # fmt: skip
+                             delay, observer)  # fmt: skip
     finally:
         if receiver is not None:
             receiver.close()
@@ -410,6 +437,7 @@ def _run_realtime(
     ready_s: float,
     kind: str,
     delay: float | None,
+    observer: SessionObserver | None = None,
 ) -> RealtimeResult:
     from carfeel.io.presets import load_hpattern, load_shift, load_steering
     from carfeel.models.drivers.hpattern import Script
@@ -560,11 +588,14 @@ def _run_realtime(
     with _stop_on_signals() as stop, device:
         if announce is not None:
             announce()
+        if observer is not None:
+            observer.prepare(RunParts(renderer, info, sizing, scaling, limits, columns, metadata))
         recorder = Recorder(run.record, columns, metadata) if run.record else None
         try:
             summary = run_loop(
-                renderer, device, clock, config, limits, recorder, should_stop=lambda: bool(stop)
-            )
+                renderer, device, clock, config, limits, recorder, should_stop=lambda: bool(stop),
+                observer=observer,
+            )  # fmt: skip
             if stop and summary.stopped == "stopped":
                 summary.stopped = stop[0]
         finally:

@@ -1,0 +1,266 @@
+"""The 1 kHz loop with the live panel streaming to a headless browser, beside the same loop alone.
+
+Runs, in one run of this script, one after the other (`--repeats` times, interleaved):
+1. reference: the H-pattern on the virtual joystick, wall clock, 1 kHz, in its own process, as
+   `carfeel run` runs it (no observer, no panel);
+2. panel + browser: the same session started through the panel's API, its loop process
+   streaming through the ring to the panel's server, which streams to Debian's chromium
+   (headless, Playwright) showing the page at 30 frames a second;
+3. panel + a stalled client: the same, with a WebSocket client that connects and never reads
+   (a browser tab that hangs): it loses frames, the loop must lose nothing.
+CPU pinning (Linux): every loop process is pinned to core 0 with `os.sched_setaffinity`; this
+script, the panel's server and the browser (children inherit it) to core 1. The loop's
+processes run at the panel's raised priority (nice -10 where allowed) in every case. Other
+sessions on a shared machine are not pinned: compare the rows of one run, not runs.
+    python benchmarks/bench_panel.py [--seconds 15] [--repeats 2]
+Needs carfeel[panel,test] and /usr/bin/chromium. Prints figures; asserts nothing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import base64
+import json
+import multiprocessing
+import os
+import platform
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+import urllib.request
+from pathlib import Path
+from typing import Any
+
+SEQUENCE = ("N", "1", "2", "3", "4", "5", "4", "3", "2", "1") * 20
+LOOP_CPU, PANEL_CPU = 0, 1
+CHROMIUM = "/usr/bin/chromium"
+ARGS = [
+    "--no-sandbox", "--disable-background-networking", "--disable-component-update",
+    "--disable-sync", "--no-first-run", "--disable-quic", "--disable-gpu",
+]  # fmt: skip
+SERVER = """
+import socket, sys, uvicorn
+from pathlib import Path
+from carfeel.panel.server import PanelConfig, create_app
+app = create_app(PanelConfig(folder=Path(sys.argv[1]), loop_cpu=int(sys.argv[3])))
+sock = socket.socket(); sock.bind(("127.0.0.1", int(sys.argv[2]))); sock.listen(16)
+uvicorn.Server(uvicorn.Config(app, log_level="warning", ws_ping_interval=None)).run(sockets=[sock])
+"""
+
+
+def _reference(seconds: float, hand: str, queue: Any) -> None:
+    from carfeel.panel.worker import raise_priority
+    from carfeel.realtime.session import RealtimeRun, run_realtime
+
+    os.sched_setaffinity(0, {LOOP_CPU})
+    priority = raise_priority()
+    result = run_realtime(
+        RealtimeRun(
+            model="hpattern", duration_s=seconds, sequence=SEQUENCE, calibrate=False, hand=hand
+        )
+    )
+    queue.put((result.as_dict(), priority))
+
+
+def reference(seconds: float, hand: str) -> dict[str, Any]:
+    ctx = multiprocessing.get_context("spawn")
+    queue = ctx.Queue()
+    process = ctx.Process(target=_reference, args=(seconds, hand, queue))
+    process.start()
+    summary, priority = queue.get(timeout=seconds + 120)
+    process.join()
+    out: dict[str, Any] = {**summary, "priority": priority}
+    return out
+
+
+class _Timed:
+    """Times the loop between its first and its last tick (process time), doing nothing else;
+    wraps the panel's observer when given one."""
+
+    def __init__(self, inner: Any = None) -> None:
+        self.inner, self.first, self.last, self.ticks = inner, 0.0, 0.0, 0
+
+    def prepare(self, parts: Any) -> None:
+        if self.inner is not None:
+            self.inner.prepare(parts)
+
+    def started(self, chain: Any) -> None:
+        if self.inner is not None:
+            self.inner.started(chain)
+
+    def tick(self, row: tuple[object, ...]) -> bool:
+        now = time.process_time()
+        if not self.ticks:
+            self.first = now
+        self.last, self.ticks = now, self.ticks + 1
+        return bool(self.inner.tick(row)) if self.inner is not None else False
+
+
+def observer_cost(seconds: float) -> tuple[float, float]:
+    """CPU per tick of the loop without and with the panel's observer writing the ring (same
+    process, simulated clock, hand none: the loop's own work and nothing else), us; the best
+    of two runs each, interleaved."""
+    from carfeel.panel import ring
+    from carfeel.panel.worker import Observer
+    from carfeel.realtime.session import RealtimeRun, run_realtime
+
+    run = RealtimeRun(model="hpattern", duration_s=seconds, clock="simulated", hand="none",
+                      calibrate=False)  # fmt: skip
+    costs: dict[bool, list[float]] = {False: [], True: []}
+    for watched in (False, True, False, True):
+        shm = ring.create()
+        inner = Observer(shm, None, None) if watched else None
+        timed = _Timed(inner)
+        run_realtime(run, observer=timed)
+        costs[watched].append((timed.last - timed.first) / (timed.ticks - 1) * 1e6)
+        if inner is not None:
+            inner.close()
+        else:
+            shm.close()
+        shm.unlink()
+    return min(costs[False]), min(costs[True])
+
+
+def _call(port: int, method: str, path: str, body: object = None) -> dict[str, Any]:
+    data = None if body is None else json.dumps(body).encode()
+    request = urllib.request.Request(f"http://127.0.0.1:{port}{path}", data=data, method=method)
+    if data is not None:
+        request.add_header("Content-Type", "application/json")
+    with urllib.request.urlopen(request, timeout=180) as response:
+        answer: dict[str, Any] = json.load(response)
+        return answer
+
+
+def stalled_client(port: int) -> socket.socket:
+    """A WebSocket client that completes the handshake and then never reads a byte."""
+    sock = socket.create_connection(("127.0.0.1", port))
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+    key = base64.b64encode(os.urandom(16)).decode()
+    request = (
+        f"GET /api/stream HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\n"
+        f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n"
+    )
+    sock.sendall(request.encode() + b"\r\n")
+    answer = b""
+    while b"\r\n\r\n" not in answer:
+        answer += sock.recv(1)
+    if b" 101 " not in answer.split(b"\r\n")[0]:
+        raise RuntimeError(f"the panel refused the WebSocket: {answer!r}")
+    return sock
+
+
+def panel_session(
+    port: int, seconds: float, hand: str, client: str, browser: Any
+) -> dict[str, Any]:
+    """One session through the panel while `client` ("browser" or "stalled") watches."""
+    page = stalled = None
+    if client == "browser":
+        page = browser.new_page(viewport={"width": 1920, "height": 1080})
+        page.goto(f"http://127.0.0.1:{port}/")
+        page.wait_for_function("document.querySelectorAll('#model option').length === 3")
+    else:
+        stalled = stalled_client(port)
+    _call(port, "POST", "/api/session", {
+        "model": "hpattern", "duration_s": seconds, "sequence": ",".join(SEQUENCE),
+        "calibrate": False, "hand": hand, "force": True,
+    })  # fmt: skip
+    deadline = time.monotonic() + seconds + 120
+    session = _call(port, "GET", "/api/session")
+    while session["state"] != "ended" and time.monotonic() < deadline:
+        time.sleep(0.5)
+        session = _call(port, "GET", "/api/session")
+    seen = {}
+    if page is not None:
+        seen = page.evaluate("window.panelStats")
+        page.close()
+    if stalled is not None:
+        stalled.close()
+    summary: dict[str, Any] = session.get("summary") or {}
+    return summary | {"client": seen, "priority": session["loop_process"]["priority"]}
+
+
+def describe(label: str, s: dict[str, Any]) -> None:
+    print(
+        f"{label:32s} periods {s['periods']:6d}  overruns {s['overruns']:5d}  period error "
+        f"p50 {s['period_error_p50_us']:7.1f} us  p99 {s['period_error_p99_us']:8.1f} us  max "
+        f"{s['period_error_max_us'] / 1e3:6.1f} ms  faults {len(s['faults'])}  gears "
+        f"{len(s['gears'])}"
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=15.0)
+    parser.add_argument("--repeats", type=int, default=2)
+    parser.add_argument("--hand", choices=("none", "script"), default="none",
+                        help="the virtual hand: none (default: the loop's own cost) or script "
+                        "(its 10 kHz plant and driver cost about 1 ms a tick on a loaded "
+                        "2-core VM, and its stalls end runs)")  # fmt: skip
+    args = parser.parse_args()
+    try:
+        from playwright.sync_api import sync_playwright
+    except ImportError:
+        sys.exit("bench_panel needs Playwright: pip install -e '.[test,panel]'")
+    if not Path(CHROMIUM).exists():
+        sys.exit(f"bench_panel needs {CHROMIUM}: apt-get install chromium")
+    os.sched_setaffinity(0, {PANEL_CPU})  # the server and the browser inherit it
+    print(
+        f"CPython {platform.python_version()}, {os.cpu_count()} cores; loops pinned to core "
+        f"{LOOP_CPU}, this script, the panel's server and chromium to core {PANEL_CPU}; "
+        f"{args.seconds:g} s per run, hand {args.hand}; load average {os.getloadavg()[0]:.1f}"
+    )
+    plain, watched = observer_cost(5.0)
+    print(
+        f"CPU per tick, simulated clock, hand none, best of two: the loop {plain:.1f} us, with "
+        f"the panel's observer writing the ring {watched:.1f} us (+{watched - plain:.1f} us)"
+    )
+    folder = Path(tempfile.mkdtemp(prefix="bench-panel-"))
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    server = subprocess.Popen([sys.executable, "-c", SERVER, str(folder), str(port), str(LOOP_CPU)])
+    try:
+        for _ in range(200):
+            try:
+                _call(port, "GET", "/api/options")
+                break
+            except OSError:
+                time.sleep(0.1)
+        results: dict[str, list[dict[str, Any]]] = {"ref": [], "browser": [], "stalled": []}
+        with sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=CHROMIUM, args=ARGS, headless=True)
+            for k in range(args.repeats):
+                results["ref"].append(reference(args.seconds, args.hand))
+                describe(f"[{k + 1}] reference (carfeel run)", results["ref"][-1])
+                results["browser"].append(
+                    panel_session(port, args.seconds, args.hand, "browser", browser)
+                )
+                describe(f"[{k + 1}] panel + headless chromium", results["browser"][-1])
+                results["stalled"].append(
+                    panel_session(port, args.seconds, args.hand, "stalled", browser)
+                )
+                describe(f"[{k + 1}] panel + a stalled client", results["stalled"][-1])
+            browser.close()
+        print(f"loop priority: {results['ref'][0]['priority']}; load average now "
+              f"{os.getloadavg()[0]:.1f}")  # fmt: skip
+        for run in results["browser"]:
+            c = run["client"]
+            print(
+                f"the page received {c.get('frames')} frames, {c.get('rows')} rows "
+                f"({c.get('lost')} skipped by the server to keep it current)"
+            )
+        for label, key in (("overruns", "overruns"), ("p99 us", "period_error_p99_us")):
+            values = {name: [r[key] for r in runs] for name, runs in results.items()}
+            print(
+                f"{label:9s} reference {values['ref']}  browser {values['browser']}  stalled "
+                f"{values['stalled']}"
+            )
+    finally:
+        server.terminate()
+        server.wait(timeout=30)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,355 @@
+"""Live tuning: which parameters a panel may change, how a change is checked, and how it ramps.
+
+A change is checked in the panel's process, never in the loop's: each value against its preset
+range, then the whole preset through the loader's cross-checks (`check_shift`,
+`check_hpattern`, `check_steering`: the walls' sampled-data passivity among them), then what the
+device renders. The gearbox's walls, detents and synchronizer live behind the virtual coupling
+(or the admittance servo), which is sized from the device alone, so the preset's checks are its
+whole check. The steering law is rendered straight onto the wheel: a new K1 changes the on-centre
+spring the wheel feels, K4..K9 its velocity gains; the change is refused when start-up would
+have lowered the torque scale for it (the spring beyond the device's budget) or when the
+released wheel's damping ratio, on the exact discrete-time loop with the device's delays, would
+fall below the sizing's 0.2 (and below what it is now) at any speed of the schedule. Its damping
+schedule is recomputed for the new law by the same code as at start-up.
+
+In the loop a change waits for a safe point and then ramps (`Ramp`): the gearbox's parameters
+change only with the lever in neutral (no engagement under way, no stage holding values drawn
+from the old ones), the steering's at any time; over RAMP_S the changed values are blended
+linearly from old to new. Every blend of two parameter sets that pass the (linear) cross-checks
+passes them too.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from carfeel.errors import InputError
+from carfeel.io.presets import RANGES, describe_range, range_key, unit_of
+
+RAMP_S = 0.2
+"""A tuned value goes from old to new over this long (a step in a rendered force is a knock)."""
+
+
+@dataclass(frozen=True, slots=True)
+class Tunable:
+    path: str
+    """Where it is in the preset's tables (as in its TOML file)."""
+    label: str
+    group: str
+    models: tuple[str, ...]
+    note: str = ""
+
+    @property
+    def unit(self) -> str:
+        return unit_of(self.path.split(".")[-1])
+
+    @property
+    def bounds(self) -> tuple[float, float, bool, bool]:
+        return RANGES[range_key(self.path)]
+
+    def as_dict(self) -> dict[str, Any]:
+        low, high, low_in, high_in = self.bounds
+        return {
+            "path": self.path,
+            "label": self.label,
+            "group": self.group,
+            "unit": self.unit,
+            "min": low,
+            "max": high,
+            "min_included": low_in,
+            "max_included": high_in,
+            "note": self.note,
+        }
+
+
+GEARBOX = ("shift", "hpattern")
+TUNABLES = (
+    Tunable("gearbox.synchronization_duration_s", "synchronization time", "synchronization",
+            GEARBOX, "how long the ring holds the lever while pushed (fixed synchronizer)"),
+    Tunable("gearbox.ring_release_force_N", "synchronization: push to hold the ring",
+            "synchronization", GEARBOX,
+            "the ring lets go below the neutral spring's and detent's push-back plus this"),
+    Tunable("synchronizer.cone_friction", "cone friction (physics synchronizer)",
+            "synchronization", ("hpattern",),
+            "lower: more push for the same synchronization time (a heavier synchro)"),
+    Tunable("gearbox.neutral_detent.seat_force_N", "neutral detent", "detents", GEARBOX),
+    Tunable("gearbox.gear_detent.seat_force_N", "gear detent: suck-in", "detents", GEARBOX),
+    Tunable("gearbox.gear_detent.far_force_N", "gear detent: crest", "detents", GEARBOX),
+    Tunable("select.detent_stiffness_N_m", "plane detents (select)", "detents", ("hpattern",)),
+    Tunable("feel.latch_force_N", "slot latch", "detents", ("hpattern",)),
+    Tunable("walls.stiffness_N_m", "wall stiffness", "walls", ("hpattern",),
+            "within K*T/2 + B < the lever's damping at 1 kHz (checked)"),
+    Tunable("walls.damping_N_s_m", "wall damping", "walls", ("hpattern",)),
+    Tunable("select.slot_stiffness_N_m", "slot hold stiffness", "walls", ("hpattern",)),
+    Tunable("gearbox.stop.stiffness_N_m", "end stop stiffness", "walls", GEARBOX),
+    Tunable("torque.k1_Nm_s2_m", "K1 aligning gain", "torque law", ("steering",),
+            "the on-centre spring: checked against the wheel's stiffness budget"),
+    Tunable("torque.k2", "K2 aligning saturation", "torque law", ("steering",)),
+    Tunable("torque.k3", "K3 saturation exponent", "torque law", ("steering",)),
+    Tunable("torque.k4_1_Nm", "K4 tire spin at standstill", "torque law", ("steering",)),
+    Tunable("torque.k5_s_m_Nm", "K5 tire spin fall with speed", "torque law", ("steering",)),
+    Tunable("torque.k6_rad_s", "K6 tire spin rate scale", "torque law", ("steering",)),
+    Tunable("torque.k7_Nm", "K7 friction", "torque law", ("steering",)),
+    Tunable("torque.k8_rad_s", "K8 friction rate scale", "torque law", ("steering",),
+            "offline only: on a device the friction is a stick element"),
+    Tunable("torque.k9_Nm_s_rad", "K9 damping", "damping", ("steering",),
+            "checked: the released wheel keeps its damping ratio"),
+)  # fmt: skip
+BY_PATH = {t.path: t for t in TUNABLES}
+
+
+def tunables_for(model: str) -> list[Tunable]:
+    return [t for t in TUNABLES if model in t.models]
+
+
+def get_path(obj: Any, path: str) -> Any:
+    for name in path.split("."):
+        obj = getattr(obj, name)
+    return obj
+
+
+def set_path(obj: Any, path: str, value: Any) -> Any:
+    """A copy of the frozen dataclass tree `obj` with the field at `path` set."""
+    head, _, rest = path.partition(".")
+    if not rest:
+        return dataclasses.replace(obj, **{head: value})
+    return dataclasses.replace(obj, **{head: set_path(getattr(obj, head), rest, value)})
+
+
+def preset_path(model: str, path: str) -> str:
+    """A tunable's path in the loaded preset object (ShiftParams, HPatternPreset, SteeringCar)."""
+    if model == "hpattern":
+        return f"shift.{path}" if path.startswith("gearbox.") else f"setup.{path}"
+    return path
+
+
+def renderer_path(model: str, path: str) -> str:
+    """A tunable's path in the renderer's parameters (EngagementParams, HPatternParams,
+    SteeringCar)."""
+    table, _, rest = path.partition(".")
+    if model == "shift":
+        return rest
+    if model == "hpattern" and table == "gearbox":
+        return f"engagement.{rest}"
+    return path
+
+
+def values_of(model: str, preset: Any) -> dict[str, float]:
+    return {
+        t.path: float(get_path(preset, preset_path(model, t.path))) for t in tunables_for(model)
+    }
+
+
+def checked_value(path: str, value: object) -> float:
+    """A tuned value as a float within its preset range, or InputError naming the range."""
+    tunable = BY_PATH[path]
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise InputError(
+            f"{path} = {value!r}: expected a number, {describe_range(range_key(path))}"
+        )
+    number = float(value)
+    low, high, low_in, high_in = tunable.bounds
+    inside = (
+        math.isfinite(number)
+        and (number >= low if low_in else number > low)
+        and (number <= high if high_in else number < high)
+    )
+    if not inside:
+        raise InputError(
+            f"{path} = {value!r} {tunable.unit} is out of range: allowed "
+            f"{describe_range(range_key(path))}"
+        )
+    return number
+
+
+@dataclass(frozen=True, slots=True)
+class Session:
+    """What the panel's process knows of a running session, for checking a tuning."""
+
+    model: str
+    preset: Any
+    """The current parameters as a loaded preset (ShiftParams, HPatternPreset, SteeringCar)."""
+    physics: bool | None
+    """hpattern: the run's synchronizer choice (None: the preset's)."""
+    parts: Mapping[str, Any]
+    """From the loop's ready event: info, sizing, scaling, rate_hz, speed_m_s, aligning."""
+
+
+@dataclass(frozen=True, slots=True)
+class Proposal:
+    preset: Any
+    """The new parameters as a preset (what `save` writes and the next tuning starts from)."""
+    command: tuple[Any, ...]
+    """What the loop is sent: ("retune", moves, target, schedule, changes)."""
+    changes: dict[str, tuple[float, float]]
+    """Tunable path -> (old, new)."""
+
+
+def propose(session: Session, values: Mapping[str, object]) -> Proposal:
+    """Check a tuning and build the loop's command; InputError with every reason otherwise."""
+    model = session.model
+    allowed = {t.path for t in tunables_for(model)}
+    if not values:
+        raise InputError("a tuning names at least one parameter: {path: value}")
+    problems = []
+    checked: dict[str, float] = {}
+    for path, value in values.items():
+        if path not in allowed:
+            problems.append(
+                f"{path}: not a tunable parameter of --model {model}; it has "
+                f"{', '.join(sorted(allowed))}"
+            )
+            continue
+        try:
+            checked[path] = checked_value(path, value)
+        except InputError as exc:
+            problems.append(str(exc))
+    if problems:
+        raise InputError("; ".join(problems))
+    preset = session.preset
+    changes: dict[str, tuple[float, float]] = {}
+    for path, value in checked.items():
+        where = preset_path(model, path)
+        old = float(get_path(preset, where))
+        changes[path] = (old, value)
+        kind = type(get_path(preset, where))
+        preset = set_path(preset, where, kind(value) if kind is int else value)
+    cross = _cross_checks(model, preset)
+    if cross:
+        raise InputError("this tuning would make the preset invalid: " + "; ".join(cross))
+    schedule = None
+    if model == "steering":
+        schedule = _steering_sized(session, preset)
+        target: Any = preset
+    elif model == "hpattern":
+        target = preset.pattern(session.physics)
+    else:
+        target = preset.gearbox
+    moves = tuple((renderer_path(model, p), old, new) for p, (old, new) in changes.items())
+    return Proposal(preset, ("retune", moves, target, schedule, changes), changes)
+
+
+def _cross_checks(model: str, preset: Any) -> list[str]:
+    from carfeel.io.presets import check_hpattern, check_shift, check_steering
+
+    if model == "shift":
+        return check_shift(preset)
+    if model == "hpattern":
+        return check_shift(preset.shift) + check_hpattern(preset.setup, preset.shift)
+    return check_steering(preset)
+
+
+def _steering_sized(session: Session, car: Any) -> tuple[tuple[float, float], ...]:
+    """The new law's damping schedule, or InputError when the wheel cannot render it stably."""
+    from carfeel.realtime.rendering import (
+        SCHEDULE_SPEEDS_M_S,
+        SteeringRenderer,
+        SteeringRendering,
+    )
+    from carfeel.realtime.session import RealtimeRun, _steering_scaling
+
+    p = session.parts
+    info, sizing, scaling, rate = p["info"], p["sizing"], p["scaling"], p["rate_hz"]
+    speed = p["speed_m_s"]
+    rendering = SteeringRendering(aligning=p["aligning"])
+    run = RealtimeRun(model="steering", rate_hz=rate, speed_kmh=speed * 3.6)
+    notes: list[str] = []
+    try:
+        wanted = _steering_scaling(car, run, info, sizing, notes)
+    except InputError as exc:
+        raise InputError(f"refused: {exc}") from None
+    if wanted.force_scale < scaling.force_scale * (1.0 - 1e-9):
+        raise InputError(
+            f"refused: at {speed * 3.6:g} km/h this law's on-centre spring would be stiffer "
+            f"than {info.name} holds hands off at the session's torque scale "
+            f"({scaling.force_scale:.3g} Nm per model Nm); start-up would lower the scale to "
+            f"{wanted.force_scale:.3g}. Lower K1, or stop and start the session with it"
+        )
+    old = SteeringRenderer(session.preset, speed, scaling, rate, sizing, info, rendering)
+    new = SteeringRenderer(car, speed, scaling, rate, sizing, info, rendering)
+    for v in sorted({*SCHEDULE_SPEEDS_M_S, speed}):
+        before = released_zeta(old, v, info, rate)
+        after = released_zeta(new, v, info, rate)
+        if after < sizing.zeta and after < before - 0.01:
+            raise InputError(
+                f"refused: released at {v * 3.6:.0f} km/h the wheel would ring: its damping "
+                f"ratio would fall to {after:.2f} (now {before:.2f}; the sizing keeps at least "
+                f"{sizing.zeta:.2f}) with {info.name}'s delays. Lower K9 or K1, or raise K6"
+            )
+    return new.schedule
+
+
+def released_zeta(renderer: Any, speed_m_s: float, info: Any, rate_hz: float) -> float:
+    """The least damping ratio of the released wheel on `renderer` at a speed: the law
+    linearized on centre, its added damping and the friction's stick spring, on the device's
+    exact discrete-time loop (as the schedule is sized)."""
+    from carfeel.realtime import stability
+    from carfeel.realtime.rendering import steering_environment, velocity_sections
+
+    axis = stability.AxisLoop.of(info, rate_hz, velocity_sections(rate_hz))
+    law = steering_environment(
+        renderer.car, renderer.scaling, speed_m_s, renderer.rendering, 1.0 / rate_hz,
+        renderer.tire_spin_rate(speed_m_s),
+    )  # fmt: skip
+    b, k = renderer.added_damping(speed_m_s), renderer.friction_stiffness
+
+    def environment(state: object, y: float, v: float) -> tuple[object, float]:
+        state, u = law(state, y, v)
+        return state, u - b * v - k * y
+
+    matrix = stability.closed_loop(axis, environment, 3 if law.stateful else 0)
+    return float(stability.least_damping_ratio(matrix, rate_hz))
+
+
+class Ramp:
+    """A retune as the loop applies it: it waits for a safe point, then blends over RAMP_S."""
+
+    def __init__(self, renderer: Any, model: str, command: tuple[Any, ...], rate_hz: float):
+        _, moves, target, schedule, changes = command
+        self.changes: dict[str, tuple[float, float]] = changes
+        self.renderer, self.model = renderer, model
+        self.moves, self.target, self.schedule = moves, target, schedule
+        self.old_schedule = getattr(renderer, "schedule", None)
+        self.ticks = max(1, round(RAMP_S * rate_hz))
+        self.k = 0
+
+    def safe(self) -> bool:
+        """May the change start now? The gearbox: only with the lever in neutral."""
+        r = self.renderer
+        if self.model == "shift":
+            return bool(r.state.stage.value == "neutral")
+        if self.model == "hpattern":
+            return bool(r.state.lever.stage.value == "neutral")
+        return True
+
+    @property
+    def started(self) -> bool:
+        return self.k > 0
+
+    def step(self) -> bool:
+        """Apply one tick's blend (call between ticks); True when the target is reached."""
+        if self.k == 0 and not self.safe():
+            return False
+        self.k += 1
+        s = min(1.0, self.k / self.ticks)
+        params = self.target
+        if s < 1.0:
+            for path, old, new in self.moves:
+                value = old + (new - old) * s
+                params = set_path(params, path, round(value) if isinstance(old, int) else value)
+        r = self.renderer
+        if self.model == "steering":
+            table = self.schedule
+            if s < 1.0 and self.old_schedule is not None:
+                table = tuple(
+                    (v, b0 + (b1 - b0) * s)
+                    for (v, b0), (_, b1) in zip(self.old_schedule, self.schedule, strict=True)
+                )
+            r.retune(params, table)
+        else:
+            r.retune(params)
+        return s >= 1.0
