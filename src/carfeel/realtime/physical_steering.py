@@ -325,10 +325,11 @@ class _Sizer:
         return high
 
     def wall(self, share: float, schedule: list[tuple[float, float]]) -> tuple[float, float]:
-        """The wall inside the device's travel: what the coupling leaves of the spring budget,
-        halved until the loop pressed into it keeps ZETA_FLOOR at every speed (a safety stop;
-        the on-centre goal does not describe a rim at the end of its travel)."""
-        wall = ((1.0 - share) * self.sizing.stiffness, (1.0 - share) * self.sizing.damping)
+        """The wall inside the device's travel: the device's spring budget (in parallel with
+        the coupling there), halved until the loop pressed into it keeps ZETA_FLOOR at every
+        speed (a safety stop; the on-centre goal does not describe a rim at the end of its
+        travel)."""
+        wall = (self.sizing.stiffness, self.sizing.damping)
         for _ in range(8):
             if all(
                 self.least(share, per_speed, added, wall)[1] >= ZETA_FLOOR
