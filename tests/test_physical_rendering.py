@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import cast
 
 import numpy as np
 import pytest
@@ -29,6 +30,11 @@ def device(kind: str = "dd-wheel", delay_s: float = 0.004):
     return info, size(info, 1000.0, SECTIONS), Scaling(0.9 * info.max_force / 10.0, 1.0)
 
 
+def named(renderer: PhysicalSteeringRenderer, row: tuple[object, ...]) -> dict[str, float]:
+    """A recorded row by column (every value of this renderer's rows is a float)."""
+    return {name: cast(float, value) for name, value in zip(renderer.columns, row, strict=True)}
+
+
 def sized_for(kind: str = "dd-wheel", substeps: int = 1, speeds=(SPEED,)):
     info, sizing, scaling = device(kind)
     sized = ps.size_physical(info, 1000.0, SECTIONS, CAR, scaling, sizing, substeps, speeds)
@@ -45,7 +51,8 @@ def test_the_loop_the_sizing_analyses_is_the_loop_the_renderer_runs(substeps):
     info, sizing, scaling, sized = sized_for(substeps=substeps)
     renderer = PhysicalSteeringRenderer(CAR, SPEED, scaling, 1000.0, sized, sizing, info)
     renderer.substeps = substeps
-    model = ps.rendered_params(CAR, info, scaling.force_scale, scaling.position_scale)
+    model = ps.rendered_params(CAR, info, scaling, sizing, 1e-3 / substeps)
+    assert model.system.hand_wheel_inertia_kg_m2 == sized.rim_inertia_kg_m2
     a, b = ps.linearize(model, SPEED, ps.operating_state(model, 0.0), 1e-3 / substeps)
     fs, ps_ = scaling.force_scale, scaling.position_scale
     environment = ps.coupled_environment(
@@ -94,7 +101,7 @@ def test_the_first_tick_starts_the_model_where_the_device_is():
     renderer = PhysicalSteeringRenderer(CAR, SPEED, scaling, 1000.0, sized, sizing, info)
     angle = math.radians(4.0)
     _, row = renderer.tick(DeviceSample(0.0, (angle,), None), 1e-3)
-    columns = dict(zip(renderer.columns, row, strict=True))
+    columns = named(renderer, row)
     assert abs(columns["coupling_stretch_rad"]) < 1e-6
     assert columns["steering_angle_rad"] == pytest.approx(angle, abs=1e-6)
     assert columns["lateral_accel_m_s2"] > 0.5  # cornering to the left, as the rim says
@@ -114,7 +121,7 @@ def test_the_wall_inside_the_travel_pushes_back_and_only_beyond_it():
         angle = 0.95 * info.travel + depth
         for k in range(3):  # at rest there: no velocity
             _, row = renderer.tick(DeviceSample(k * 1e-3, (angle,), None), 1e-3)
-        walls.append(dict(zip(renderer.columns, row, strict=True))["rendering_wall_Nm"])
+        walls.append(named(renderer, row)["rendering_wall_Nm"])
     assert walls[0] == 0.0
     assert walls[2] > walls[1] > 0.0  # it resists the turn further out (the command's sign)
     assert walls[2] == pytest.approx(sized.wall_stiffness * 0.05 / scaling.force_scale)
@@ -139,7 +146,7 @@ def test_the_scheduled_damping_follows_the_models_speed():
         for _ in range(100):  # a steady turn of the rim: its velocity through the filter
             k = next(ticks)
             _, row = renderer.tick(DeviceSample(k * 1e-3, (0.01 * k * 1e-3,), None), 1e-3)
-        added = dict(zip(renderer.columns, row, strict=True))["rendering_damping_Nm"]
+        added = named(renderer, row)["rendering_damping_Nm"]
         expected = ps.scheduled(sized.schedule, speed) * 0.01 / scaling.force_scale
         assert added == pytest.approx(expected, rel=1e-6)  # the filter has settled
         assert (speed == 0.0) or added > 0.0
@@ -147,15 +154,27 @@ def test_the_scheduled_damping_follows_the_models_speed():
 
 def test_the_models_rim_keeps_what_the_device_does_not_have():
     """The user holds the device's rim: the model's rim keeps the car's inertia less the
-    device's (in model units), at least a fifth of the car's."""
-    info = virtual_device("dd-wheel").info  # 0.05 kg m^2 at 1.35 Nm per model Nm
+    device's (in model units), at least a fifth of the car's, and at least what the 1 ms step
+    needs for the stiffest coupling the device holds (w*h and c*h/J at most 0.5)."""
+    info, sizing, scaling = device("dd-wheel", 0.004)  # 0.05 kg m^2 at 1.35 Nm per model Nm
     rim = CAR.system.hand_wheel_inertia_kg_m2
-    assert ps.rendered_params(CAR, info, 1.35, 1.0).system.hand_wheel_inertia_kg_m2 == (
+    assert ps.rendered_params(CAR, info, scaling, sizing).system.hand_wheel_inertia_kg_m2 == (
         pytest.approx(ps.MIN_RIM_SHARE * rim)
     )
     light = dataclasses.replace(info, mass=0.01)
-    kept = ps.rendered_params(CAR, light, 1.35, 1.0).system.hand_wheel_inertia_kg_m2
+    kept = ps.rendered_params(CAR, light, scaling, sizing).system.hand_wheel_inertia_kg_m2
     assert kept == pytest.approx(rim - 0.01 / 1.35)
+    fast = device("dd-wheel", 0.0)  # 686 Nm/rad and 4.1 Nm*s/rad at the device
+    model = ps.rendered_params(CAR, fast[0], fast[2], fast[1]).system
+    k = (
+        model.torsion_bar_stiffness_Nm_rad
+        + model.friction_stiffness_Nm_rad
+        + fast[1].stiffness / 1.35
+    )
+    c = model.compensation_damping_Nm_s_rad + fast[1].damping / 1.35
+    j = model.hand_wheel_inertia_kg_m2
+    assert j > ps.MIN_RIM_SHARE * rim
+    assert max(math.sqrt(k / j) * 1e-3, c * 1e-3 / j) == pytest.approx(0.5)
 
 
 def test_the_assist_is_linearized_where_its_gain_is_largest():

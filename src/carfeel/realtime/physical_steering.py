@@ -61,6 +61,8 @@ GRID = 8
 """The scheduled damping is searched on this many steps of the room under the cap..."""
 REFINE = 6
 """...then refined by this many bisections below the first step that passes."""
+MODEL_STEP_S = 1e-3
+"""The longest step the physical model takes (the presets check it is accurate at 1 ms)."""
 MIN_RIM_SHARE = 0.2
 """The model's rim keeps at least this share of the car's rim inertia (a massless rim would be
 a stiff mode the 1 ms step cannot integrate)."""
@@ -93,13 +95,30 @@ class PhysicalSizing:
         return self.schedule[-1][0]
 
 
-def rendered_params(params: PhysicalParams, info: DeviceInfo, force_scale: float,
-                    position_scale: float) -> PhysicalParams:  # fmt: skip
-    """The model with the rim inertia the device does not already have."""
+def rendered_params(
+    params: PhysicalParams,
+    info: DeviceInfo,
+    scaling: Scaling,
+    sizing: Sizing,
+    dt_s: float = MODEL_STEP_S,
+) -> PhysicalParams:
+    """The model with the rim inertia the device does not already have: the car's less the
+    device's (model units), at least MIN_RIM_SHARE of the car's, and at least what keeps the
+    rim's stiffest mode and its dampers (the torsion bar, the column's stick spring and the
+    stiffest coupling the device holds) within w*h, c*h/J <= 0.5 at the model's step, the
+    presets' rule for the physical model (`io.presets._check_steering_system`)."""
     system = params.system
+    fs, ps = scaling.force_scale, scaling.position_scale
     car_rim = system.hand_wheel_inertia_kg_m2
-    device_rim = info.mass * position_scale * position_scale / force_scale  # model units
-    rim = max(MIN_RIM_SHARE * car_rim, car_rim - device_rim)
+    device_rim = info.mass * ps * ps / fs
+    springs = (
+        system.torsion_bar_stiffness_Nm_rad
+        + system.friction_stiffness_Nm_rad
+        + sizing.stiffness * ps / fs
+    )
+    dampers = system.compensation_damping_Nm_s_rad + sizing.damping * ps / fs
+    step = max(springs * (dt_s / 0.5) ** 2, dampers * dt_s / 0.5)
+    rim = max(MIN_RIM_SHARE * car_rim, car_rim - device_rim, step)
     return dataclasses.replace(
         params, system=dataclasses.replace(system, hand_wheel_inertia_kg_m2=rim)
     )
@@ -263,8 +282,8 @@ class _Sizer:
         self.axis = stability.AxisLoop.of(info, rate_hz, sections)
         self.rate_hz, self.scaling, self.sizing, self.substeps = rate_hz, scaling, sizing, substeps
         self.speeds = speeds_m_s
-        self.model = rendered_params(params, info, scaling.force_scale, scaling.position_scale)
         dt = 1.0 / rate_hz / substeps
+        self.model = rendered_params(params, info, scaling, sizing, dt)
         ceiling = info.max_force / scaling.force_scale  # the most the device renders, model Nm
         self.cases: list[list[_Case]] = []
         for speed in speeds_m_s:

@@ -272,6 +272,13 @@ def _check_steering_model(run: RealtimeRun) -> None:
         raise InputError(
             "--road sets the physical model's tyres: give --steering-model physical too"
         )
+    if run.steering_model == "physical" and run.rate_hz * run.substeps < 1000.0 - 1e-9:
+        from math import ceil
+
+        raise InputError(
+            f"--steering-model physical steps at 1 ms at most (its rack and end stops need it): "
+            f"at --rate-hz {run.rate_hz:g} give --substeps {ceil(1000.0 / run.rate_hz - 1e-9)}"
+        )
     if run.steering_model == "physical" and run.aligning != "front-axle":
         raise InputError(
             "--aligning chooses the paper law's aligning torque; the physical model's comes "
