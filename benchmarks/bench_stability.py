@@ -114,8 +114,7 @@ def costs(ticks: int) -> None:
                           dd_sizing, 1, (100 / 3.6,))  # fmt: skip
     assert isinstance(sized, PhysicalSizing)
     paper = SteeringRenderer(car, 100 / 3.6, dd_scaling, 1000.0, dd_sizing, dd.info)
-    physical = PhysicalSteeringRenderer(params, 100 / 3.6, dd_scaling, 1000.0, sized, dd_sizing,
-                                        dd.info)  # fmt: skip
+    physical = PhysicalSteeringRenderer(params, 100 / 3.6, dd_scaling, 1000.0, sized, dd.info)
 
     def sample(k: int) -> DeviceSample:
         return DeviceSample(k * 1e-3, (0.2 * math.sin(2 * math.pi * 0.5 * k * 1e-3),), None)

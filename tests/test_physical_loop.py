@@ -171,7 +171,7 @@ def ring_down(plant_name: str, delay_ms: float, factor: float) -> tuple[float, f
     predicted = sizer.least(share, sizer.cases[0], sized.schedule[0][1])[1]
     stiff = dataclasses.replace(sized, coupling_stiffness=share * sizing.stiffness,
                                 coupling_damping=share * sizing.damping)  # fmt: skip
-    renderer = PhysicalSteeringRenderer(CAR, speed, scaling, 1000.0, stiff, sizing, device.info)
+    renderer = PhysicalSteeringRenderer(CAR, speed, scaling, 1000.0, stiff, device.info)
     device._x[0] = 0.002
     config = LoopConfig(1000.0, 4.0, calibrate=False, guard=False, passivity=False)
     with device:
@@ -408,7 +408,7 @@ def test_the_models_speed_is_held_at_the_top_of_its_sizing():
     scaling = Scaling(0.36, 1.0)
     sized = ps.size_physical(wheel.info, 1000.0, sections, CAR, scaling, sizing, 1, (0.0, 20.0))
     assert isinstance(sized, ps.PhysicalSizing) and sized.top_speed_m_s == 20.0
-    renderer = PhysicalSteeringRenderer(CAR, 30.0, scaling, 1000.0, sized, sizing, wheel.info)
+    renderer = PhysicalSteeringRenderer(CAR, 30.0, scaling, 1000.0, sized, wheel.info)
     assert renderer.speed == 20.0
     renderer.speed = -3.0
     assert renderer.speed == 0.0

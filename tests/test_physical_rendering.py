@@ -49,7 +49,7 @@ def test_the_loop_the_sizing_analyses_is_the_loop_the_renderer_runs(substeps):
     readings and velocities, within 0.1 % (what is left is the model's nonlinearity at that
     amplitude). A change to either side (coupling, damping, sub-steps, scales) breaks this."""
     info, sizing, scaling, sized = sized_for(substeps=substeps)
-    renderer = PhysicalSteeringRenderer(CAR, SPEED, scaling, 1000.0, sized, sizing, info)
+    renderer = PhysicalSteeringRenderer(CAR, SPEED, scaling, 1000.0, sized, info)
     renderer.substeps = substeps
     model = ps.rendered_params(CAR, info, scaling, sizing, 1e-3 / substeps)
     assert model.system.hand_wheel_inertia_kg_m2 == sized.rim_inertia_kg_m2
@@ -97,8 +97,8 @@ def test_the_linearization_is_the_models_step():
 def test_the_first_tick_starts_the_model_where_the_device_is():
     """After the calibration pulses the rim is off centre: the model starts there (the car in
     steady cornering at that angle), so the coupling is not stretched at the first tick."""
-    info, sizing, scaling, sized = sized_for()
-    renderer = PhysicalSteeringRenderer(CAR, SPEED, scaling, 1000.0, sized, sizing, info)
+    info, _sizing, scaling, sized = sized_for()
+    renderer = PhysicalSteeringRenderer(CAR, SPEED, scaling, 1000.0, sized, info)
     angle = math.radians(4.0)
     _, row = renderer.tick(DeviceSample(0.0, (angle,), None), 1e-3)
     columns = named(renderer, row)
@@ -111,13 +111,13 @@ def test_the_wall_inside_the_travel_pushes_back_and_only_beyond_it():
     """The belt wheel turns 450 deg, the car's lock is at 540: a passive wall at 95 % of the
     travel, sized with what the coupling leaves of the budget; none on the dd-wheel (900 deg:
     the car's own lock, through the coupling, is within it)."""
-    info, sizing, scaling, sized = sized_for("wheel")
+    info, _sizing, scaling, sized = sized_for("wheel")
     assert sized.wall_stiffness > 0.0
     dd = sized_for("dd-wheel")[3]
     assert dd.wall_stiffness == 0.0
     walls = []
     for depth in (-0.01, 0.02, 0.05):
-        renderer = PhysicalSteeringRenderer(CAR, SPEED, scaling, 1000.0, sized, sizing, info)
+        renderer = PhysicalSteeringRenderer(CAR, SPEED, scaling, 1000.0, sized, info)
         angle = 0.95 * info.travel + depth
         for k in range(3):  # at rest there: no velocity
             _, row = renderer.tick(DeviceSample(k * 1e-3, (angle,), None), 1e-3)
@@ -138,8 +138,8 @@ def test_the_schedule_is_linear_between_its_speeds_and_held_beyond():
 
 def test_the_scheduled_damping_follows_the_models_speed():
     """With telemetry the speed moves: the damping rendered is the schedule's at each speed."""
-    info, sizing, scaling, sized = sized_for("wheel", speeds=(0.0, 20.0, 30.0))
-    renderer = PhysicalSteeringRenderer(CAR, 0.0, scaling, 1000.0, sized, sizing, info)
+    info, _sizing, scaling, sized = sized_for("wheel", speeds=(0.0, 20.0, 30.0))
+    renderer = PhysicalSteeringRenderer(CAR, 0.0, scaling, 1000.0, sized, info)
     ticks = iter(range(10_000))
     for speed in (0.0, 25.0, 30.0):
         renderer.speed = speed

@@ -21,13 +21,16 @@ device's own rim.
 
 Sizing (`size_physical`, once at start-up, numpy): the model is linearized (central differences
 of `physical.step`, exact for its piecewise-linear elements away from their switches) at each
-speed of a grid, on centre and at the torsion-bar torque where the EPS assist's gain is largest,
-with the frictions stuck and sliding; with the device, its delays, report rate and the
+speed the run can reach, on centre and at the torsion-bar torque where the EPS assist's gain is
+largest, with the frictions stuck and sliding; with the device, its delays, report rate and the
 renderers' velocity filter (`stability.closed_loop`), the least damping ratio of each is
-computed. The stiffest coupling (a share of the device's spring budget) is taken for which a
-scheduled damping within the device's velocity cap gives every linearization at least the goal:
-ZETA_MIN, or the car's own released damping ratio at that speed if that is lower (the rendering
-must not be less damped than the car released offline), but never less than ZETA_FLOOR.
+computed, leaving out the car's own modes that the rim does not take part in (those of the
+model with its rim held still). The stiffest coupling (a share of the device's spring budget)
+is taken for which a scheduled damping within the device's velocity cap gives every
+linearization at least its goal: ZETA_MIN, or the car's own released damping ratio there if
+that is lower (the rendering must not be less damped than the car released offline), but never
+less than ZETA_FLOOR. Where no share reaches every speed, the one that reaches the highest (the
+model's speed is held there), or the reason. DESIGN.md, "The physical steering in the loop".
 """
 
 from __future__ import annotations
@@ -78,7 +81,8 @@ class PhysicalSizing:
     schedule: tuple[tuple[float, float], ...]
     """(speed m/s, added damping Nm*s/rad at the device), rising speeds."""
     zeta: tuple[float, ...]
-    """Per speed of the schedule, the least damping ratio of the loop (all linearizations)."""
+    """Per speed of the schedule, the least damping ratio of the loop over its linearizations
+    (the car's own modes, those of the rim-clamped model, left out)."""
     goal: tuple[float, ...]
     """Per speed, what that ratio had to reach."""
     rim_inertia_kg_m2: float
@@ -480,7 +484,6 @@ class PhysicalSteeringRenderer:
         scaling: Scaling,
         rate_hz: float,
         sized: PhysicalSizing,
-        sizing: Sizing,
         info: DeviceInfo,
     ) -> None:
         self.scaling, self.sized = scaling, sized

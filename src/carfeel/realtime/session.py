@@ -760,7 +760,7 @@ def _physical_renderer(
             "this device: above, its speed is held there (the released wheel would not stay "
             "damped)"
         )
-    renderer = PhysicalSteeringRenderer(params, speed, scaling, run.rate_hz, sized, sizing, info)
+    renderer = PhysicalSteeringRenderer(params, speed, scaling, run.rate_hz, sized, info)
     figure = {
         "coupling_stiffness": sized.coupling_stiffness,
         "coupling_damping": sized.coupling_damping,
