@@ -216,20 +216,6 @@ def test_the_car_stiffness_is_the_offline_models_on_centre_gradient():
     assert out.torque_Nm / angle == pytest.approx(ps.car_stiffness(CAR, speed), rel=0.02)
 
 
-def test_the_clamped_rim_leaves_out_only_the_cars_own_modes():
-    """At walking pace the car has a lightly damped lateral mode of its own (its tyres' lag:
-    3.6 Hz, zeta under 0.05) that the rim hardly takes part in: the rim-clamped model has it
-    too, so it is left out of the rendering's goal; the rim's own modes are not."""
-    sliding = ps._sliding(CAR)
-    a, _ = ps.linearize(sliding, 1.0, ps.operating_state(sliding, 0.0), 1e-3)
-    from carfeel.realtime.stability import least_damping_ratio
-
-    clamped = ps.clamped_modes(a, 1000.0)
-    assert least_damping_ratio(a, 1000.0) < 0.05
-    assert ps.least_rim_damping(a, 1000.0, clamped) > 0.1
-    assert any(abs(abs(s) / (2 * math.pi) - 3.6) < 0.3 for s in clamped)
-
-
 # ------------------------------------------------------------------ refused, never offered
 
 
