@@ -130,7 +130,7 @@ def test_the_wall_inside_the_travel_pushes_back_and_only_beyond_it():
     info, _, scaling, sized = sized_for("wheel")
     assert sized.wall_stiffness > 0.0 and sized.wall_damping > 0.0
     dd = sized_for("dd-wheel")[3]
-    assert dd.wall_stiffness == 0.0
+    assert dd.wall_stiffness == dd.wall_damping == 0.0
     fs = scaling.force_scale
     soft = dataclasses.replace(sized, wall_stiffness=0.5, wall_damping=0.01)  # any wall counts
     for wall in (sized, soft):
@@ -266,8 +266,9 @@ def test_where_no_coupling_is_damped_the_reason_is_given():
     # A budget whose coupling damper takes the whole cap and a cap too small for anything.
     starved = dataclasses.replace(sizing, damping=0.0, damping_cap=0.0,
                                   stiffness=5 * sizing.stiffness)  # fmt: skip
-    found = ps.size_physical(info, 1000.0, SECTIONS, CAR, scaling, starved, 1, (0.0,))
-    assert isinstance(found, str) and "not damped at 0 km/h" in found
+    found = ps.size_physical(info, 1000.0, SECTIONS, CAR, scaling, starved, 1, (20.0,))
+    assert isinstance(found, str) and "not damped at 72 km/h" in found
+    assert f"a coupling of {5 * sizing.stiffness:.3g} Nm/rad" in found  # the stiffest tried
 
 
 def test_the_sliding_model_has_no_friction_springs():
@@ -380,3 +381,119 @@ def test_a_short_loop_with_the_physical_renderer():
     assert summary.faults == [] and summary.gears == []
     assert renderer.effect == 0.0
     assert summary.peak_command > 0.1  # the rim off centre: the model pulls it back
+
+
+def test_with_sub_steps_the_terms_are_the_mean_over_the_tick_and_sum_to_the_torque():
+    """Two model steps a tick: each recorded term is the mean of the two steps' (they still
+    sum to the torque rendered, the mean coupling torque), with the rim moving so that the two
+    steps differ."""
+    info, _, scaling, sized = sized_for(substeps=2)
+    renderer = PhysicalSteeringRenderer(CAR, SPEED, scaling, 1000.0, sized, info)
+    renderer.substeps = 2
+    torques = set()
+    for k in range(200):
+        angle = 0.2 * math.sin(2 * math.pi * 1.5 * k * 1e-3)
+        commands, row = renderer.tick(DeviceSample(k * 1e-3, (angle,), None), 1e-3)
+        r = named(renderer, row)
+        terms = [r[name] for name in ps.TERMS]
+        assert sum(terms) == pytest.approx(r["torque_Nm"], abs=1e-12 + 1e-12 * sum(map(abs, terms)))
+        assert commands[0] == pytest.approx(
+            -(r["torque_Nm"] + r["rendering_damping_Nm"] + r["rendering_wall_Nm"]) * 1.35
+        )
+        torques.add(round(r["torque_Nm"], 6))
+    assert len(torques) > 100
+
+
+@pytest.mark.parametrize("position_scale", [1.0, 0.8])
+def test_the_sizing_reports_the_loop_the_renderer_runs(position_scale):
+    """What the sizing reports (its least damping ratio, per speed) is the loop built from the
+    renderer's own gains (coupling, damping schedule) on the sizing's linearizations, and every
+    goal it had to meet is no more than the car's own damping there (or the floor)."""
+    from carfeel.realtime import stability
+
+    info, sizing, scaling = device()
+    scaling = Scaling(scaling.force_scale, position_scale)
+    speeds = (0.0, SPEED)
+    sized = ps.size_physical(info, 1000.0, SECTIONS, CAR, scaling, sizing, 1, speeds)
+    assert isinstance(sized, PhysicalSizing) and sized.share in ps.COUPLING_SHARES
+    renderer = PhysicalSteeringRenderer(CAR, SPEED, scaling, 1000.0, sized, info)
+    sizer = ps._Sizer(info, 1000.0, SECTIONS, CAR, scaling, sizing, 1, speeds)
+    axis = stability.AxisLoop.of(info, 1000.0, SECTIONS)
+    for (_, added), zeta, cases in zip(sized.schedule, sized.zeta, sizer.cases, strict=True):
+        found = []
+        for case in cases:
+            env = ps.coupled_environment(case.a, case.b, renderer.stiffness, renderer.damping,
+                                         scaling.force_scale, position_scale, added, 1)  # fmt: skip
+            matrix = stability.closed_loop(axis, env, len(ps.KEPT))
+            found.append(ps.least_rim_damping(matrix, 1000.0, case.clamped))
+            assert case.goal <= max(ps.ZETA_FLOOR, case.released)
+            assert found[-1] >= case.goal - 1e-9
+        assert min(found) == pytest.approx(zeta)
+
+
+def test_the_assist_is_linearized_up_to_the_devices_torque():
+    """At speed the assist saturates far out (16 Nm of bar torque at 100 km/h): the loaded
+    linearization sits at the most the device renders, its torque limit in model units; with
+    a small deadband it is found below 1 Nm too."""
+    info, sizing, scaling = device()
+    sizer = ps._Sizer(info, 1000.0, SECTIONS, CAR, scaling, sizing, 1, (SPEED,))
+    assert max(case.torque for case in sizer.cases[0]) == pytest.approx(
+        info.max_force / scaling.force_scale
+    )
+    light = dataclasses.replace(CAR, system=dataclasses.replace(CAR.system, assist_deadband_Nm=0.2))
+    tiny = Scaling(20.0, 1.0)  # 0.75 Nm of model torque at the device's limit
+    sizer = ps._Sizer(info, 1000.0, SECTIONS, light, tiny, sizing, 1, (SPEED,))
+    assert max(case.torque for case in sizer.cases[0]) == pytest.approx(15.0 / 20.0)
+
+
+def test_the_scheduled_damping_is_the_least_that_meets_the_goals():
+    """None where none is needed (the belt wheel parked); where some is (the dd-wheel at
+    100 km/h), a little less misses a goal (the bisection's resolution, a 512th of the room)."""
+    wheel = sized_for("wheel", speeds=(0.0,))[3]
+    assert wheel.schedule[0][1] == 0.0
+    info, sizing, scaling = device()
+    sized = ps.size_physical(info, 1000.0, SECTIONS, CAR, scaling, sizing, 1, (SPEED,))
+    assert isinstance(sized, PhysicalSizing)
+    added = sized.schedule[0][1]
+    room = sizing.damping_cap - sized.share * sizing.damping
+    assert 0.0 < added <= room
+    sizer = ps._Sizer(info, 1000.0, SECTIONS, CAR, scaling, sizing, 1, (SPEED,))
+    assert sizer.least(sized.share, sizer.cases[0], added)[0] >= 0.0
+    assert sizer.least(sized.share, sizer.cases[0], added - room / 400)[0] < 0.0
+
+
+def test_with_telemetry_the_belt_wheel_renders_up_to_the_speed_its_cap_allows():
+    """Sized for every speed (telemetry), the belt wheel at 4 ms cannot damp the car's own
+    unstable release near 250 km/h within its velocity cap (the noise caps it at 0.65
+    Nm*s/rad): the sizing stops at 198 km/h, the damping everywhere within the cap, and its
+    wall sized over the speeds it reaches."""
+    info, sizing, scaling = device("wheel")
+    sized = ps.size_physical(info, 1000.0, SECTIONS, CAR, scaling, sizing, 1, ps.SPEEDS_M_S)
+    assert isinstance(sized, PhysicalSizing)
+    assert sized.top_speed_m_s == pytest.approx(55.0)
+    room = sizing.damping_cap - sized.coupling_damping
+    assert all(0.0 <= b <= room + 1e-12 for _, b in sized.schedule)
+    assert sized.wall_stiffness > 0.0
+
+
+def test_a_wall_too_stiff_for_the_device_is_halved_until_it_holds():
+    """The wall starts at the device's budget; given one five times too stiff it halves it
+    until the loop pressed into it keeps the floor (and not further); given one no halving
+    rescues, none."""
+    info, sizing, scaling = device("wheel")
+    sizer = ps._Sizer(info, 1000.0, SECTIONS, CAR, scaling, sizing, 1, (SPEED,))
+    sized = ps.size_physical(info, 1000.0, SECTIONS, CAR, scaling, sizing, 1, (SPEED,))
+    assert isinstance(sized, PhysicalSizing)
+    schedule = list(sized.schedule)
+    share = sized.share
+    sizer.sizing = dataclasses.replace(sizing, stiffness=5 * sizing.stiffness,
+                                       damping=5 * sizing.damping)  # fmt: skip
+    stiffness, damping = sizer.wall(share, schedule)
+    assert 0.0 < stiffness < 5 * sizing.stiffness
+    assert damping / stiffness == pytest.approx(sizing.damping / sizing.stiffness)
+    held = sizer.least(share, sizer.cases[0], schedule[0][1], (stiffness, damping))[1]
+    twice = sizer.least(share, sizer.cases[0], schedule[0][1], (2 * stiffness, 2 * damping))[1]
+    assert held >= ps.ZETA_FLOOR > twice
+    sizer.sizing = dataclasses.replace(sizing, stiffness=1e6 * sizing.stiffness,
+                                       damping=1e6 * sizing.damping)  # fmt: skip
+    assert sizer.wall(share, schedule) == (0.0, 0.0)

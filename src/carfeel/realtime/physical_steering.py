@@ -266,6 +266,10 @@ class _Case:
     b: Any
     goal: float
     clamped: Any
+    torque: float
+    """The torsion-bar torque it is linearized at, Nm."""
+    released: float
+    """The car's own least damping ratio there (released offline, its own rim)."""
 
 
 class _Sizer:
@@ -305,7 +309,7 @@ class _Sizer:
                     released = least_rim_damping(own, rate_hz, clamped)
                     goal = max(ZETA_FLOOR, min(ZETA_MIN, released - 0.01))
                     a, b = linearize(rendered, speed, operating_state(rendered, torque), dt)
-                    per_speed.append(_Case(a, b, goal, clamped))
+                    per_speed.append(_Case(a, b, goal, clamped, torque, released))
             self.cases.append(per_speed)
 
     def least(
