@@ -214,6 +214,19 @@ def test_the_models_rim_keeps_what_the_device_does_not_have():
     j = ps.rendered_params(CAR, fast[0], fast[2], stiff).system.hand_wheel_inertia_kg_m2
     k = CAR.system.torsion_bar_stiffness_Nm_rad + CAR.system.friction_stiffness_Nm_rad + 4000 / 1.35
     assert math.sqrt(k / j) * 1e-3 == pytest.approx(0.5)
+    # The fast device with an angle scale of 2 (device rad per model rad): its coupling's
+    # damper is twice as stiff in model units, and so is the rim it needs.
+    wide = ps.rendered_params(CAR, fast[0], Scaling(1.35, 2.0), fast[1]).system
+    c = wide.compensation_damping_Nm_s_rad + fast[1].damping * 2.0 / 1.35
+    assert c * 1e-3 / wide.hand_wheel_inertia_kg_m2 == pytest.approx(0.5)
+    k = wide.torsion_bar_stiffness_Nm_rad + wide.friction_stiffness_Nm_rad + 4000 * 2.0 / 1.35
+    spring = ps.rendered_params(CAR, fast[0], Scaling(1.35, 2.0), stiff).system
+    assert math.sqrt(k / spring.hand_wheel_inertia_kg_m2) * 1e-3 == pytest.approx(0.5)
+    # Sized with two model steps a tick, the rule is the half step's: the floor again.
+    info0, sizing0, scaling0 = fast
+    halved = ps.size_physical(info0, 1000.0, SECTIONS, CAR, scaling0, sizing0, 2, (SPEED,))
+    assert isinstance(halved, PhysicalSizing)
+    assert halved.rim_inertia_kg_m2 == pytest.approx(ps.MIN_RIM_SHARE * rim)
     # In model units the device's inertia is m * ps^2 / fs (an angle scale of 2 quadruples it).
     scaled = ps.rendered_params(CAR, light, Scaling(1.35, 0.5), sizing)
     assert scaled.system.hand_wheel_inertia_kg_m2 == pytest.approx(rim - 0.01 * 0.25 / 1.35)
@@ -471,6 +484,8 @@ def test_with_telemetry_the_belt_wheel_renders_up_to_the_speed_its_cap_allows():
     sized = ps.size_physical(info, 1000.0, SECTIONS, CAR, scaling, sizing, 1, ps.SPEEDS_M_S)
     assert isinstance(sized, PhysicalSizing)
     assert sized.top_speed_m_s == pytest.approx(55.0)
+    assert sized.share == 0.7  # the stiffest share that gets there: at 198 km/h it takes
+    assert sized.schedule[-1][1] > 0.9 * (sizing.damping_cap - sized.coupling_damping)  # ~all
     room = sizing.damping_cap - sized.coupling_damping
     assert all(0.0 <= b <= room + 1e-12 for _, b in sized.schedule)
     assert sized.wall_stiffness > 0.0
