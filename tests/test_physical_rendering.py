@@ -344,6 +344,8 @@ def test_only_poles_the_clamped_rim_shares_are_left_out():
     blocks[2:4, 2:4] = [[slow.real, -slow.imag], [slow.imag, slow.real]]
     assert ps.least_rim_damping(blocks, 1000.0, np.array([])) == pytest.approx(0.02, abs=1e-4)
     assert ps.least_rim_damping(np.diag([1.0, 0.0]), 1000.0, np.array([])) == 1.0
+    # The free rest met first does not end the search: a growing real pole after it counts.
+    assert ps.least_rim_damping(np.diag([1.0, 1.5]), 1000.0, np.array([])) == pytest.approx(-1.0)
 
 
 def test_the_clamped_rim_leaves_out_only_the_cars_own_modes():
@@ -512,3 +514,15 @@ def test_a_wall_too_stiff_for_the_device_is_halved_until_it_holds():
     sizer.sizing = dataclasses.replace(sizing, stiffness=1e6 * sizing.stiffness,
                                        damping=1e6 * sizing.damping)  # fmt: skip
     assert sizer.wall(share, schedule) == (0.0, 0.0)
+
+
+def test_the_scheduled_damping_never_exceeds_the_cap_even_where_a_little_more_would_do():
+    """The dd-wheel at 4 ms needs 0.43 Nm*s/rad at 100 km/h beside its full-budget coupling;
+    with a cap that leaves 0.40 for it, that coupling is not offered (a softer one is), rather
+    than damping beyond the cap."""
+    info, sizing, scaling = device()
+    tight = dataclasses.replace(sizing, damping_cap=sizing.damping + 0.403)
+    sized = ps.size_physical(info, 1000.0, SECTIONS, CAR, scaling, tight, 1, (SPEED,))
+    assert isinstance(sized, PhysicalSizing)
+    assert sized.schedule[0][1] <= tight.damping_cap - sized.coupling_damping + 1e-12
+    assert sized.share < 1.0
