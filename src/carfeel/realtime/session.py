@@ -737,19 +737,20 @@ def _physical_renderer(
         run.substeps, speeds,
     )  # fmt: skip
     cannot = (
-        f"{info.name} cannot render the physical steering model stably at {run.rate_hz:g} Hz "
-        f"with {info.command_delay_s * 1e3:g} + {info.reading_delay_s * 1e3:g} ms of delay"
+        f"{info.name} cannot render the physical steering model at {run.rate_hz:g} Hz with "
+        f"{info.command_delay_s * 1e3:g} + {info.reading_delay_s * 1e3:g} ms of delay"
     )
     if isinstance(sized, str):
         raise InputError(
-            f"{cannot}: no coupling within its stiffness budget ({sizing.stiffness:.3g} Nm/rad) "
-            f"keeps the released wheel damped ({sized}). Lower the delay, raise the rate, or "
-            "use --steering-model paper"
+            f"{cannot} stably: no coupling within its stiffness budget "
+            f"({sizing.stiffness:.3g} Nm/rad) keeps the released wheel damped ({sized}). "
+            "Lower the delay, raise the rate, or use --steering-model paper"
         )
     share = felt_share(params, sized, scaling, max(speed, 1.0))
     if share < MIN_FELT_SHARE:
         raise InputError(
-            f"{cannot}: the stiffest coupling it holds ({sized.coupling_stiffness:.3g} Nm/rad) "
+            f"{cannot} faithfully: the stiffest coupling it holds stably "
+            f"({sized.coupling_stiffness:.3g} Nm/rad) "
             f"would let through only {share:.0%} of the car's on-centre stiffness at "
             f"{run.speed_kmh:g} km/h: the wheel would feel the coupling, not the car. Lower the "
             "delay or use --steering-model paper"
