@@ -3,16 +3,20 @@
 Runs, in one process, one after the other:
 1. a reference loop: the same sleep-then-spin against absolute deadlines, doing no work;
 2. carfeel's loop rendering the H-pattern on the virtual joystick (impedance, 1 kHz), the
-   simulated hand driving the gear sequence over and over.
-Both for `--seconds` (default 20). Prints overruns (periods > 1.5 x nominal) and the period
-error distribution of each, and their ratio. Asserts nothing; numbers go in notes, not tests.
-    python benchmarks/bench_loop.py [--seconds 20]
+   simulated hand driving the gear sequence over and over;
+3. the steering on the virtual dd-wheel (100 km/h, the hands weaving), the paper's law and then
+   the physical model behind its coupling (issue 13), one after the other.
+Each for `--seconds` (default 20). Prints overruns (periods > 1.5 x nominal) and the period
+error distribution of each, and their ratio. `--cpu N` pins the process to core N (the machine
+is shared: say so beside the numbers). Asserts nothing; numbers go in notes, not tests.
+    python benchmarks/bench_loop.py [--seconds 20] [--cpu N] [--steering-only]
 """
 
 from __future__ import annotations
 
 import argparse
 import gc
+import os
 import platform
 import statistics
 import time
@@ -48,8 +52,15 @@ def describe(label: str, overruns: int, p50: float, p99: float, worst: float) ->
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=20.0)
+    parser.add_argument("--cpu", type=int, default=None, help="pin the process to this core")
+    parser.add_argument("--steering-only", action="store_true")
     args = parser.parse_args()
-    print(f"CPython {platform.python_version()} on {platform.machine()}, {args.seconds:g} s each")
+    pinned = ""
+    if args.cpu is not None:
+        os.sched_setaffinity(0, {args.cpu})
+        pinned = f", pinned to core {args.cpu}"
+    print(f"CPython {platform.python_version()} on {platform.machine()}, {args.seconds:g} s each"
+          f"{pinned}; load average {os.getloadavg()[0]:.1f}")  # fmt: skip
 
     overruns, errors = reference(args.seconds)
     ordered = sorted(errors)
@@ -60,12 +71,29 @@ def main() -> None:
         ordered[-1],
     )
     describe("reference loop (no work)", *ref)
+    if not args.steering_only:
+        hpattern(args.seconds, ref)
+    for model in ("paper", "physical"):
+        t0 = time.process_time()
+        result = run_realtime(
+            RealtimeRun(model="steering", steering_model=model, device="virtual:dd-wheel",
+                        speed_kmh=100.0, duration_s=args.seconds, calibrate=False)
+        )  # fmt: skip
+        cpu = time.process_time() - t0
+        s = result.summary
+        ours = (s.overruns, s.period_error_p50_us, s.period_error_p99_us, s.period_error_max_us)
+        describe(f"steering {model} (dd-wheel, virtual)", *ours)
+        print(f"  {s.periods} periods, stopped by {s.stopped} {'; '.join(s.faults)}; CPU busy "
+              f"{cpu / args.seconds * 100:.0f} % of the wall time; p99 / reference "
+              f"{ours[2] / max(ref[2], 1e-3):.1f}x")  # fmt: skip
 
+
+def hpattern(seconds: float, ref: tuple[int, float, float, float]) -> None:
     sequence = ("N", "1", "2", "3", "4", "5", "4", "3", "2", "1", "N") * 3
     t0 = time.process_time()
     result = run_realtime(
         RealtimeRun(
-            model="hpattern", mode="impedance", duration_s=args.seconds, sequence=sequence,
+            model="hpattern", mode="impedance", duration_s=seconds, sequence=sequence,
             calibrate=False,
         )
     )  # fmt: skip
@@ -75,7 +103,7 @@ def main() -> None:
     describe("carfeel loop (H-pattern, virtual)", *ours)
     print(f"gears engaged: {len(s.gears)}; faults: {len(s.faults)}")
     print(
-        f"CPU busy {cpu / args.seconds * 100:.0f} % of the wall time (spinning included); "
+        f"CPU busy {cpu / seconds * 100:.0f} % of the wall time (spinning included); "
         f"ratios carfeel / reference: p99 {ours[2] / max(ref[2], 1e-3):.1f}x, "
         f"max {ours[3] / max(ref[3], 1e-3):.1f}x"
     )

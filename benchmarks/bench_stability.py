@@ -4,26 +4,39 @@
    1 kHz path: the passivity controller, the oscillation guard, the new steering renderer (front
    axle, friction element, scheduled damping, stop) and the sized H-pattern renderer, each beside
    a reference measured in the same run: the force limiter every tick already paid, and the
-   paper's torque law alone. Then the one-off cost of sizing a device at start-up.
-2. The stability matrix (`carfeel.realtime.matrix`): per cell, the command's peak-to-peak over
+   paper's torque law alone; the physical steering renderer (issue 13: the model behind its
+   coupling) beside the paper's renderer on the dd-wheel. Then the one-off cost of sizing a
+   device, and the physical steering on it, at start-up.
+2. The released physical wheel (4 ms each way, both wheels, 30 and 90 deg, 60-150 km/h): the
+   log-decrement damping ratio of each pair of swings.
+3. The stability matrix (`carfeel.realtime.matrix`): per cell, the command's peak-to-peak over
    the last second as a share of the force limit, or the reason the loop refused the cell.
 Asserts nothing; the numbers go in notes, not tests.
-    python benchmarks/bench_stability.py [--ticks 20000] [--no-matrix]
+    python benchmarks/bench_stability.py [--ticks 20000] [--no-matrix] [--no-release]
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
+import math
 import platform
 import statistics
 import time
 from collections.abc import Callable
+from typing import Any
 
 from carfeel.io.presets import load_hpattern, load_steering
 from carfeel.models.steering.torque import torque_terms
 from carfeel.realtime import matrix
 from carfeel.realtime.devices.base import DeviceSample
 from carfeel.realtime.devices.virtual import virtual_device
+from carfeel.realtime.physical_steering import (
+    SPEEDS_M_S,
+    PhysicalSizing,
+    PhysicalSteeringRenderer,
+    size_physical,
+)
 from carfeel.realtime.rendering import (
     Gains,
     HPatternRenderer,
@@ -93,6 +106,25 @@ def costs(ticks: int) -> None:
     row("reference 2: the paper's torque law alone", law, ref)
     row("SteeringRenderer.tick (car + new terms)", per_call(steer, ticks), ref)
 
+    dd = virtual_device("dd-wheel", delay_s=0.004)
+    dd_sizing = size(dd.info, 1000.0, velocity_sections(1000.0))
+    dd_scaling = Scaling(1.35, 1.0)
+    params = car.physical()
+    sized = size_physical(dd.info, 1000.0, velocity_sections(1000.0), params, dd_scaling,
+                          dd_sizing, 1, (100 / 3.6,))  # fmt: skip
+    assert isinstance(sized, PhysicalSizing)
+    paper = SteeringRenderer(car, 100 / 3.6, dd_scaling, 1000.0, dd_sizing, dd.info)
+    physical = PhysicalSteeringRenderer(params, 100 / 3.6, dd_scaling, 1000.0, sized, dd.info)
+
+    def sample(k: int) -> DeviceSample:
+        return DeviceSample(k * 1e-3, (0.2 * math.sin(2 * math.pi * 0.5 * k * 1e-3),), None)
+
+    paper_tick = per_call(lambda k: paper.tick(sample(k), 1e-3), ticks)
+    physical_tick = per_call(lambda k: physical.tick(sample(k), 1e-3), ticks)
+    row("dd-wheel: SteeringRenderer.tick (paper)", paper_tick, ref)
+    row("dd-wheel: PhysicalSteeringRenderer.tick", physical_tick, ref)
+    print(f"  {'':44s} physical / paper: {physical_tick[0] / paper_tick[0]:.1f} x (median)")
+
     stick = virtual_device("joystick")
     preset = load_hpattern("5r")
     scaling = default_scaling(100.0, 0.058, stick.info)
@@ -105,6 +137,25 @@ def costs(ticks: int) -> None:
 
     row("HPatternRenderer.tick (sized coupling)", per_call(shift, ticks), ref)
 
+    print("start-up: sizing the physical steering on a wheel, 4 ms each way (not cached)")
+    for kind in ("wheel", "dd-wheel"):
+        info = virtual_device(kind, delay_s=0.004).info
+        device_sizing = size(info, 1000.0, velocity_sections(1000.0))
+        scale = Scaling(0.9 * info.max_force / 10.0, 1.0)
+        for label, speeds in (("100 km/h", (100 / 3.6,)), ("0-252 km/h", SPEEDS_M_S)):
+            size_physical.cache_clear()
+            start = time.perf_counter()
+            found = size_physical(info, 1000.0, velocity_sections(1000.0), params, scale,
+                                  device_sizing, 1, speeds)  # fmt: skip
+            took = time.perf_counter() - start
+            what = (
+                found
+                if isinstance(found, str)
+                else f"coupling {found.coupling_stiffness:.3g} "
+                f"Nm/rad, least zeta {min(found.zeta):.2f}, up to {found.top_speed_m_s * 3.6:.0f}"
+                " km/h"
+            )
+            print(f"  {kind:9s} {label:10s}: {took * 1e3:7.1f} ms -> {what}")
     print("start-up: sizing a device (discrete-time loop analysis, not cached)")
     for kind in ("joystick", "wheel", "dd-wheel", "shifter"):
         info = virtual_device(kind, delay_s=0.004).info
@@ -135,13 +186,102 @@ def table() -> None:
     print(f"  ({time.perf_counter() - start:.0f} s of simulated runs)")
 
 
+def releases() -> None:
+    """The released physical wheel on both wheels, 4 ms each way: the log-decrement damping
+    ratio of each pair of successive swings, and where the rim came to rest."""
+    import numpy as np
+
+    from carfeel.realtime import session
+    from carfeel.realtime.session import RealtimeRun, run_realtime
+
+    print(
+        "released physical wheel, 4 ms each way (overshoot beside the offline model's; the "
+        "log-decrement damping ratio of each pair of later swings; rest angle)"
+    )
+    original = session.open_device
+    made: list[object] = []
+
+    def keep(*args: object, **kwargs: object) -> object:
+        device = original(*args, **kwargs)  # type: ignore[arg-type]
+        made.append(device)
+        return device
+
+    for plant, angle, speed in itertools.product(("wheel", "dd-wheel"), (30.0, 90.0),
+                                                 (60.0, 100.0, 120.0, 150.0)):  # fmt: skip
+        made.clear()
+        session.open_device = keep  # type: ignore[assignment]
+        try:
+            run_realtime(RealtimeRun(model="steering", steering_model="physical",
+                                     device=f"virtual:{plant}", clock="simulated",
+                                     hand="release", speed_kmh=speed, device_delay_ms=4.0,
+                                     duration_s=6.0, release_angle_deg=angle))  # fmt: skip
+        finally:
+            session.open_device = original
+        device: Any = made[0]
+        t = np.array([a for a, _, _ in device.log])
+        x = np.degrees([p[0] for _, p, _ in device.log])[t >= device.hand.released_at_s]
+        extremes = [x[0]] + [x[i] for i in range(1, len(x) - 1)
+                             if (x[i] - x[i - 1]) * (x[i + 1] - x[i]) < 0]  # fmt: skip
+        swings = [s for s in (abs(b - a) for a, b in itertools.pairwise(extremes)) if s > 0.5]
+        zetas = []
+        for a, b in itertools.pairwise(swings):
+            delta = 2.0 * math.log(a / b)
+            zetas.append(delta / math.sqrt(4 * math.pi**2 + delta**2))
+        ratios = " ".join(f"{z:.2f}" for z in zetas) or "-"
+        print(
+            f"  {plant:9s} {angle:3.0f} deg {speed:4.0f} km/h: overshoot {overshoot(x):5.1f} % "
+            f"(offline {overshoot(offline(speed, angle)):5.1f} %), swing zeta {ratios:10s} "
+            f"rest {x[-1]:6.2f} deg"
+        )
+
+
+def overshoot(x: Any) -> float:
+    """How far past the centre the first swing goes, % of the release angle (0: it stops on
+    its side, held by the friction)."""
+    import numpy as np
+
+    past = -np.sign(x[0]) * x
+    return float(max(0.0, np.max(past)) / abs(x[0]) * 100.0)
+
+
+def offline(speed_kmh: float, angle_deg: float) -> Any:
+    """The offline model released the same way (the tests' release: 0.5 s turn, 1 s hold)."""
+    import numpy as np
+
+    from carfeel.models.steering import physical
+    from carfeel.models.steering.physical import PhysicalInputs
+    from carfeel.simulation.steering import physical_start
+
+    params = load_steering("b-segment").params.physical()
+    v, a0 = speed_kmh / 3.6, math.radians(angle_deg)
+    state = physical_start(params, v, 0.0)
+    angles = []
+    for k in range(7500):
+        t = k * 1e-3
+        if t < 0.5:
+            turn = 0.5 * (1 - math.cos(math.pi * t / 0.5))
+            rate = a0 * 0.5 * math.pi / 0.5 * math.sin(math.pi * t / 0.5)
+            inputs = PhysicalInputs(v, a0 * turn, rate, 0.0, 1.0)
+        elif t < 1.5:
+            inputs = PhysicalInputs(v, a0, 0.0, 0.0, 1.0)
+        else:
+            inputs = PhysicalInputs(v, 0.0, 0.0, 0.0, 0.0)
+        state, out = physical.step(state, inputs, params, 1e-3)
+        if t >= 1.5:
+            angles.append(out.steering_angle_rad)
+    return np.degrees(angles)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--ticks", type=int, default=20_000)
     parser.add_argument("--no-matrix", action="store_true")
+    parser.add_argument("--no-release", action="store_true")
     args = parser.parse_args()
     print(f"CPython {platform.python_version()} on {platform.machine()}")
     costs(args.ticks)
+    if not args.no_release:
+        releases()
     if not args.no_matrix:
         table()
 

@@ -80,9 +80,16 @@ def register(commands: Any) -> None:
                      "sized on it")  # fmt: skip
     run.add_argument("--device-mass", type=positive_float, default=None, metavar="M",
                      help="a real device's moving mass at the handle, kg (or kg m^2)")  # fmt: skip
-    run.add_argument("--aligning", choices=("front-axle", "steady-state"), default="front-axle",
-                     help="--model steering: the aligning torque from the front axle's force "
-                     "(default) or from the paper's steady-state Ay")  # fmt: skip
+    run.add_argument("--aligning", choices=("front-axle", "steady-state"), default=None,
+                     help="--model steering, the paper's law: the aligning torque from the front "
+                     "axle's force (default) or from the paper's steady-state Ay")  # fmt: skip
+    run.add_argument("--steering-model", choices=("paper", "physical"), default="paper",
+                     help="--model steering: the paper's law (default) or the physical model "
+                     "(brush tyres, EPS steering system) behind a virtual coupling sized for "
+                     "the device")  # fmt: skip
+    run.add_argument("--road", choices=("dry", "wet", "snow"), default="dry",
+                     help="--steering-model physical: the road under its tyres (mu 1.0, 0.7, "
+                     "0.3; default dry)")  # fmt: skip
     run.add_argument("--synchronizer", choices=("fixed", "physics"), default=None,
                      help="--model hpattern: the paper's synchronization time, or cone torque "
                      "against the speed difference (default: the preset's)")  # fmt: skip
@@ -128,6 +135,11 @@ def _run(args: argparse.Namespace) -> int:
     staged_record = staged_plot = None
     if args.plot and record is None:
         raise InputError("--plot draws the recording: give --record FILE.csv too")
+    if args.aligning is not None and args.steering_model == "physical":
+        raise InputError(
+            "--aligning chooses the paper law's aligning torque; the physical model's comes from "
+            "its own tyres (drop --aligning, or use --steering-model paper)"
+        )
     if args.sequence is not None and args.model != "hpattern":
         raise InputError(f"--sequence is the H-pattern's script; --model {args.model} has none")
     if record is not None:
@@ -158,7 +170,9 @@ def _run(args: argparse.Namespace) -> int:
         device_report_hz=args.device_report_hz,
         device_damping=args.device_damping,
         device_mass=args.device_mass,
-        aligning=args.aligning,
+        aligning=args.aligning or "front-axle",
+        steering_model=args.steering_model,
+        road=args.road,
         synchronizer=args.synchronizer,
         telemetry=args.telemetry,
         gear_output=args.gear_output,

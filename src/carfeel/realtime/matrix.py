@@ -22,12 +22,17 @@ PLANTS_FOR = {
     "shift": ("joystick", "shifter"),
     "hpattern": ("joystick", "shifter"),
     "steering": ("wheel", "dd-wheel"),
+    "physical": ("wheel", "dd-wheel"),
 }
 MODES_FOR = {
     "shift": ("impedance", "admittance"),
     "hpattern": ("impedance", "admittance"),
     "steering": ("impedance",),
+    "physical": ("impedance",),
 }
+MODELS = tuple(PLANTS_FOR)
+"""The matrix's models: `physical` is `--model steering --steering-model physical`."""
+WHEEL_MODELS = ("steering", "physical")
 DELAYS_MS = (0.0, 2.0, 4.0, 8.0)
 HANDS = ("script", "none", "release")
 SEQUENCE = ("N", "1", "2", "N")
@@ -60,7 +65,7 @@ class Cell:
     def passed(self) -> bool:
         if self.refused is not None:
             return True
-        limit = MODEL_TORQUE_LIMIT_NM if self.model == "steering" else MODEL_FORCE_LIMIT_N
+        limit = MODEL_TORQUE_LIMIT_NM if self.model in WHEEL_MODELS else MODEL_FORCE_LIMIT_N
         return (
             self.ripple_fraction < RIPPLE_FRACTION
             and not self.at_limit
@@ -85,19 +90,22 @@ def run_cell(
 
     with tempfile.TemporaryDirectory() as folder:
         path = Path(folder) / "cell.csv"
+        wheel = model in WHEEL_MODELS
         duration = None
-        if model == "steering" and hand != "script":
+        if wheel and hand != "script":
             duration = 2.2 + 1.0 + settle_s + 1.0
-        elif model != "steering" and hand == "none":
+        elif not wheel and hand == "none":
             duration = 3.0
         elif model == "shift":
             duration = 2.2 + 2.0 + settle_s
         elif model == "hpattern":
             duration = 2.2 + 1.2 * len(SEQUENCE) + 1.0 + settle_s
         run = RealtimeRun(
-            model=model, device=f"virtual:{plant}", mode=mode, rate_hz=rate_hz,
-            duration_s=duration, sequence=SEQUENCE, speed_kmh=speed_kmh if model == "steering"
-            else 30.0, clock="simulated", record=path, hand=hand, device_delay_ms=delay_ms,
+            model="steering" if wheel else model, device=f"virtual:{plant}", mode=mode,
+            rate_hz=rate_hz, duration_s=duration, sequence=SEQUENCE,
+            speed_kmh=speed_kmh if wheel else 30.0, clock="simulated", record=path, hand=hand,
+            device_delay_ms=delay_ms,
+            steering_model="physical" if model == "physical" else "paper",
         )  # fmt: skip
         try:
             result = run_realtime(run)
@@ -124,7 +132,8 @@ def run_cell(
 
 
 def _force(model: str) -> str:
-    return {"shift": "force_N", "hpattern": "force_x_N", "steering": "torque_Nm"}[model]
+    return {"shift": "force_N", "hpattern": "force_x_N", "steering": "torque_Nm",
+            "physical": "torque_Nm"}[model]  # fmt: skip
 
 
 def rec_limit(path: Path) -> float:
@@ -134,7 +143,7 @@ def rec_limit(path: Path) -> float:
     return float(meta["max_force"])
 
 
-def matrix(models: tuple[str, ...] = ("shift", "hpattern", "steering")) -> list[Cell]:
+def matrix(models: tuple[str, ...] = MODELS) -> list[Cell]:
     """Every cell, in order."""
     return [
         run_cell(model, mode, plant, delay, hand)

@@ -89,6 +89,11 @@ class RealtimeRun:
     """A real device's moving mass at the handle, kg (or its inertia, kg m^2)."""
     aligning: str = "front-axle"
     """--model steering: where tau0's Ay comes from (front-axle, or the paper's steady-state)."""
+    steering_model: str = "paper"
+    """--model steering: the paper's law, or the physical model behind a virtual coupling
+    (`realtime.physical_steering`)."""
+    road: str = "dry"
+    """--steering-model physical: the road under its tyres (dry, wet, snow)."""
     passivity_controller: bool = True
     synchronizer: str | None = None
     """--model hpattern: fixed (the paper's timer) or physics; None: the preset's."""
@@ -155,6 +160,14 @@ class RealtimeResult:
                 f"{st['zeta_hands_off']:.2f}, round-trip delay {st['latency_s'] * 1e3:.3g} ms, "
                 f"passivity index {st['passivity_index']:.2g} (below 1: passive for any hand)"
             )
+            if "coupling_stiffness" in st:
+                lines.append(
+                    f"physical steering behind a coupling of {st['coupling_stiffness']:.4g} "
+                    f"Nm/rad ({st['felt_stiffness_share']:.0%} of the car's on-centre stiffness "
+                    f"felt), scheduled damping up to {st['added_damping_max']:.3g} Nm*s/rad, "
+                    f"least damping ratio {st['zeta_physical']:.2f}, sized up to "
+                    f"{st['top_speed_kmh']:.0f} km/h"
+                )
         lines += [f"fault: {f}" for f in s.faults]
         lines += [f"note: {n}" for n in s.notes]
         if self.record:
@@ -213,6 +226,7 @@ def _check(run: RealtimeRun) -> None:
         raise InputError("--hand none|release needs a virtual device (a real one has your hand)")
     if run.aligning not in ALIGNING:
         raise InputError(f"--aligning {run.aligning!r}: choose one of {', '.join(ALIGNING)}")
+    _check_steering_model(run)
     if run.device_delay_ms is not None and not 0.0 <= run.device_delay_ms <= 50.0:
         raise InputError(f"--device-delay-ms {run.device_delay_ms:g}: allowed 0 <= value <= 50")
     if run.device_report_hz is not None and not 100.0 <= run.device_report_hz <= 10_000.0:
@@ -241,6 +255,35 @@ def _check(run: RealtimeRun) -> None:
     if run.clock == "simulated" and not run.device.startswith(("virtual", "replay")):
         raise InputError(
             "--clock simulated needs a virtual or replay device; a real one lives in wall time"
+        )
+
+
+def _check_steering_model(run: RealtimeRun) -> None:
+    from carfeel.simulation.steering import ROAD_FRICTION, STEERING_MODELS
+
+    if run.steering_model not in STEERING_MODELS:
+        raise InputError(
+            f"--steering-model {run.steering_model!r}: choose one of {', '.join(STEERING_MODELS)}"
+        )
+    if run.road not in ROAD_FRICTION:
+        raise InputError(f"--road {run.road!r}: choose one of {', '.join(ROAD_FRICTION)}")
+    if run.steering_model == "physical" and run.model != "steering":
+        raise InputError("--steering-model physical needs --model steering")
+    if run.road != "dry" and run.steering_model != "physical":
+        raise InputError(
+            "--road sets the physical model's tyres: give --steering-model physical too"
+        )
+    if run.steering_model == "physical" and run.rate_hz * run.substeps < 1000.0 - 1e-9:
+        from math import ceil
+
+        raise InputError(
+            f"--steering-model physical steps at 1 ms at most (its rack and end stops need it): "
+            f"at --rate-hz {run.rate_hz:g} give --substeps {ceil(1000.0 / run.rate_hz - 1e-9)}"
+        )
+    if run.steering_model == "physical" and run.aligning != "front-axle":
+        raise InputError(
+            "--aligning chooses the paper law's aligning torque; the physical model's comes "
+            "from its own tyres (drop --aligning, or use --steering-model paper)"
         )
 
 
@@ -463,6 +506,7 @@ def _run_realtime(
     renderer: Renderer
     hand: Any = None
     duration = run.duration_s
+    physical_figure: dict[str, float] = {}
     virtual = run.device.startswith("virtual")
     notes: list[str] = []
     if run.model == "shift":
@@ -515,7 +559,6 @@ def _run_realtime(
         duration = duration or 1.2 * len(run.sequence) + 1.0 + ready_s
     else:
         car = load_steering(preset_name).params
-        scaling = _steering_scaling(car, run, info, sizing, notes)
         if run.hand == "release":
             hand = hands.holding_wheel(
                 math.radians(run.release_angle_deg), calibration_s, 1.0 + ready_s - calibration_s
@@ -523,9 +566,15 @@ def _run_realtime(
         else:
             weave = hands.weave_target(math.radians(15.0), 0.2, ready_s, WEAVE_CYCLES)
             hand = hands.WheelHand(weave, start_s=calibration_s)
-        renderer = SteeringRenderer(car, run.speed_kmh / 3.6, scaling, run.rate_hz, sizing,
-                                    info, SteeringRendering(aligning=run.aligning))  # fmt: skip
         duration = duration or ready_s + WEAVE_CYCLES / 0.2 + 2.0
+        if run.steering_model == "physical":
+            renderer, scaling, physical_figure = _physical_renderer(
+                car, preset_name, run, info, sizing, receiver is not None, notes
+            )
+        else:
+            scaling = _steering_scaling(car, run, info, sizing, notes)
+            renderer = SteeringRenderer(car, run.speed_kmh / 3.6, scaling, run.rate_hz, sizing,
+                                        info, SteeringRendering(aligning=run.aligning))  # fmt: skip
     renderer.substeps = run.substeps
     driven = None
     if receiver is not None:
@@ -542,6 +591,7 @@ def _run_realtime(
     )
     clock: Clock = SimulatedClock() if run.clock == "simulated" else WallClock()
     figure = stability_figure(sizing, info, run.rate_hz)
+    figure.update(physical_figure)
     metadata = {
         "carfeel_version": __version__,
         "model": run.model,
@@ -573,7 +623,11 @@ def _run_realtime(
         "stability": figure,
     }
     if wheel:
-        metadata["aligning"] = run.aligning
+        metadata["steering_model"] = run.steering_model
+        if run.steering_model == "physical":
+            metadata["road"] = run.road
+        else:
+            metadata["aligning"] = run.aligning
     axes = info.axes
     columns = ("time_s", "overrun", *(f"command_{i}" for i in range(axes)), "fault",
                *renderer.columns)  # fmt: skip
@@ -626,6 +680,8 @@ def _drive_by_telemetry(
 
     steering = run.model == "steering"
     needs = driving.steering_needs if steering else driving.hpattern_needs
+    if steering and run.steering_model == "physical":
+        needs = driving.speed_needs  # the model's Ay is its own tyres'; the game's speed drives it
     source = VehicleSource(receiver, needs)
     vibration = driving.EngineVibration(run.rate_hz, 0.03 * info.max_force, 0.05 * info.max_force)
     gear_driver = None
@@ -677,3 +733,80 @@ def _steering_scaling(
         )
         fs = lowered
     return Scaling(fs, 1.0)
+
+
+def _physical_renderer(
+    car: Any,
+    preset_name: str,
+    run: RealtimeRun,
+    info: DeviceInfo,
+    sizing: Sizing,
+    telemetry: bool,
+    notes: list[str],
+) -> tuple[Any, Scaling, dict[str, float]]:
+    """The physical steering model behind a virtual coupling sized for this device (or the
+    reason it cannot be rendered stably: exit 2)."""
+    from carfeel.realtime.physical_steering import (
+        SPEEDS_M_S,
+        PhysicalSteeringRenderer,
+        felt_share,
+        size_physical,
+    )
+
+    if not car.has_physical:
+        raise InputError(
+            f"--steering-model physical: preset {preset_name} has no [tyres] and "
+            "[steering_system] tables (the shipped b-segment and d-segment have them)"
+        )
+    params = car.physical(run.road)
+    scaling = Scaling(0.9 * info.max_force / MODEL_TORQUE_NM, 1.0)
+    speed = run.speed_kmh / 3.6
+    # With telemetry the game's speed moves: every speed of the grid; else the run's.
+    speeds = SPEEDS_M_S if telemetry else (speed,)
+    sized = size_physical(
+        info, run.rate_hz, velocity_sections(run.rate_hz), params, scaling, sizing,
+        run.substeps, speeds,
+    )  # fmt: skip
+    cannot = (
+        f"{info.name} cannot render the physical steering model at {run.rate_hz:g} Hz with "
+        f"{info.command_delay_s * 1e3:g} + {info.reading_delay_s * 1e3:g} ms of delay"
+    )
+    if isinstance(sized, str):
+        raise InputError(
+            f"{cannot} stably: no coupling within its stiffness budget "
+            f"({sizing.stiffness:.3g} Nm/rad) keeps the released wheel damped ({sized}). "
+            "Lower the delay, raise the rate, or use --steering-model paper"
+        )
+    share = felt_share(params, sized, scaling, max(speed, 1.0))
+    if share < MIN_FELT_SHARE:
+        raise InputError(
+            f"{cannot} faithfully: the stiffest coupling it holds stably "
+            f"({sized.coupling_stiffness:.3g} Nm/rad) "
+            f"would let through only {share:.0%} of the car's on-centre stiffness at "
+            f"{run.speed_kmh:g} km/h: the wheel would feel the coupling, not the car. Lower the "
+            "delay or use --steering-model paper"
+        )
+    if telemetry and sized.top_speed_m_s < SPEEDS_M_S[-1]:
+        notes.append(
+            f"the physical model is rendered up to {sized.top_speed_m_s * 3.6:.0f} km/h on "
+            "this device: above, its speed is held there (the released wheel would not stay "
+            "damped)"
+        )
+    renderer = PhysicalSteeringRenderer(params, speed, scaling, run.rate_hz, sized, info)
+    figure = {
+        "coupling_stiffness": sized.coupling_stiffness,
+        "coupling_damping": sized.coupling_damping,
+        "coupling_share": sized.share,
+        "felt_stiffness_share": share,
+        "rim_inertia_kg_m2": sized.rim_inertia_kg_m2,
+        "added_damping_max": max(b for _, b in sized.schedule),
+        "zeta_physical": min(sized.zeta),
+        "top_speed_kmh": sized.top_speed_m_s * 3.6,
+        "wall_stiffness": sized.wall_stiffness,
+    }
+    return renderer, scaling, figure
+
+
+MIN_FELT_SHARE = 0.5
+"""The share of the car's on-centre stiffness the coupling must let through (in series, a
+coupling as stiff as the car passes half): below it the wheel feels the coupling."""

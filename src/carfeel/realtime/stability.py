@@ -73,8 +73,10 @@ class AxisLoop:
         )
 
 
+@functools.lru_cache(maxsize=64)
 def _device_step(mass: float, damping: float, period: float) -> tuple[np.ndarray, np.ndarray]:
-    """Exact zero-order-hold discretization of m*v' = u - b*v: (Phi, Gamma)."""
+    """Exact zero-order-hold discretization of m*v' = u - b*v: (Phi, Gamma). Cached: a sizing
+    builds hundreds of loops of one device (the arrays are never written to)."""
     from scipy.linalg import expm
 
     a = np.array([[0.0, 1.0, 0.0], [0.0, -damping / mass, 1.0 / mass], [0.0, 0.0, 0.0]])

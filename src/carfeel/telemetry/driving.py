@@ -3,6 +3,8 @@ renderer. Each tick it polls the `VehicleSource` and, blended by its weight with
 own values (the passive fallback), sets what the model takes from the game:
   steering  speed and Ay (tau0's Ay is the game's, or speed x yaw rate if the game has no Ay);
             with no telemetry tau0 fades to zero and the wheel keeps its friction, damping, stop;
+            the physical model (`takes_lateral_accel` False) takes the speed only: its Ay is
+            its own tyres' (DESIGN.md, issue 13 in the loop);
   hpattern  vehicle speed, engine speed and the clutch pedal for the synchronizer (a shift
             without the clutch balks and grinds, a rev-matched one goes through); with no
             telemetry the clutch counts as pressed and the speeds go back to the run's.
@@ -68,6 +70,11 @@ def steering_needs(state: VehicleState) -> bool:
     return not math.isnan(state.speed_m_s) and ay_or_yaw
 
 
+def speed_needs(state: VehicleState) -> bool:
+    """The physical steering model takes the game's speed only."""
+    return not math.isnan(state.speed_m_s)
+
+
 def hpattern_needs(state: VehicleState) -> bool:
     return not (math.isnan(state.speed_m_s) or math.isnan(state.engine_speed_rpm))
 
@@ -119,7 +126,7 @@ class TelemetryDriven:
         inner = self.inner
         speed = state.speed_m_s if w > 0.0 else self.fallback_speed
         inner.speed = w * speed + (1.0 - w) * self.fallback_speed
-        if self.model == "steering":
+        if self.model == "steering" and getattr(inner, "takes_lateral_accel", True):
             ay = state.lateral_accel_m_s2
             if math.isnan(ay):
                 ay = state.speed_m_s * state.yaw_rate_rad_s
