@@ -361,6 +361,15 @@ def test_scales_come_from_a_real_device_s_limits(monkeypatch):
         (["--device-delay-ms", "100"], "allowed 0 <= value <= 50"),
         (["--device-report-hz", "20"], "allowed 100 <= value <= 10000"),
         (["--device-damping", "2"], "describe a real device"),
+        # a real device's declared dynamics beyond any device (1e300 broke the sizing's algebra)
+        (
+            ["--device", "evdev:/dev/input/event5", "--device-damping", "1e300"],
+            "allowed 0 < value <= 1000",
+        ),
+        (
+            ["--device", "evdev:/dev/input/event5", "--device-mass", "1e300"],
+            "allowed 0.0001 < value <= 50",
+        ),
         (["--release-angle-deg", "0"], "allowed 0 < value <= 180"),
         (["--device", "replay:/nonexistent.csv"], "no such recording"),
         (["--rate-hz", "50000"], "allowed 250 <= value <= 10000 Hz"),

@@ -52,6 +52,9 @@ MAX_RATE_HZ = 10_000.0
 WEAVE_CYCLES = 2
 """The virtual hands' weave on a wheel (0.2 Hz, 15 deg), then they hold it at centre."""
 MIN_RATE_HZ = 250.0
+DEVICE_DAMPING_MAX = 1000.0
+DEVICE_MASS_MIN = 1e-4
+DEVICE_MASS_MAX = 50.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -235,12 +238,16 @@ def _check(run: RealtimeRun) -> None:
         )
     if not (math.isfinite(run.release_angle_deg) and 0.0 < run.release_angle_deg <= 180.0):
         raise InputError(f"--release-angle-deg {run.release_angle_deg:g}: allowed 0 < value <= 180")
-    for flag, value in (
-        ("--device-damping", run.device_damping),
-        ("--device-mass", run.device_mass),
-    ):
-        if value is not None and not (math.isfinite(value) and value > 0.0):
-            raise InputError(f"{flag} {value:g}: must be a positive number")
+    # Bounds beyond any device (a knob's mass or a rim's inertia, its own damping), so that the
+    # sizing's discrete-time loop stays well conditioned (1e300 made it fail with a LinAlgError).
+    for flag, value, low, high, unit in (
+        ("--device-damping", run.device_damping, 0.0, DEVICE_DAMPING_MAX, "N*s/m at a knob, "
+         "Nm*s/rad at a rim"),
+        ("--device-mass", run.device_mass, DEVICE_MASS_MIN, DEVICE_MASS_MAX, "kg at a knob, "
+         "kg*m^2 at a rim"),
+    ):  # fmt: skip
+        if value is not None and not (math.isfinite(value) and low < value <= high):
+            raise InputError(f"{flag} {value:g}: allowed {low:g} < value <= {high:g} ({unit})")
     if run.substeps < 1 or run.rate_hz * run.substeps > MAX_RATE_HZ:
         raise InputError(
             f"--substeps {run.substeps}: the model may step at most {MAX_RATE_HZ:g} times a "
