@@ -130,6 +130,7 @@ def simulate(
     ret_k, ret_max = system("active_return_Nm_rad"), system("active_return_max_Nm")
     rack_level, col_level = system("rack_friction_Nm"), system("column_friction_Nm")
     stiff = system("friction_stiffness_Nm_rad")
+    presliding = system("presliding_damping_Nm_s_rad")
     rack_d = system("rack_damping_Nm_s_rad")
     ks, cs = system("stop_stiffness_Nm_rad"), system("stop_damping_Nm_s_rad")
     jr = system("rack_inertia_kg_m2")
@@ -255,7 +256,9 @@ def simulate(
             np.minimum(max_assist, (g_hs + g_span * low_speed) * excess * excess), bar
         )
         ret = np.minimum(np.maximum(ret_k * theta, -ret_max), ret_max) * window_all[k]
-        rack_friction, rack_anchor = _stick(theta, rack_anchor, rack_level, stiff, rack_over)
+        rack_friction, rack_anchor = _stick(
+            theta, rack_anchor, rack_level, stiff, rack_over, omega, presliding
+        )
         damping = (rack_d + (d_hs + low_speed * d_span)) * omega
         load_torque = aligning + jacking + park + rack_friction + damping
         stop: FloatArray | float = 0.0
@@ -270,7 +273,9 @@ def simulate(
         omega = omega + dt * rack_accel
         theta = theta + dt * omega
 
-        column, col_anchor = _stick(hand, col_anchor, col_level, stiff, col_over)
+        column, col_anchor = _stick(
+            hand, col_anchor, col_level, stiff, col_over, hand_rates[k], presliding
+        )
         torque_out[k] = (
             aligning + jacking + park + (rack_friction + column) + damping + jr * rack_accel
             + stop + (ret - boost)
@@ -287,11 +292,16 @@ def simulate(
 
 def _stick(
     position: FloatArray, anchor: FloatArray, level: FloatArray, stiffness: FloatArray,
-    over: FloatArray,
+    over: FloatArray, rate: FloatArray | None = None, damping: FloatArray | None = None,
 ) -> tuple[FloatArray, FloatArray]:  # fmt: skip
     """The pure model's stick element over arrays: (torque, anchor); `over` = level /
-    stiffness. The anchor kept within `over` of the position is the pure step's slide (at its
-    boundary the two may differ in the last bit)."""
+    stiffness; with `rate` and `damping`, the damper that acts while it sticks. The anchor kept
+    within `over` of the position is the pure step's slide (at its boundary the two may differ
+    in the last bit)."""
     torque = stiffness * (position - anchor)
     anchor = np.minimum(np.maximum(anchor, position - over), position + over)
-    return np.minimum(np.maximum(torque, -level), level), anchor
+    bounded = np.minimum(np.maximum(torque, -level), level)
+    if damping is None or rate is None:
+        return bounded, anchor
+    damped = np.minimum(np.maximum(torque + damping * rate, -level), level)
+    return np.where(np.abs(torque) <= level, damped, bounded), anchor

@@ -172,6 +172,7 @@ RANGES: dict[str, tuple[float, float, bool, bool]] = {
     "column_friction_Nm": (0.0, 10.0, True, True),
     "rack_friction_Nm": (0.0, 20.0, True, True),
     "friction_stiffness_Nm_rad": (1.0, 1e4, True, True),
+    "presliding_damping_Nm_s_rad": (0.0, 20.0, True, True),
     "rack_damping_Nm_s_rad": (0.0, 10.0, True, True),
     "assist_deadband_Nm": (0.0, 10.0, True, True),
     "assist_gain_standstill_1_Nm": (0.0, 20.0, True, True),
@@ -553,10 +554,11 @@ def _check_steering_system(s: Any) -> list[str]:
     for name, inertia, stiffness, damping in (
         ("rack_inertia_kg_m2", s.rack_inertia_kg_m2, stiff,
          s.compensation_damping_Nm_s_rad + s.rack_damping_Nm_s_rad + s.stop_damping_Nm_s_rad
-         + max(s.eps_damping_Nm_s_rad, s.eps_damping_high_speed_Nm_s_rad)),
+         + max(s.eps_damping_Nm_s_rad, s.eps_damping_high_speed_Nm_s_rad)
+         + s.presliding_damping_Nm_s_rad),
         ("hand_wheel_inertia_kg_m2", s.hand_wheel_inertia_kg_m2,
          s.torsion_bar_stiffness_Nm_rad + s.friction_stiffness_Nm_rad,
-         s.compensation_damping_Nm_s_rad),
+         s.compensation_damping_Nm_s_rad + s.presliding_damping_Nm_s_rad),
     ):  # fmt: skip
         if math.sqrt(stiffness / inertia) * h > 0.5 or damping * h / inertia > 0.5:
             problems.append(

@@ -108,8 +108,8 @@ def rendered_params(
 ) -> PhysicalParams:
     """The model with the rim inertia the device does not already have: the car's less the
     device's (model units), at least MIN_RIM_SHARE of the car's, and at least what keeps the
-    rim's stiffest mode and its dampers (the torsion bar, the column's stick spring and the
-    stiffest coupling the device holds) within w*h, c*h/J <= 0.5 at the model's step, the
+    rim's stiffest mode and its dampers (the torsion bar, the column's stick spring and damper,
+    the stiffest coupling the device holds) within w*h, c*h/J <= 0.5 at the model's step, the
     presets' rule for the physical model (`io.presets._check_steering_system`)."""
     system = params.system
     fs, ps = scaling.force_scale, scaling.position_scale
@@ -120,7 +120,11 @@ def rendered_params(
         + system.friction_stiffness_Nm_rad
         + sizing.stiffness * ps / fs
     )
-    dampers = system.compensation_damping_Nm_s_rad + sizing.damping * ps / fs
+    dampers = (
+        system.compensation_damping_Nm_s_rad
+        + system.presliding_damping_Nm_s_rad
+        + sizing.damping * ps / fs
+    )
     step = max(springs * (dt_s / 0.5) ** 2, dampers * dt_s / 0.5)
     rim = max(MIN_RIM_SHARE * car_rim, car_rim - device_rim, step)
     return dataclasses.replace(

@@ -55,9 +55,9 @@ static double park_moment_Nm(const cf_physical_params *p) {
     return 2.0 / 3.0 * p->tyres.friction_coefficient * front_load_N(p) * (p->tyres.patch_radius_m);
 }
 
-/* physical._stick: (torque, anchor) of a stick element. */
+/* physical._stick: (torque, anchor) of a stick element, its damper acting while it sticks. */
 static double stick(double position, double anchor, double level, double stiffness,
-                    double *new_anchor) {
+                    double rate, double damping, double *new_anchor) {
     double torque = stiffness * (position - anchor);
     if (torque > level) {
         *new_anchor = position - level / stiffness;
@@ -68,7 +68,8 @@ static double stick(double position, double anchor, double level, double stiffne
         return -level;
     }
     *new_anchor = anchor;
-    return torque;
+    torque += damping * rate;
+    return py_max(-level, py_min(level, torque));
 }
 
 void cf_physical_initial_state(cf_physical_state *s, const cf_physical_params *params,
@@ -157,8 +158,8 @@ void cf_physical_step(cf_physical_state *state, const cf_physical_inputs *inputs
     double k = v * dt_s / tyr->relaxation_length_m;
     double park_anchor = (state->park_anchor_rad + k * delta) / (1.0 + k);
     double park =
-        stick(delta, park_anchor, park_moment_Nm(params), tyr->wind_up_stiffness_Nm_rad,
-              &park_anchor);
+        stick(delta, park_anchor, park_moment_Nm(params), tyr->wind_up_stiffness_Nm_rad, 0.0,
+              0.0, &park_anchor);
     park /= sr;
 
     double hand, hand_rate, hand_accel;
@@ -191,7 +192,8 @@ void cf_physical_step(cf_physical_state *state, const cf_physical_inputs *inputs
     ret = py_max(-sys->active_return_max_Nm, py_min(sys->active_return_max_Nm, ret)) * window;
     double rack_anchor;
     double rack_friction = stick(theta, state->rack_anchor_rad, sys->rack_friction_Nm,
-                                 sys->friction_stiffness_Nm_rad, &rack_anchor);
+                                 sys->friction_stiffness_Nm_rad, omega,
+                                 sys->presliding_damping_Nm_s_rad, &rack_anchor);
     double eps_damping = sys->eps_damping_high_speed_Nm_s_rad +
                          low_speed * (sys->eps_damping_Nm_s_rad - sys->eps_damping_high_speed_Nm_s_rad);
     double damping = (sys->rack_damping_Nm_s_rad + eps_damping) * omega;
@@ -211,7 +213,8 @@ void cf_physical_step(cf_physical_state *state, const cf_physical_inputs *inputs
 
     double column_anchor;
     double column = stick(hand, state->column_anchor_rad, sys->column_friction_Nm,
-                          sys->friction_stiffness_Nm_rad, &column_anchor);
+                          sys->friction_stiffness_Nm_rad, hand_rate,
+                          sys->presliding_damping_Nm_s_rad, &column_anchor);
     if (inputs->hands_on <= 0.5) {
         hand_accel = (inputs->hand_torque_Nm - bar_total - column) / sys->hand_wheel_inertia_kg_m2;
         hand_rate += dt_s * hand_accel;

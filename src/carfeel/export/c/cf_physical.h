@@ -34,6 +34,7 @@ typedef struct {
     double column_friction_Nm;
     double rack_friction_Nm;
     double friction_stiffness_Nm_rad;
+    double presliding_damping_Nm_s_rad;
     double rack_damping_Nm_s_rad;
     double assist_deadband_Nm;
     double assist_gain_standstill_1_Nm;

@@ -93,6 +93,10 @@ class SystemParams:
     """Rack, pinion and joint friction referred to the pinion."""
     friction_stiffness_Nm_rad: float
     """Stiffness of the stick elements (before the friction slides)."""
+    presliding_damping_Nm_s_rad: float
+    """Damper of the column's and the rack's stick elements while they stick (LuGre's sigma_1:
+    the micro-slip of real contacts dissipates before they slide); with the spring, bounded by
+    the friction level."""
     rack_damping_Nm_s_rad: float
     assist_deadband_Nm: float
     """Torsion-bar torque below which the motor does not boost."""
@@ -215,14 +219,20 @@ def initial_state(
     return PhysicalState(a, 0.0, a, 0.0, a, a, wheels, 0.0, 0.0, 0.0, 0.0, x_m, y_m, yaw_rad, 0.0)
 
 
-def _stick(position: float, anchor: float, level: float, stiffness: float) -> tuple[float, float]:
-    """(torque, anchor) of a stick element: a spring to an anchor that slides at +-level."""
+def _stick(
+    position: float, anchor: float, level: float, stiffness: float, rate: float = 0.0,
+    damping: float = 0.0,
+) -> tuple[float, float]:  # fmt: skip
+    """(torque, anchor) of a stick element: a spring to an anchor that slides at +-level; while
+    it sticks, a damper on `rate` beside the spring, their sum bounded by +-level (passive: the
+    bounded sum does at least the spring's work)."""
     torque = stiffness * (position - anchor)
     if torque > level:
         return level, position - level / stiffness
     if torque < -level:
         return -level, position + level / stiffness
-    return torque, anchor
+    torque += damping * rate
+    return max(-level, min(level, torque)), anchor
 
 
 def step(
@@ -319,8 +329,9 @@ def step(
     ret = sys.active_return_Nm_rad * theta
     ret = max(-sys.active_return_max_Nm, min(sys.active_return_max_Nm, ret)) * window
     rack_friction, rack_anchor = _stick(
-        theta, state.rack_anchor_rad, sys.rack_friction_Nm, sys.friction_stiffness_Nm_rad
-    )
+        theta, state.rack_anchor_rad, sys.rack_friction_Nm, sys.friction_stiffness_Nm_rad,
+        omega, sys.presliding_damping_Nm_s_rad,
+    )  # fmt: skip
     eps_damping = sys.eps_damping_high_speed_Nm_s_rad + low_speed * (
         sys.eps_damping_Nm_s_rad - sys.eps_damping_high_speed_Nm_s_rad
     )
@@ -342,8 +353,9 @@ def step(
 
     # Hand wheel: column friction, and the hand's torque if it is free.
     column, column_anchor = _stick(
-        hand, state.column_anchor_rad, sys.column_friction_Nm, sys.friction_stiffness_Nm_rad
-    )
+        hand, state.column_anchor_rad, sys.column_friction_Nm, sys.friction_stiffness_Nm_rad,
+        hand_rate, sys.presliding_damping_Nm_s_rad,
+    )  # fmt: skip
     if inputs.hands_on <= 0.5:
         hand_accel = (inputs.hand_torque_Nm - bar_total - column) / sys.hand_wheel_inertia_kg_m2
         hand_rate += dt_s * hand_accel
