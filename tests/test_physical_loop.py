@@ -128,15 +128,23 @@ def test_a_released_physical_wheel_returns_and_settles(plant, speed_kmh, angle_d
 
 
 @pytest.mark.parametrize("plant", ["wheel", "dd-wheel"])
-def test_from_90_deg_at_150_kmh_the_car_slides_offline_as_on_the_device(plant, monkeypatch):
+def test_from_90_deg_at_150_kmh_the_car_slides_and_recovers_offline_as_on_the_device(
+    plant, monkeypatch
+):
     """Held at 90 deg at 150 km/h the car is past its limit (the front axle slides); let go,
-    it spins, offline as on the device: the release check fails offline too, so it is the
-    car's, not the rendering's. On the device the safety chain stays quiet."""
+    the wheel swings far past the centre (offline 94 %, on the devices 43-50 %, measured) and
+    the car recovers: the EPS damping rising with speed damps it (with the damping the presets
+    had before, 2.4 Nm*s/rad at any speed, it spun, offline as on the device). The device's
+    swings decay at 0.1 or more (measured 0.11-0.21); the safety chain stays quiet."""
     offline, let_go = offline_release(150.0, 90.0, 4.0)
-    assert not decays(np.degrees(offline["steering_angle_rad"][let_go:]))[0]
     assert offline["front_grip_used"].max() > physical.SLIDING_GRIP
+    offline_angle = np.degrees(offline["steering_angle_rad"][let_go:])
+    assert -offline_angle.min() > 0.5 * 90.0  # far past the centre: the car slid
+    assert decays(offline_angle)[0]
     run, angle_device = released(plant, 150.0, 90.0, monkeypatch)
-    assert not decays(angle_device)[0]
+    ok, why = decays(angle_device)
+    assert ok, why
+    assert all(z >= 0.1 for z in swing_zetas(angle_device))
     assert run.summary.faults == [] and run.summary.time_at_limit_s < 0.05
 
 

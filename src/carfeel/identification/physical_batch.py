@@ -127,6 +127,7 @@ def simulate(
     g_span = system("assist_gain_standstill_1_Nm") - g_hs
     d_hs = system("eps_damping_high_speed_Nm_s_rad")
     d_span = system("eps_damping_Nm_s_rad") - d_hs
+    rise = system("eps_damping_rise_Nm_s3_rad_m2")
     ret_k, ret_max = system("active_return_Nm_rad"), system("active_return_max_Nm")
     rack_level, col_level = system("rack_friction_Nm"), system("column_friction_Nm")
     stiff = system("friction_stiffness_Nm_rad")
@@ -259,7 +260,7 @@ def simulate(
         rack_friction, rack_anchor = _stick(
             theta, rack_anchor, rack_level, stiff, rack_over, omega, presliding
         )
-        damping = (rack_d + (d_hs + low_speed * d_span)) * omega
+        damping = (rack_d + (d_hs + low_speed * d_span + rise * v * v)) * omega
         load_torque = aligning + jacking + park + rack_friction + damping
         stop: FloatArray | float = 0.0
         if near_lock[k] or np.abs(theta).max() > lock - STOP_MARGIN_RAD:

@@ -181,6 +181,7 @@ RANGES: dict[str, tuple[float, float, bool, bool]] = {
     "max_assist_Nm": (0.0, 200.0, True, True),
     "eps_damping_Nm_s_rad": (0.0, 10.0, True, True),
     "eps_damping_high_speed_Nm_s_rad": (0.0, 10.0, True, True),
+    "eps_damping_rise_Nm_s3_rad_m2": (0.0, 0.01, True, True),
     "active_return_Nm_rad": (0.0, 100.0, True, True),
     "active_return_max_Nm": (0.0, 20.0, True, True),
     "active_return_fade_speed_m_s": (0.1, 100.0, True, True),
@@ -545,6 +546,9 @@ def check_steering(car: SteeringCar) -> list[str]:
 STEERING_STEP_S = 1e-3
 """The step the physical steering model must be accurate at (the 1 kHz loop)."""
 
+CHECKED_SPEED_M_S = 100.0
+"""The speed (360 km/h) up to which the EPS damping's rise with speed is checked at that step."""
+
 
 def _check_steering_system(s: Any) -> list[str]:
     """Its semi-implicit Euler step must resolve the stiffest and most damped modes at 1 ms."""
@@ -555,6 +559,7 @@ def _check_steering_system(s: Any) -> list[str]:
         ("rack_inertia_kg_m2", s.rack_inertia_kg_m2, stiff,
          s.compensation_damping_Nm_s_rad + s.rack_damping_Nm_s_rad + s.stop_damping_Nm_s_rad
          + max(s.eps_damping_Nm_s_rad, s.eps_damping_high_speed_Nm_s_rad)
+         + s.eps_damping_rise_Nm_s3_rad_m2 * CHECKED_SPEED_M_S**2
          + s.presliding_damping_Nm_s_rad),
         ("hand_wheel_inertia_kg_m2", s.hand_wheel_inertia_kg_m2,
          s.torsion_bar_stiffness_Nm_rad + s.friction_stiffness_Nm_rad,

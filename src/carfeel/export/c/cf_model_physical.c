@@ -21,7 +21,8 @@ static int check_system(const cf_system_params *s, char *message, size_t size) {
                      ? s->eps_damping_Nm_s_rad
                      : s->eps_damping_high_speed_Nm_s_rad;
     double rack_damp = s->compensation_damping_Nm_s_rad + s->rack_damping_Nm_s_rad +
-                       s->stop_damping_Nm_s_rad + eps + s->presliding_damping_Nm_s_rad;
+                       s->stop_damping_Nm_s_rad + eps + s->eps_damping_rise_Nm_s3_rad_m2 * 1e4 +
+                       s->presliding_damping_Nm_s_rad;
     const char *names[2] = {"rack_inertia_kg_m2", "hand_wheel_inertia_kg_m2"};
     double inertia[2] = {s->rack_inertia_kg_m2, s->hand_wheel_inertia_kg_m2};
     double stiffness[2] = {rack_stiff,

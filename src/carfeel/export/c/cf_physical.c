@@ -196,6 +196,7 @@ void cf_physical_step(cf_physical_state *state, const cf_physical_inputs *inputs
                                  sys->presliding_damping_Nm_s_rad, &rack_anchor);
     double eps_damping = sys->eps_damping_high_speed_Nm_s_rad +
                          low_speed * (sys->eps_damping_Nm_s_rad - sys->eps_damping_high_speed_Nm_s_rad);
+    eps_damping += sys->eps_damping_rise_Nm_s3_rad_m2 * v * v;
     double damping = (sys->rack_damping_Nm_s_rad + eps_damping) * omega;
     double lock = veh->steering_lock_rad;
     double stop = 0.0;

@@ -43,6 +43,7 @@ typedef struct {
     double max_assist_Nm;
     double eps_damping_Nm_s_rad;
     double eps_damping_high_speed_Nm_s_rad;
+    double eps_damping_rise_Nm_s3_rad_m2;
     double active_return_Nm_rad;
     double active_return_max_Nm;
     double active_return_fade_speed_m_s;

@@ -111,7 +111,10 @@ class SystemParams:
     eps_damping_Nm_s_rad: float
     """Motor damping on the pinion's rate at standstill (felt through the driver's torque)..."""
     eps_damping_high_speed_Nm_s_rad: float
-    """...rising to this at speed, on the assist's schedule: it damps the released wheel."""
+    """...rising to this at speed, on the assist's schedule: it damps the released wheel..."""
+    eps_damping_rise_Nm_s3_rad_m2: float
+    """...and further with the square of the speed, V^2 times this (the released wheel's weave
+    with the car at 200-250 km/h needs more damping than the release at 100 km/h wants)."""
     active_return_Nm_rad: float
     active_return_max_Nm: float
     active_return_fade_speed_m_s: float
@@ -335,6 +338,7 @@ def step(
     eps_damping = sys.eps_damping_high_speed_Nm_s_rad + low_speed * (
         sys.eps_damping_Nm_s_rad - sys.eps_damping_high_speed_Nm_s_rad
     )
+    eps_damping += sys.eps_damping_rise_Nm_s3_rad_m2 * v * v
     damping = (sys.rack_damping_Nm_s_rad + eps_damping) * omega
     lock = veh.steering_lock_rad
     stop = 0.0
