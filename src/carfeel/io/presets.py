@@ -196,6 +196,7 @@ RANGES: dict[str, tuple[float, float, bool, bool]] = {
 
 # Unit of a parameter from the suffix of its name, longest suffix first.
 _UNITS = [
+    ("_Nm_s3_rad_m2", "Nm*s/rad per (m/s)^2"),
     ("_Nm_s2_m", "Nm/(m/s^2)"),
     ("_Nm_rad", "Nm/rad"),
     ("_kg_m2", "kg*m^2"),
