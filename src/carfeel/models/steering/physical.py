@@ -29,7 +29,8 @@ Hand wheel: imposed (a driver's or a device's angle and rate, `hands_on` = 1; th
 the torque into the column, the rim's own inertia left to what moves it) or free with the hand's
 torque applied (`hands_on` = 0: hands off with zero torque; the rim's inertia integrated).
 Frictions are position-based stick elements (a spring of bounded stiffness to an anchor that
-slides at the friction level), dissipative, with no velocity slope.
+slides at the friction level, and while it sticks a damper beside the spring), dissipative, with
+no velocity slope. The EPS damping follows the assist's speed schedule and rises with V^2.
 
 Output: the torque the driver applies at the rim, positive counter-clockwise (each term resists
 the driver, as in the paper's law), and its contributions, which sum to it exactly:
