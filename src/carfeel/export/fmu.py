@@ -169,6 +169,7 @@ _FMI_UNITS: dict[str, tuple[str, dict[str, int]]] = {
     "rad/s": ("rad/s", {"rad": 1, "s": -1}),
     "Nm/rad": ("N.m/rad", {"kg": 1, "m": 2, "s": -2, "rad": -1}),
     "Nm*s/rad": ("N.m.s/rad", {"kg": 1, "m": 2, "s": -1, "rad": -1}),
+    "Nm*s/rad per (m/s)^2": ("N.m.s3/(rad.m2)", {"kg": 1, "s": 1, "rad": -1}),
     "Nm/(m/s^2)": ("N.m.s2/m", {"kg": 1, "m": 1}),
     "1/Nm": ("1/(N.m)", {"kg": -1, "m": -2, "s": 2}),
     "s/(m*Nm)": ("s/(m.N.m)", {"kg": -1, "m": -3, "s": 3}),
