@@ -27,7 +27,7 @@ pytest.importorskip("httpx2", reason="Starlette's TestClient needs httpx2 (carfe
 from starlette.testclient import TestClient
 
 from carfeel.panel import ring
-from carfeel.panel.server import PanelConfig, create_app
+from carfeel.panel.server import PanelConfig, Session, create_app
 
 JSON = {"Content-Type": "application/json"}
 SEQUENCE = ",".join(["N", "1", "2", "3", "4", "N"] * 4)
@@ -331,6 +331,41 @@ def test_the_ring_never_hands_out_a_lapped_row():
         writer.close()
     finally:
         shm.unlink()
+
+
+def test_a_loop_that_ends_as_the_panel_looks_is_not_an_error():
+    """The loop writes its last event (the summary) and exits between the panel's read of the
+    events and its look at the process: the session ends with the summary, not with "the loop's
+    process ended" (a browser page showed "ended: ?" for a stop on request)."""
+
+    class EndsWhenLookedAt:
+        exitcode = 0
+
+        def __init__(self, loop: ring.LoopSide) -> None:
+            self.loop = loop
+            self.alive = True
+
+        def is_alive(self) -> bool:
+            if self.alive:
+                self.alive = False
+                self.loop.event(("ended", {"stopped": "stopped", "faults": []}, "summary text"))
+            return self.alive
+
+    run = {"model": "hpattern", "device": "virtual:joystick", "clock": "simulated"}
+    session = Session(run, None, None)
+    loop = ring.LoopSide(session.shm, 3)
+    try:
+        session.process = EndsWhenLookedAt(loop)
+        session.state = "stopping"
+        session.pump()
+        assert session.state == "ended"
+        assert session.error is None
+        assert session.summary == {"stopped": "stopped", "faults": []}
+        assert [e["event"] for e in session.events] == ["ended"]
+    finally:
+        loop.close()
+        session.process = None  # nothing to join
+        session.close()
 
 
 PARENT = textwrap.dedent(

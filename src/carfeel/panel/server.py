@@ -179,7 +179,13 @@ class Session:
             if len(rows):
                 self._health(rows)
         if self.process is not None and not self.process.is_alive() and self.running:
-            self._event(("error", f"the loop's process ended (exit code {self.process.exitcode})"))
+            # What it wrote between the read above and its exit (its "ended", with the summary)
+            # comes first: only a loop that ended without saying so is an error.
+            for event in self.side.events():
+                self._event(event)
+            if self.running:
+                code = self.process.exitcode
+                self._event(("error", f"the loop's process ended (exit code {code})"))
         if self.process is not None and not self.process.is_alive() and not self.unlinked:
             self.unlink()
 
@@ -275,6 +281,7 @@ class Session:
         if self.running and self.state != "stopping":
             self.side.send(("stop",))
             self.state = "stopping"
+            self.changed.set()
 
     def unlink(self) -> None:
         """The segment's name goes (the memory stays mapped for the last frames)."""

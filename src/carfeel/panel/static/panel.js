@@ -255,14 +255,18 @@ function setSession(s) {
   if (s.model && (before.model !== s.model || before.state !== s.state) && s.state === "running") loadTunables();
   if (s.error) say("start-msg", s.error, true);
   if (before.recording && !s.recording) listRecordings();
-  if (before.state !== s.state && s.state === "ended") {
-    const stopped = s.summary ? s.summary.stopped : "?";
+  // The end is told once its summary is here (a frame may carry the new state before it); a loop
+  // that ended without one has its error said above.
+  const endedNow = s.state === "ended" && before.state !== "ended";
+  const summaryNow = s.state === "ended" && s.summary && !(before.state === "ended" && before.summary);
+  if (summaryNow) {
+    const stopped = s.summary.stopped;
     const why = { stopped: "stopped on request", duration: "its duration ran out", fault: "a safety fault faded the force out", SIGINT: "Ctrl-C", SIGTERM: "SIGTERM" }[stopped] || stopped;
     say("start-msg", "ended: " + why + (s.faults && s.faults.length ? " (" + s.faults[0] + ")" : ""), s.faults && s.faults.length);
     $("summary").textContent = s.text || "";
     $("summary-box").classList.remove("hidden");
-    listRecordings();
   }
+  if (endedNow || summaryNow) listRecordings();
   const events = $("events");
   events.innerHTML = "";
   for (const e of (s.events || []).slice().reverse()) {
