@@ -428,6 +428,56 @@ def size_physical(
     return best if best is not None else "; ".join(reasons)
 
 
+def resize_physical(
+    info: DeviceInfo,
+    rate_hz: float,
+    sections: Sections,
+    params: PhysicalParams,
+    scaling: Scaling,
+    sizing: Sizing,
+    current: PhysicalSizing,
+    substeps: int = 1,
+) -> PhysicalSizing | str:
+    """A tuned model's sizing on the running session's coupling: the same share of the spring
+    budget and rim inertia (a running loop keeps its coupling; only the scheduled damping and
+    the wall move, ramped), damped at every speed `current` reaches; or the reason not."""
+    speeds = tuple(v for v, _ in current.schedule)
+    sizer = _Sizer(info, rate_hz, sections, params, scaling, sizing, substeps, speeds)
+    rim = sizer.model.system.hand_wheel_inertia_kg_m2
+    if not math.isclose(rim, current.rim_inertia_kg_m2, rel_tol=1e-9):
+        return (
+            f"the model's rim would need {rim:.3g} kg*m^2 (now {current.rim_inertia_kg_m2:.3g}): "
+            "the coupling cannot change while the session runs"
+        )
+    sized, why = sizer.try_share(current.share, current.wall_stiffness > 0.0)
+    if sized is None or len(sized.schedule) < len(speeds):
+        return why or "the released wheel would not stay damped"
+    return sized
+
+
+def holds(
+    info: DeviceInfo,
+    rate_hz: float,
+    sections: Sections,
+    params: PhysicalParams,
+    scaling: Scaling,
+    sizing: Sizing,
+    sized: PhysicalSizing,
+    substeps: int = 1,
+    floor: float = ZETA_FLOOR,
+) -> str:
+    """Empty when `sized` (its coupling and schedule, as given) keeps every linearization of
+    `params` at least `floor` damped at every speed of its schedule; else where it does not.
+    (For a passing moment, such as a tuning's ramp: the sizing's goals are for the feel.)"""
+    speeds = tuple(v for v, _ in sized.schedule)
+    sizer = _Sizer(info, rate_hz, sections, params, scaling, sizing, substeps, speeds)
+    for (speed, added), per_speed in zip(sized.schedule, sizer.cases, strict=True):
+        lowest = sizer.least(sized.share, per_speed, added)[1]
+        if lowest < floor:
+            return f"damping ratio {lowest:.2f} at {speed * 3.6:.0f} km/h, under {floor:g}"
+    return ""
+
+
 def car_stiffness(params: PhysicalParams, speed_m_s: float) -> float:
     """The car's on-centre torque per rim angle in steady state, Nm/rad at the rim (0 if it
     does not centre): the static gain of the model linearized with its rim imposed (hands on)
@@ -547,6 +597,39 @@ class PhysicalSteeringRenderer:
         self.wall_damping = sized.wall_damping
         self._scheduled_for = math.nan
         self._added = 0.0
+
+    @property
+    def schedule(self) -> tuple[tuple[float, float], ...]:
+        """(speed m/s, added damping Nm*s/rad at the device), as sized or retuned."""
+        return self.sized.schedule
+
+    @property
+    def wall(self) -> tuple[float, float]:
+        """The wall inside the travel: stiffness Nm/rad, damping Nm*s/rad (device units)."""
+        return self.wall_stiffness, self.wall_damping
+
+    def retune(
+        self,
+        params: PhysicalParams,
+        schedule: tuple[tuple[float, float], ...],
+        wall: tuple[float, float] | None = None,
+    ) -> None:
+        """New model parameters (the car's rim inertia is replaced by the loop's, as at
+        start-up), damping schedule and wall; the coupling and the model's state are kept.
+        Between ticks (the panel's `Ramp`)."""
+        self.params = dataclasses.replace(
+            params,
+            system=dataclasses.replace(
+                params.system, hand_wheel_inertia_kg_m2=self.sized.rim_inertia_kg_m2
+            ),
+        )
+        if wall is not None:
+            self.wall_stiffness, self.wall_damping = wall
+        self.sized = dataclasses.replace(
+            self.sized, schedule=schedule, wall_stiffness=self.wall_stiffness,
+            wall_damping=self.wall_damping,
+        )  # fmt: skip
+        self._scheduled_for = math.nan
 
     @property
     def speed(self) -> float:
