@@ -300,6 +300,60 @@ def test_steering_tunings_are_checked_against_the_wheel(tmp_path):
         wait_for(client, lambda s: s["state"] == "ended", what="the end")
 
 
+def test_the_physical_steering_runs_and_is_tuned_from_the_panel(tmp_path):
+    """--steering-model physical from the API: the session reports its coupling; the tunables
+    are the EPS system's and the tyres' (not the paper law's); a tuning the wheel cannot damp is
+    refused with the reason, one it can is ramped in by the loop's process, and the next is
+    checked on the new schedule; the saved preset holds it."""
+    with client_for(tmp_path) as client:
+        options = client.get("/api/options").json()
+        assert options["steering_models"] == ["paper", "physical"]
+        assert options["roads"] == ["dry", "wet", "snow"]
+        physical = {t["path"] for t in options["tunables"]["steering:physical"]}
+        assert "steering_system.eps_damping_high_speed_Nm_s_rad" in physical
+        assert not physical & {t["path"] for t in options["tunables"]["steering"]}
+        bad = post(client, "/api/session", {"model": "steering", "steering_model": "physical",
+                                            "device": "virtual:wheel", "clock": "simulated",
+                                            "road": "ice", "force": True})  # fmt: skip
+        assert bad.status_code == 400 and "ice" in bad.json()["error"]
+        start = post(client, "/api/session", {
+            "model": "steering", "steering_model": "physical", "road": "wet",
+            "device": "virtual:wheel", "clock": "simulated", "speed_kmh": 100,
+            "duration_s": 600, "force": True,
+        })  # fmt: skip
+        assert start.status_code == 200, start.text
+        s = wait_for(client, lambda s: s["state"] == "running", what="running")
+        assert s["run"]["steering_model"] == "physical" and s["run"]["road"] == "wet"
+        assert s["coupling"]["stiffness"] > 0 and s["coupling"]["zeta"] >= 0.05
+        assert "torque_assist_Nm" in s["columns"]
+        tunables = client.get("/api/tune").json()
+        assert tunables["steering_model"] == "physical"
+        values = {t["path"]: t["value"] for t in tunables["tunables"]}
+        assert values["steering_system.eps_damping_high_speed_Nm_s_rad"] == 1.9
+        refused = post(client, "/api/tune", {
+            "values": {"steering_system.eps_damping_high_speed_Nm_s_rad": 0.0}})  # fmt: skip
+        assert refused.status_code == 400
+        assert "could not keep the released wheel damped" in refused.json()["error"]
+        law = post(client, "/api/tune", {"values": {"torque.k9_Nm_s_rad": 0.2}})
+        assert law.status_code == 400 and "not a tunable" in law.json()["error"]
+        for trail in (0.06, 0.07):  # the second is checked on the first's schedule
+            ok = post(client, "/api/tune", {"values": {"tyres.pneumatic_trail_m": trail}})
+            assert ok.status_code == 200, ok.text
+        wait_for(client, lambda s: sum(e["event"] == "tuned" for e in s["events"]) >= 2,
+                 what="tuned twice")  # fmt: skip
+        values = {t["path"]: t["value"] for t in client.get("/api/tune").json()["tunables"]}
+        assert values["tyres.pneumatic_trail_m"] == 0.07
+        saved = post(client, "/api/presets", {"name": "heavier"})
+        assert saved.status_code == 200, saved.text
+        from carfeel.io.presets import load_steering
+
+        car = load_steering(str(tmp_path / "presets" / "steering" / "heavier.toml")).params
+        assert car.tyres is not None and car.tyres.pneumatic_trail_m == 0.07
+        client.post("/api/session/stop")
+        s = wait_for(client, lambda s: s["state"] == "ended", what="the end")
+        assert s["summary"]["stopped"] == "stopped" and not s["faults"]
+
+
 def test_the_ring_never_hands_out_a_lapped_row():
     shm = ring.create()
     try:

@@ -206,6 +206,35 @@ def test_a_steering_session_shows_its_views(page: Any) -> None:
     ]
 
 
+def test_the_physical_steering_from_the_page(page: Any) -> None:
+    """The steering model and the road are offered for the steering only (the road for the
+    physical model only); the page shows the session's model and its coupling, and tunes the
+    physical model's own parameters."""
+    assert not page.is_visible("#steering-model-row")
+    page.select_option("#model", "steering")
+    assert page.is_visible("#steering-model-row") and not page.is_visible("#road-row")
+    page.select_option("#steering-model", "physical")
+    assert page.is_visible("#road-row")
+    page.select_option("#road", "wet")
+    page.select_option("#clock", "simulated")
+    page.click("#start")
+    page.wait_for_function("document.querySelector('#state').textContent === 'RUNNING'")
+    assert "steering (physical, wet road)" in (page.text_content("#where") or "")
+    page.wait_for_function("document.querySelector('#device-info').textContent"
+                           ".includes(\"physical model's coupling\")")  # fmt: skip
+    field = "input[data-path='tyres.pneumatic_trail_m']"
+    page.wait_for_selector(field)
+    assert page.query_selector("input[data-path='torque.k1_Nm_s2_m']") is None
+    page.fill(field, "0.06")
+    page.click("#apply")
+    page.wait_for_function("document.querySelector('#tune-msg').textContent.startsWith('applied')")
+    page.wait_for_function("document.querySelector('#events').textContent.includes('tuned:')")
+    page.click("#stop")
+    page.wait_for_function("document.querySelector('#state').textContent === 'ENDED'")
+    assert page.text_content("#start-msg") == "ended: stopped on request"
+    assert page.problems == []
+
+
 def test_a_panel_with_a_token_serves_its_page_to_its_url_only(tmp_path: Path) -> None:
     sync_playwright = _need_browser()
     with serving(tmp_path, "--token", "a-long-secret") as url, sync_playwright() as p:

@@ -114,6 +114,8 @@ class Session:
     def __init__(self, run: dict[str, Any], preset: Any, physics: bool | None) -> None:
         self.run = run
         self.model: str = run["model"]
+        self.kind = tuning.kind_of(self.model, run.get("steering_model", "paper"))
+        """The tunables' model key (the physical steering's differ from the law's)."""
         self.preset = preset
         self.physics = physics
         self.state = "starting"
@@ -344,6 +346,14 @@ class Session:
             out["rate_hz"] = ready["rate_hz"]
             out["loop_process"] = {"pid": ready["pid"], "priority": ready["priority"]}
             out["speed_kmh"] = ready["speed_m_s"] * 3.6
+            if "physical" in ready:  # the physical steering's coupling (as sized at start-up)
+                sized = ready["physical"]
+                out["coupling"] = {
+                    "stiffness": sized.coupling_stiffness,
+                    "share": sized.share,
+                    "zeta": min(sized.zeta),
+                    "top_speed_kmh": sized.top_speed_m_s * 3.6,
+                }
             if "layout" in ready:
                 out["layout"] = jsonable(ready["layout"])
             if "gearbox" in ready:
@@ -370,6 +380,7 @@ class Panel:
         self._pump: asyncio.Task[None] | None = None
         self._plot_lock = threading.Lock()
         self._starting = False
+        self._tuning = False
 
     # -- lifetime ------------------------------------------------------------------------------
     @contextlib.asynccontextmanager
@@ -413,6 +424,7 @@ class Panel:
         from carfeel.realtime.hands import HANDS
         from carfeel.realtime.rendering import MODES
         from carfeel.realtime.session import DEFAULT_PRESETS, MODELS
+        from carfeel.simulation.steering import ROAD_FRICTION, STEERING_MODELS
 
         presets = {
             kind: [*available(kind), *(f"saved:{p.stem}" for p in
@@ -432,7 +444,11 @@ class Panel:
             "hands": list(HANDS),
             "clocks": ["wall", "simulated"],
             "telemetry_formats": _telemetry_formats(),
-            "tunables": {m: [t.as_dict() for t in tuning.tunables_for(m)] for m in MODELS},
+            "steering_models": list(STEERING_MODELS),
+            "roads": list(ROAD_FRICTION),
+            "tunables": {
+                m: [t.as_dict() for t in tuning.tunables_for(m)] for m in (*MODELS, tuning.PHYSICAL)
+            },
             "token_required": self.config.token is not None,
         }
 
@@ -463,7 +479,8 @@ class Panel:
 
         allowed = {"model", "preset", "device", "mode", "speed_kmh", "hand", "clock", "sequence",
                    "duration_s", "seed", "telemetry", "synchronizer", "rate_hz", "force",
-                   "aligning", "device_delay_ms", "calibrate"}  # fmt: skip
+                   "aligning", "device_delay_ms", "calibrate", "steering_model",
+                   "road"}  # fmt: skip
         unknown = sorted(set(body) - allowed)
         if unknown:
             raise InputError(f"unknown field {', '.join(unknown)}; a session takes "
@@ -477,7 +494,8 @@ class Panel:
         if model not in MODELS:
             raise InputError(f"model {model!r}: choose one of {', '.join(MODELS)}")
         run: dict[str, Any] = {"model": model}
-        texts = ("device", "mode", "hand", "clock", "telemetry", "synchronizer", "aligning")
+        texts = ("device", "mode", "hand", "clock", "telemetry", "synchronizer", "aligning",
+                 "steering_model", "road")  # fmt: skip
         for key in texts:
             value = body.get(key)
             if value is None or value == "":
@@ -563,18 +581,35 @@ class Panel:
         s = self.need_session()
         if s.ready is None:
             raise InputError("the session is still starting: tune it once it runs")
-        return tuning.Session(s.model, s.preset, s.physics, s.ready)
+        return tuning.Session(
+            s.model, s.preset, s.physics, s.ready, s.run.get("steering_model", "paper"),
+            s.run.get("road", "dry"),
+        )  # fmt: skip
 
-    def tune(self, body: dict[str, Any]) -> dict[str, Any]:
+    async def tune(self, body: dict[str, Any]) -> dict[str, Any]:
         values = body.get("values")
         if not isinstance(values, dict):
             raise InputError('a tuning is {"values": {"path": number, ...}}')
         s = self.need_session()
         if not s.running:
             raise InputError("the session has ended: start one to tune")
-        proposal = tuning.propose(self.tuning_session(), values)
+        checking = self.tuning_session()
+        if checking.kind == tuning.PHYSICAL:  # re-sized: about a second, off the event loop
+            if self._tuning:
+                raise InputError("a tuning is being checked: wait for its answer")
+            self._tuning = True
+            try:
+                proposal = await asyncio.to_thread(tuning.propose, checking, values)
+            finally:
+                self._tuning = False
+            if self.session is not s or not s.running:
+                raise InputError("the session ended while the tuning was checked")
+        else:
+            proposal = tuning.propose(checking, values)
         s.send(proposal.command)
         s.preset = proposal.preset
+        if checking.kind == tuning.PHYSICAL and s.ready is not None:  # the next is checked on it
+            s.ready = s.ready | {"physical": proposal.command[3]}
         pending = s.model != "steering"
         return {
             "changes": {k: {"old": a, "new": b} for k, (a, b) in proposal.changes.items()},
@@ -584,11 +619,13 @@ class Panel:
 
     def tunables(self) -> dict[str, Any]:
         s = self.need_session()
-        values = tuning.values_of(s.model, s.preset)
+        values = tuning.values_of(s.kind, s.preset)
         return {
             "model": s.model,
+            "steering_model": s.run.get("steering_model", "paper") if s.model == "steering"
+            else None,
             "tunables": [t.as_dict() | {"value": values[t.path]}
-                         for t in tuning.tunables_for(s.model)],
+                         for t in tuning.tunables_for(s.kind)],
         }  # fmt: skip
 
     # -- files ---------------------------------------------------------------------------------
@@ -861,7 +898,7 @@ def create_app(config: PanelConfig) -> Starlette:
         return panel.tunables()
 
     async def tune_post(request: Request) -> Any:
-        return panel.tune(await body_of(request))
+        return await panel.tune(await body_of(request))
 
     async def presets_post(request: Request) -> Any:
         return panel.save_preset(await body_of(request))

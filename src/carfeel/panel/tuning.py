@@ -10,7 +10,13 @@ spring the wheel feels, K4..K9 its velocity gains; the change is refused when st
 have lowered the torque scale for it (the spring beyond the device's budget) or when the
 released wheel's damping ratio, on the exact discrete-time loop with the device's delays, would
 fall below the sizing's 0.2 (and below what it is now) at any speed of the schedule. Its damping
-schedule is recomputed for the new law by the same code as at start-up.
+schedule is recomputed for the new law by the same code as at start-up. The physical steering
+model sits behind a virtual coupling sized at start-up: a tuning keeps that coupling (its
+tunables leave the model's rim inertia in the loop as it is) and is refused unless, on it, a
+damping schedule within the device's cap keeps every linearization of the new model damped at
+every speed the session reaches and the coupling still lets through the share of the car's
+stiffness start-up asks (`physical_steering.resize_physical`, about a second, off the panel's
+event loop); its schedule and wall ramp with the parameters.
 
 In the loop a change waits for a safe point and then ramps (`Ramp`): the gearbox's parameters
 change only with the lever in neutral (no engagement under way, no stage holding values drawn
@@ -67,6 +73,8 @@ class Tunable:
 
 
 GEARBOX = ("shift", "hpattern")
+PHYSICAL = "steering:physical"
+"""The tunables' model key of --model steering --steering-model physical."""
 TUNABLES = (
     Tunable("gearbox.synchronization_duration_s", "synchronization time", "synchronization",
             GEARBOX, "how long the ring holds the lever while pushed (fixed synchronizer)"),
@@ -98,12 +106,35 @@ TUNABLES = (
             "offline only: on a device the friction is a stick element"),
     Tunable("torque.k9_Nm_s_rad", "K9 damping", "damping", ("steering",),
             "checked: the released wheel keeps its damping ratio"),
+    Tunable("steering_system.assist_gain_standstill_1_Nm", "assist gain at standstill",
+            "assist", (PHYSICAL,), "higher: a lighter wheel when parking"),
+    Tunable("steering_system.assist_gain_high_speed_1_Nm", "assist gain at speed", "assist",
+            (PHYSICAL,), "higher: a lighter wheel in a fast bend"),
+    Tunable("steering_system.active_return_Nm_rad", "active return", "assist", (PHYSICAL,),
+            "the motor's pull back to centre at low speed"),
+    Tunable("steering_system.eps_damping_Nm_s_rad", "EPS damping at standstill", "damping",
+            (PHYSICAL,)),
+    Tunable("steering_system.eps_damping_high_speed_Nm_s_rad", "EPS damping at speed",
+            "damping", (PHYSICAL,), "checked: the released wheel keeps its damping ratio"),
+    Tunable("steering_system.column_friction_Nm", "column friction", "friction", (PHYSICAL,)),
+    Tunable("steering_system.rack_friction_Nm", "rack friction", "friction", (PHYSICAL,)),
+    Tunable("tyres.pneumatic_trail_m", "pneumatic trail", "tyres", (PHYSICAL,),
+            "the on-centre weight of the wheel (the tyres' aligning torque)"),
 )  # fmt: skip
+"""The physical model's: none of them changes the model's rim inertia in the loop (the torsion
+bar, the stick elements' spring and damper and the compensation do), so a running session keeps
+its coupling (`physical_steering.resize_physical`)."""
 BY_PATH = {t.path: t for t in TUNABLES}
 
 
 def tunables_for(model: str) -> list[Tunable]:
+    """`model`: shift, hpattern, steering (the paper's law) or PHYSICAL."""
     return [t for t in TUNABLES if model in t.models]
+
+
+def kind_of(model: str, steering_model: str = "paper") -> str:
+    """The tunables' model key of a session."""
+    return PHYSICAL if model == "steering" and steering_model == "physical" else model
 
 
 def get_path(obj: Any, path: str) -> Any:
@@ -129,10 +160,12 @@ def preset_path(model: str, path: str) -> str:
 
 def renderer_path(model: str, path: str) -> str:
     """A tunable's path in the renderer's parameters (EngagementParams, HPatternParams,
-    SteeringCar)."""
+    SteeringCar, PhysicalParams)."""
     table, _, rest = path.partition(".")
     if model == "shift":
         return rest
+    if model == PHYSICAL:  # PhysicalParams
+        return f"system.{rest}" if table == "steering_system" else path
     if model == "hpattern" and table == "gearbox":
         return f"engagement.{rest}"
     return path
@@ -176,7 +209,14 @@ class Session:
     physics: bool | None
     """hpattern: the run's synchronizer choice (None: the preset's)."""
     parts: Mapping[str, Any]
-    """From the loop's ready event: info, sizing, scaling, rate_hz, speed_m_s, aligning."""
+    """From the loop's ready event: info, sizing, scaling, rate_hz, speed_m_s, aligning (and
+    for the physical steering: physical, its PhysicalSizing, and substeps)."""
+    steering_model: str = "paper"
+    road: str = "dry"
+
+    @property
+    def kind(self) -> str:
+        return kind_of(self.model, self.steering_model)
 
 
 @dataclass(frozen=True, slots=True)
@@ -191,7 +231,7 @@ class Proposal:
 
 def propose(session: Session, values: Mapping[str, object]) -> Proposal:
     """Check a tuning and build the loop's command; InputError with every reason otherwise."""
-    model = session.model
+    model = session.kind
     allowed = {t.path for t in tunables_for(model)}
     if not values:
         raise InputError("a tuning names at least one parameter: {path: value}")
@@ -221,10 +261,13 @@ def propose(session: Session, values: Mapping[str, object]) -> Proposal:
     cross = _cross_checks(model, preset)
     if cross:
         raise InputError("this tuning would make the preset invalid: " + "; ".join(cross))
-    schedule = None
-    if model == "steering":
+    schedule: Any = None
+    if model == PHYSICAL:
+        schedule = _physical_sized(session, preset, changes)
+        target: Any = preset.physical(session.road)
+    elif model == "steering":
         schedule = _steering_sized(session, preset)
-        target: Any = preset
+        target = preset
     elif model == "hpattern":
         target = preset.pattern(session.physics)
     else:
@@ -283,6 +326,54 @@ def _steering_sized(session: Session, car: Any) -> tuple[tuple[float, float], ..
     return new.schedule
 
 
+def _physical_sized(session: Session, car: Any, changes: Mapping[str, object]) -> Any:
+    """The tuned physical model's PhysicalSizing on the session's coupling, or InputError when
+    the wheel cannot render it stably or faithfully (as start-up would refuse it)."""
+    from carfeel.realtime.physical_steering import felt_share, holds, resize_physical
+    from carfeel.realtime.rendering import velocity_sections
+    from carfeel.realtime.session import MIN_FELT_SHARE
+
+    p = session.parts
+    info, sizing, scaling, rate = p["info"], p["sizing"], p["scaling"], p["rate_hz"]
+    params = car.physical(session.road)
+    sized = resize_physical(
+        info, rate, velocity_sections(rate), params, scaling, sizing, p["physical"],
+        p.get("substeps", 1),
+    )  # fmt: skip
+    if isinstance(sized, str):
+        raise InputError(
+            f"refused: {info.name} could not keep the released wheel damped with this model on "
+            f"the session's coupling ({sized}). Undo the change, or stop and start the "
+            "session with it"
+        )
+    # Halfway through the ramp (parameters and schedule blended) the loop stays damped too
+    # (at ZETA_FLOOR: the end points' schedules are the least that reach the goals, so a blend
+    # may fall a little short of them for the ramp's 0.2 s).
+    now = session.preset.physical(session.road)
+    half = params
+    for path in changes:
+        where = renderer_path(PHYSICAL, path)
+        half = set_path(half, where, 0.5 * (get_path(now, where) + get_path(params, where)))
+    blend = dataclasses.replace(sized, schedule=tuple(
+        (v, 0.5 * (b0 + b1)) for (v, b0), (_, b1) in
+        zip(p["physical"].schedule, sized.schedule, strict=True)))  # fmt: skip
+    midway = holds(info, rate, velocity_sections(rate), half, scaling, sizing, blend,
+                   p.get("substeps", 1))  # fmt: skip
+    if midway:
+        raise InputError(
+            f"refused: halfway through the {RAMP_S:g} s ramp the released wheel would not stay "
+            f"damped ({midway}): make the change in smaller steps"
+        )
+    speed = max(p["speed_m_s"], 1.0)
+    share = felt_share(params, sized, scaling, speed)
+    if share < MIN_FELT_SHARE:
+        raise InputError(
+            f"refused: the coupling would let through only {share:.0%} of this car's on-centre "
+            f"stiffness at {speed * 3.6:.0f} km/h (start-up needs {MIN_FELT_SHARE:.0%})"
+        )
+    return sized
+
+
 def released_zeta(renderer: Any, speed_m_s: float, info: Any, rate_hz: float) -> float:
     """The least damping ratio of the released wheel on `renderer` at a speed: the law
     linearized on centre, its added damping and the friction's stick spring, on the device's
@@ -312,6 +403,10 @@ class Ramp:
         _, moves, target, schedule, changes = command
         self.changes: dict[str, tuple[float, float]] = changes
         self.renderer, self.model = renderer, model
+        self.walls: tuple[tuple[float, float], tuple[float, float]] | None = None
+        if hasattr(schedule, "schedule"):  # the physical steering's PhysicalSizing
+            self.walls = (renderer.wall, (schedule.wall_stiffness, schedule.wall_damping))
+            schedule = schedule.schedule
         self.moves, self.target, self.schedule = moves, target, schedule
         self.old_schedule = getattr(renderer, "schedule", None)
         self.ticks = max(1, round(RAMP_S * rate_hz))
@@ -349,7 +444,11 @@ class Ramp:
                     (v, b0 + (b1 - b0) * s)
                     for (v, b0), (_, b1) in zip(self.old_schedule, self.schedule, strict=True)
                 )
-            r.retune(params, table)
+            if self.walls is None:
+                r.retune(params, table)
+            else:
+                (k0, b0), (k1, b1) = self.walls
+                r.retune(params, table, (k0 + (k1 - k0) * s, b0 + (b1 - b0) * s))
         else:
             r.retune(params)
         return s >= 1.0

@@ -276,6 +276,10 @@ class Observer:
             "pid": os.getpid(),
             "priority": self.priority,
         }
+        sized = getattr(r, "sized", None)
+        if sized is not None:  # the physical steering: its coupling, for checking a tuning
+            out["physical"] = sized
+            out["substeps"] = int(getattr(r, "substeps", 1))
         pattern = getattr(r, "pattern", None)
         if pattern is not None:
             out["layout"] = pattern.layout

@@ -10,13 +10,15 @@ const STAGE_COLORS = {
   neutral: "#5c6773", synchronization: "#e5534b", gate_open: "#d29922", engagement: "#f0883e",
   free_travel: "#3fb950", stop: "#a371f7", in_gear: "#4aa3ff", returning: "#8b98a5",
 };
-const TERM_COLORS = {
+const TERM_COLORS = {   // the paper's law's terms, then the physical model's own
   torque_aligning_Nm: "#4aa3ff", torque_tire_spin_Nm: "#d29922", torque_friction_Nm: "#a371f7",
-  torque_damping_Nm: "#3fb950", torque_stop_Nm: "#e5534b",
+  torque_damping_Nm: "#3fb950", torque_stop_Nm: "#e5534b", torque_jacking_Nm: "#f778ba",
+  torque_park_Nm: "#d29922", torque_inertia_Nm: "#8b98a5", torque_assist_Nm: "#56d4dd",
 };
 const TERM_LABELS = {
   torque_aligning_Nm: "aligning", torque_tire_spin_Nm: "tire spin", torque_friction_Nm: "friction",
-  torque_damping_Nm: "damping", torque_stop_Nm: "lock",
+  torque_damping_Nm: "damping", torque_stop_Nm: "lock", torque_jacking_Nm: "jacking",
+  torque_park_Nm: "dry park", torque_inertia_Nm: "rim inertia", torque_assist_Nm: "assist",
 };
 
 let options = null;
@@ -74,6 +76,12 @@ function modelChanged() {
   if (model !== "steering") $("mode").value = "impedance";
   $("sequence-row").classList.toggle("hidden", model !== "hpattern");
   $("speed").value = model === "steering" ? 80 : 30;
+  steeringModelChanged();
+}
+function steeringModelChanged() {
+  const steering = $("model").value === "steering";
+  $("steering-model-row").classList.toggle("hidden", !steering);
+  $("road-row").classList.toggle("hidden", !steering || $("steering-model").value !== "physical");
 }
 async function loadOptions() {
   options = await api("GET", "api/options");
@@ -81,6 +89,8 @@ async function loadOptions() {
   $("model").value = "hpattern";
   fill($("hand"), options.hands);
   fill($("clock"), options.clocks);
+  fill($("steering-model"), options.steering_models);
+  fill($("road"), options.roads);
   modelChanged();
 }
 function startBody() {
@@ -95,6 +105,10 @@ function startBody() {
   const telemetry = $("telemetry").value.trim();
   if (telemetry && telemetry !== "none") body.telemetry = telemetry;
   if (model === "hpattern") body.sequence = $("sequence").value.trim();
+  if (model === "steering") {
+    body.steering_model = $("steering-model").value;
+    if (body.steering_model === "physical") body.road = $("road").value;
+  }
   return body;
 }
 async function start() {
@@ -246,7 +260,8 @@ function setSession(s) {
   pill.className = "pill " + (s.state || "idle");
   if (s.device) {
     const clock = s.run.clock === "simulated" ? "simulated clock" : "wall clock";
-    $("where").textContent = `${s.model} · ${s.device.name} · ${s.run.mode || "impedance"} · ${fmt(s.rate_hz)} Hz · ${clock}`;
+    const model = s.model === "steering" && s.run.steering_model === "physical" ? `steering (physical, ${s.run.road || "dry"} road)` : s.model;
+    $("where").textContent = `${model} · ${s.device.name} · ${s.run.mode || "impedance"} · ${fmt(s.rate_hz)} Hz · ${clock}`;
   }
   const steering = s.model === "steering";
   $("gearbox-views").classList.toggle("hidden", steering);
@@ -417,11 +432,13 @@ function line(ctx, f, xs, ys, color, width) {
 }
 function legend(ctx, f, items) {
   ctx.font = "12px DejaVu Sans, sans-serif"; ctx.textAlign = "left"; ctx.textBaseline = "middle";
-  let x = f.m.l + 8;
+  let x = f.m.l + 8, y = f.m.t + 9;
   for (const [label, color] of items) {
-    ctx.fillStyle = color; ctx.fillRect(x, f.m.t + 8, 14, 3);
-    ctx.fillStyle = "#c9d1d9"; ctx.fillText(label, x + 18, f.m.t + 9);
-    x += 26 + ctx.measureText(label).width;
+    const width = 26 + ctx.measureText(label).width;
+    if (x > f.m.l + 8 && x + width > f.m.l + f.pw) { x = f.m.l + 8; y += 16; }   // next row
+    ctx.fillStyle = color; ctx.fillRect(x, y - 1, 14, 3);
+    ctx.fillStyle = "#c9d1d9"; ctx.fillText(label, x + 18, y);
+    x += width;
   }
 }
 function windowed(names) {
@@ -587,7 +604,7 @@ function drawSteering() {
     const layers = [];
     for (const term of terms) {
       const v = w[term];
-      if (!v.length) continue;
+      if (!v.length || v.every((x) => !x)) continue;   // absent, or zero all along: no layer
       const lo = [], hi = [];
       for (let i = 0; i < n; i++) {
         const x = v[i] || 0;
@@ -658,6 +675,7 @@ function drawFigures() {
     ["round-trip delay, reports", dev ? `${fmt(dev.delay_ms)} ms, ${fmt(dev.report_hz)} Hz` : "–"],
     ["sized stiffness, ζ hands off", sz ? `${fmt(sz.stiffness)} ${unit}/${dev && dev.kind === "wheel" ? "rad" : "m"}, ${fmt(sz.zeta, 2)}` : "–"],
     ["force scale", session.scaling ? fmt(session.scaling.force_scale) : "–"],
+    ...(session.coupling ? [["physical model's coupling", `${fmt(session.coupling.stiffness)} ${unit}/rad (${(100 * session.coupling.share).toFixed(0)} % of the budget), ζ ${fmt(session.coupling.zeta, 2)}, up to ${fmt(session.coupling.top_speed_kmh)} km/h`]] : []),
     ["loop process", session.loop_process ? `pid ${session.loop_process.pid}, ${session.loop_process.priority}` : "–"],
   ];
   const wt = buf.telemetry_weight;
@@ -696,6 +714,7 @@ function stageLegend() {
 // -- start --------------------------------------------------------------------------------------
 stageLegend();
 $("model").onchange = modelChanged;
+$("steering-model").onchange = steeringModelChanged;
 $("device").onchange = () => $("device-custom-row").classList.toggle("hidden", $("device").value !== "other...");
 $("start").onclick = start;
 $("stop").onclick = stop;
