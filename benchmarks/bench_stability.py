@@ -6,7 +6,8 @@
    a reference measured in the same run: the force limiter every tick already paid, and the
    paper's torque law alone; the physical steering renderer (issue 13: the model behind its
    coupling) beside the paper's renderer on the dd-wheel. Then the one-off cost of sizing a
-   device, and the physical steering on it, at start-up.
+   device, and the physical steering on it, at start-up, and of the panel's check of a live
+   tuning of the physical steering beside it.
 2. The released physical wheel (4 ms each way, both wheels, 30 and 90 deg, 60-150 km/h): the
    log-decrement damping ratio of each pair of swings.
 3. The stability matrix (`carfeel.realtime.matrix`): per cell, the command's peak-to-peak over
@@ -26,8 +27,10 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from carfeel.errors import InputError
 from carfeel.io.presets import load_hpattern, load_steering
 from carfeel.models.steering.torque import torque_terms
+from carfeel.panel import tuning
 from carfeel.realtime import matrix
 from carfeel.realtime.devices.base import DeviceSample
 from carfeel.realtime.devices.virtual import virtual_device
@@ -156,6 +159,21 @@ def costs(ticks: int) -> None:
                 " km/h"
             )
             print(f"  {kind:9s} {label:10s}: {took * 1e3:7.1f} ms -> {what}")
+            if isinstance(found, PhysicalSizing):  # the panel's check of a live tuning on it
+                ready = {"info": info, "sizing": device_sizing, "scaling": scale,
+                         "rate_hz": 1000.0, "speed_m_s": 100 / 3.6, "physical": found}  # fmt: skip
+                live = tuning.Session("steering", car, None, ready, "physical", "dry")
+                start = time.perf_counter()
+                try:
+                    note = tuning.propose(live, {"tyres.pneumatic_trail_m": 0.05}).note
+                    verdict = f"accepted{f' ({note})' if note else ''}"
+                except InputError as exc:
+                    verdict = f"refused ({str(exc)[:60]}...)"
+                tuned = time.perf_counter() - start
+                print(
+                    f"  {'':20s}  a live tuning (trail 0.04 -> 0.05 m) checked: "
+                    f"{tuned * 1e3:7.1f} ms, {tuned / took:.2f}x the sizing, {verdict}"
+                )
     print("start-up: sizing a device (discrete-time loop analysis, not cached)")
     for kind in ("joystick", "wheel", "dd-wheel", "shifter"):
         info = virtual_device(kind, delay_s=0.004).info

@@ -165,3 +165,53 @@ def test_the_ramps_midway_check_can_fail(running):
         ),
     )
     assert "at 100 km/h" in holds(*args, undamped, *rest)
+
+
+def test_with_telemetry_a_tuning_may_lower_the_top_speed_never_under_the_car():
+    """Sized over the whole speed range (a telemetry session) the virtual wheel holds the
+    B-segment car up to 252 km/h; with 0.01 m more trail its coupling damps it up to 198 km/h
+    (as start-up would): accepted while the car is slower, with a note, and the renderer holds
+    the model's speed there from the ramp's first tick; refused while the car is faster (its
+    speed would step down under the driver)."""
+    from carfeel.realtime.devices.virtual import virtual_device
+    from carfeel.realtime.physical_steering import (
+        SPEEDS_M_S,
+        PhysicalSizing,
+        PhysicalSteeringRenderer,
+        size_physical,
+    )
+    from carfeel.realtime.rendering import Scaling
+    from carfeel.realtime.stability import size
+
+    info = virtual_device("wheel", delay_s=0.004).info
+    sections = velocity_sections(1000.0)
+    device = size(info, 1000.0, sections)
+    scaling = Scaling(0.9 * info.max_force / 10.0, 1.0)
+    car = load_steering("b-segment").params
+    sized = size_physical(info, 1000.0, sections, car.physical("dry"), scaling, device, 1,
+                          SPEEDS_M_S)  # fmt: skip
+    assert isinstance(sized, PhysicalSizing) and sized.top_speed_m_s == SPEEDS_M_S[-1]
+    ready = {"info": info, "sizing": device, "scaling": scaling, "rate_hz": 1000.0,
+             "speed_m_s": 30.0, "physical": sized}  # fmt: skip
+    change = {"tyres.pneumatic_trail_m": 0.05}
+
+    slower = tuning.Session("steering", car, None, ready, "physical", "dry", 100 / 3.6)
+    proposal = tuning.propose(slower, change)
+    resized = proposal.command[3]
+    assert SPEEDS_M_S[-3] <= resized.top_speed_m_s < SPEEDS_M_S[-1]
+    assert f"up to {resized.top_speed_m_s * 3.6:.0f} km/h (was 252)" in proposal.note
+
+    renderer = PhysicalSteeringRenderer(car.physical("dry"), 100 / 3.6, scaling, 1000.0, sized,
+                                        info)  # fmt: skip
+    ramp = tuning.Ramp(renderer, "steering", proposal.command, 1000.0)
+    ramp.step()
+    renderer.speed = 70.0
+    assert renderer.speed == resized.top_speed_m_s
+    while not ramp.step():
+        pass
+    assert renderer.schedule == resized.schedule
+    assert renderer.params.tyres.pneumatic_trail_m == 0.05
+
+    faster = tuning.Session("steering", car, None, ready, "physical", "dry", 220 / 3.6)
+    with pytest.raises(InputError, match="the car is at 220 km/h"):
+        tuning.propose(faster, change)

@@ -145,6 +145,8 @@ class Session:
         self.at_limit: deque[float] = deque(maxlen=1000)
         self.unlinked = False
         self.changed = asyncio.Event()
+        self.model_speed_m_s: float | None = None
+        """The model's speed in the newest row, where telemetry drives it."""
 
     def start(self, cpu: int | None) -> None:
         from carfeel.panel import worker
@@ -180,6 +182,9 @@ class Session:
             rows, self.cursor, _ = self.side.read_rows(self.cursor, len(self.columns))
             if len(rows):
                 self._health(rows)
+                speed = self.index("model_speed_m_s")  # telemetry moves it
+                if speed is not None and math.isfinite(rows[-1, speed]):
+                    self.model_speed_m_s = float(rows[-1, speed])
         if self.process is not None and not self.process.is_alive() and self.running:
             # What it wrote between the read above and its exit (its "ended", with the summary)
             # comes first: only a loop that ended without saying so is an error.
@@ -583,7 +588,7 @@ class Panel:
             raise InputError("the session is still starting: tune it once it runs")
         return tuning.Session(
             s.model, s.preset, s.physics, s.ready, s.run.get("steering_model", "paper"),
-            s.run.get("road", "dry"),
+            s.run.get("road", "dry"), s.model_speed_m_s,
         )  # fmt: skip
 
     async def tune(self, body: dict[str, Any]) -> dict[str, Any]:
@@ -615,6 +620,7 @@ class Panel:
             "changes": {k: {"old": a, "new": b} for k, (a, b) in proposal.changes.items()},
             "ramp_s": tuning.RAMP_S,
             "waits_for": "the lever in neutral" if pending else None,
+            "note": proposal.note or None,
         }
 
     def tunables(self) -> dict[str, Any]:

@@ -213,6 +213,8 @@ class Session:
     for the physical steering: physical, its PhysicalSizing, and substeps)."""
     steering_model: str = "paper"
     road: str = "dry"
+    speed_m_s: float | None = None
+    """The model's speed now, m/s, where telemetry moves it (None: the run's)."""
 
     @property
     def kind(self) -> str:
@@ -227,6 +229,8 @@ class Proposal:
     """What the loop is sent: ("retune", moves, target, schedule, changes)."""
     changes: dict[str, tuple[float, float]]
     """Tunable path -> (old, new)."""
+    note: str = ""
+    """What the user should know of an accepted change (the physical model's top speed)."""
 
 
 def propose(session: Session, values: Mapping[str, object]) -> Proposal:
@@ -273,7 +277,15 @@ def propose(session: Session, values: Mapping[str, object]) -> Proposal:
     else:
         target = preset.gearbox
     moves = tuple((renderer_path(model, p), old, new) for p, (old, new) in changes.items())
-    return Proposal(preset, ("retune", moves, target, schedule, changes), changes)
+    note = ""
+    if model == PHYSICAL:
+        was, now = session.parts["physical"].top_speed_m_s, schedule.top_speed_m_s
+        if now != was:
+            note = (
+                f"the model is now rendered up to {now * 3.6:.0f} km/h (was {was * 3.6:.0f}): "
+                "above, its speed is held there"
+            )
+    return Proposal(preset, ("retune", moves, target, schedule, changes), changes, note)
 
 
 def _cross_checks(model: str, preset: Any) -> list[str]:
@@ -329,26 +341,36 @@ def _steering_sized(session: Session, car: Any) -> tuple[tuple[float, float], ..
 def _physical_sized(session: Session, car: Any, changes: Mapping[str, object]) -> Any:
     """The tuned physical model's PhysicalSizing on the session's coupling, or InputError when
     the wheel cannot render it stably or faithfully (as start-up would refuse it)."""
-    from carfeel.realtime.physical_steering import felt_share, holds, resize_physical
+    from carfeel.realtime.physical_steering import (
+        ZETA_FLOOR,
+        felt_share,
+        holds,
+        resize_physical,
+    )
     from carfeel.realtime.rendering import velocity_sections
     from carfeel.realtime.session import MIN_FELT_SHARE
 
     p = session.parts
     info, sizing, scaling, rate = p["info"], p["sizing"], p["scaling"], p["rate_hz"]
+    speed_now = session.speed_m_s if session.speed_m_s is not None else p["speed_m_s"]
     params = car.physical(session.road)
     sized = resize_physical(
         info, rate, velocity_sections(rate), params, scaling, sizing, p["physical"],
         p.get("substeps", 1),
     )  # fmt: skip
-    if isinstance(sized, str):
+    current = p["physical"]
+    if isinstance(sized, str) or sized.top_speed_m_s < min(current.top_speed_m_s, speed_now):
+        reason = sized if isinstance(sized, str) else (
+            f"it would be damped only up to {sized.top_speed_m_s * 3.6:.0f} km/h, the car is "
+            f"at {speed_now * 3.6:.0f} km/h")  # fmt: skip
         raise InputError(
             f"refused: {info.name} could not keep the released wheel damped with this model on "
-            f"the session's coupling ({sized}). Undo the change, or stop and start the "
+            f"the session's coupling ({reason}). Undo the change, or stop and start the "
             "session with it"
         )
-    # Halfway through the ramp (parameters and schedule blended) the loop stays damped too
-    # (at ZETA_FLOOR: the end points' schedules are the least that reach the goals, so a blend
-    # may fall a little short of them for the ramp's 0.2 s).
+    # Halfway through the ramp (parameters and schedule blended) the loop stays damped too:
+    # at half ZETA_FLOOR, for the ramp's 0.2 s (the end points' schedules are the least that
+    # reach their goals, ZETA_FLOOR among them, so a blend may fall a little short of them).
     now = session.preset.physical(session.road)
     half = params
     for path in changes:
@@ -356,15 +378,15 @@ def _physical_sized(session: Session, car: Any, changes: Mapping[str, object]) -
         half = set_path(half, where, 0.5 * (get_path(now, where) + get_path(params, where)))
     blend = dataclasses.replace(sized, schedule=tuple(
         (v, 0.5 * (b0 + b1)) for (v, b0), (_, b1) in
-        zip(p["physical"].schedule, sized.schedule, strict=True)))  # fmt: skip
+        zip(current.schedule, sized.schedule, strict=False)))  # fmt: skip
     midway = holds(info, rate, velocity_sections(rate), half, scaling, sizing, blend,
-                   p.get("substeps", 1))  # fmt: skip
+                   p.get("substeps", 1), 0.5 * ZETA_FLOOR)  # fmt: skip
     if midway:
         raise InputError(
             f"refused: halfway through the {RAMP_S:g} s ramp the released wheel would not stay "
             f"damped ({midway}): make the change in smaller steps"
         )
-    speed = max(p["speed_m_s"], 1.0)
+    speed = max(speed_now, 1.0)
     share = felt_share(params, sized, scaling, speed)
     if share < MIN_FELT_SHARE:
         raise InputError(
@@ -442,7 +464,10 @@ class Ramp:
             if s < 1.0 and self.old_schedule is not None:
                 table = tuple(
                     (v, b0 + (b1 - b0) * s)
-                    for (v, b0), (_, b1) in zip(self.old_schedule, self.schedule, strict=True)
+                    # (a physical model's re-sizing may reach fewer speeds: the first of the old)
+                    for (v, b0), (_, b1) in zip(
+                        self.old_schedule[: len(self.schedule)], self.schedule, strict=True
+                    )
                 )
             if self.walls is None:
                 r.retune(params, table)

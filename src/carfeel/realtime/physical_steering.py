@@ -440,7 +440,8 @@ def resize_physical(
 ) -> PhysicalSizing | str:
     """A tuned model's sizing on the running session's coupling: the same share of the spring
     budget and rim inertia (a running loop keeps its coupling; only the scheduled damping and
-    the wall move, ramped), damped at every speed `current` reaches; or the reason not."""
+    the wall move, ramped), at the speeds `current` reaches up to the first it cannot damp (as
+    start-up, its `top_speed_m_s` says where); or the reason it damps none."""
     speeds = tuple(v for v, _ in current.schedule)
     sizer = _Sizer(info, rate_hz, sections, params, scaling, sizing, substeps, speeds)
     rim = sizer.model.system.hand_wheel_inertia_kg_m2
@@ -450,7 +451,7 @@ def resize_physical(
             "the coupling cannot change while the session runs"
         )
     sized, why = sizer.try_share(current.share, current.wall_stiffness > 0.0)
-    if sized is None or len(sized.schedule) < len(speeds):
+    if sized is None:
         return why or "the released wheel would not stay damped"
     return sized
 
@@ -615,7 +616,8 @@ class PhysicalSteeringRenderer:
         wall: tuple[float, float] | None = None,
     ) -> None:
         """New model parameters (the car's rim inertia is replaced by the loop's, as at
-        start-up), damping schedule and wall; the coupling and the model's state are kept.
+        start-up), damping schedule (its last speed the new top speed) and wall; the coupling
+        and the model's state are kept.
         Between ticks (the panel's `Ramp`)."""
         self.params = dataclasses.replace(
             params,
@@ -625,6 +627,8 @@ class PhysicalSteeringRenderer:
         )
         if wall is not None:
             self.wall_stiffness, self.wall_damping = wall
+        self.top_speed = schedule[-1][0]  # a re-sizing may reach less far: held there
+        self.speed = self._speed
         self.sized = dataclasses.replace(
             self.sized, schedule=schedule, wall_stiffness=self.wall_stiffness,
             wall_damping=self.wall_damping,

@@ -137,7 +137,7 @@ async function apply() {
   try {
     const r = await api("POST", "api/tune", { values });
     const names = Object.entries(r.changes).map(([k, v]) => `${k.split(".").slice(-2).join(".")} ${fmt(v.old)} -> ${fmt(v.new)}`);
-    say("tune-msg", "applied" + (r.waits_for ? " (waits for " + r.waits_for + ")" : "") + ": " + names.join(", "));
+    say("tune-msg", "applied" + (r.waits_for ? " (waits for " + r.waits_for + ")" : "") + ": " + names.join(", ") + (r.note ? "; " + r.note : ""));
     for (const input of document.querySelectorAll(".tunables input.changed")) {
       input.classList.remove("changed"); input.dataset.value = input.value;
     }
