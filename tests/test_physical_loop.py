@@ -311,7 +311,7 @@ def test_the_recording_holds_the_models_terms_and_what_was_rendered(substeps, tm
     )  # fmt: skip
     rec = Result.from_csv(record)
     meta = json.loads(record.with_suffix(".json").read_text())
-    assert meta["steering_model"] == "physical" and meta["road"] == "dry"
+    assert meta["steering_model"] == "physical" and meta["road"] == "the preset's"
     assert meta["stability"]["coupling_stiffness"] > 0.0
     live = np.isfinite(np.asarray(rec["torque_Nm"], dtype=float))
     torque = np.asarray(rec["torque_Nm"], dtype=float)[live]

@@ -6,8 +6,10 @@ say why they are that wide.
 
 from __future__ import annotations
 
+import json
 import math
 from functools import cache
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -349,3 +351,46 @@ def test_the_road_sets_the_limit(road, mu):
     peak = np.abs(r["lateral_accel_m_s2"]).max() / G
     assert 0.8 * mu < peak < 1.05 * mu
     assert np.maximum(r["front_grip_used"], r["rear_grip_used"]).max() > SLIDING_GRIP
+
+
+def test_a_presets_own_mu_is_kept_unless_a_road_is_given(tmp_path, capsys):
+    """A preset's tyres.friction_coefficient is its tyres' (a fitted mu among them): without
+    --road the run keeps it; --road puts the tyres on that road instead. The lane change at
+    120 km/h with mu 0.5 slides at about 0.5 g (the shipped car, mu 1.0, near 1 g)."""
+    from carfeel.cli import main
+
+    shipped = Path(__file__).parents[1] / "src/carfeel/presets/steering/b-segment.toml"
+    text = shipped.read_text()
+    assert "friction_coefficient = 1.0" in text
+    slippery = tmp_path / "mu05.toml"
+    slippery.write_text(text.replace("friction_coefficient = 1.0", "friction_coefficient = 0.5"))
+    peaks = {}
+    for name, extra in (("own", []), ("dry", ["--road", "dry"])):
+        out = tmp_path / f"{name}.csv"
+        args = [
+            "simulate",
+            "steering",
+            "--steering-model",
+            "physical",
+            "--preset",
+            str(slippery),
+            "--manoeuvre",
+            "iso3888",
+            "--speed-kmh",
+            "120",
+            "--out",
+            str(out),
+        ]
+        assert main([*args, *extra]) == 0  # fmt: skip
+        result = Result.from_csv(out)
+        peaks[name] = float(np.abs(result["lateral_accel_m_s2"]).max()) / G
+        meta = json.loads(out.with_suffix(".json").read_text())
+        assert float(meta["friction_coefficient"]) == (0.5 if name == "own" else 1.0)
+    assert 0.4 < peaks["own"] < 0.525, peaks
+    assert peaks["dry"] > 0.85, peaks
+    capsys.readouterr()
+    refused = ["simulate", "steering", "--manoeuvre", "iso3888", "--road", "snow", "--out",
+               str(tmp_path / "x.csv")]  # fmt: skip
+    assert main(refused) == 2
+    assert "give --steering-model physical too" in capsys.readouterr().err
+    assert not (tmp_path / "x.csv").exists()

@@ -87,9 +87,10 @@ def register(commands: Any) -> None:
                      help="--model steering: the paper's law (default) or the physical model "
                      "(brush tyres, EPS steering system) behind a virtual coupling sized for "
                      "the device")  # fmt: skip
-    run.add_argument("--road", choices=("dry", "wet", "snow"), default="dry",
-                     help="--steering-model physical: the road under its tyres (mu 1.0, 0.7, "
-                     "0.3; default dry)")  # fmt: skip
+    run.add_argument("--road", choices=("dry", "wet", "snow"), default=None,
+                     help="--steering-model physical: the road under its tyres, mu 1.0, 0.7, "
+                     "0.3 in place of the preset's (default: the preset's "
+                     "tyres.friction_coefficient)")  # fmt: skip
     run.add_argument("--synchronizer", choices=("fixed", "physics"), default=None,
                      help="--model hpattern: the paper's synchronization time, or cone torque "
                      "against the speed difference (default: the preset's)")  # fmt: skip

@@ -227,8 +227,9 @@ class SteeringRun:
     substeps: int = 1
     steering_model: str = "paper"
     """paper (the linear car and eqs. 1-7) or physical (brush tyres, EPS steering system)."""
-    road: str = "dry"
-    """Road of the physical model's tyres: dry, wet or snow."""
+    road: str | None = None
+    """The physical model's road (dry, wet, snow: a ROAD_FRICTION key), or None: the preset's
+    own tyres.friction_coefficient."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -278,9 +279,15 @@ def run_steering(
             f"preset {preset.name} has no [tyres] and [steering_system] tables; the physical "
             "steering model needs them (see the b-segment preset)"
         )
+    if config.road is not None and not physical:
+        raise InputError(
+            "--road sets the physical model's tyres: give --steering-model physical too"
+        )
     metadata["steering_model"] = config.steering_model
     if physical:
-        metadata["road"] = config.road
+        params = car.physical(config.road)
+        metadata["road"] = config.road or "the preset's"
+        metadata["friction_coefficient"] = repr(params.tyres.friction_coefficient)
     result = simulate_steering(
         car, manoeuvre, dt_s=config.dt_s, substeps=config.substeps, metadata=metadata,
         model=config.steering_model, road=config.road if physical else None,
@@ -705,8 +712,9 @@ def register(commands: Any) -> None:
         "nonlinear car, EPS steering system with assist, friction, jacking and stops",
     )  # fmt: skip
     steering.add_argument(
-        "--road", choices=("dry", "wet", "snow"), default="dry",
-        help="road under the physical model's tyres (mu 1.0, 0.7, 0.3; default dry)",
+        "--road", choices=("dry", "wet", "snow"), default=None,
+        help="road under the physical model's tyres: mu 1.0, 0.7, 0.3 in place of the preset's "
+        "tyres.friction_coefficient (default: the preset's)",
     )  # fmt: skip
     steering.add_argument("--out", required=True, metavar="FILE.csv", help="CSV file to write")
     steering.add_argument("--plot", metavar="FILE.png", help="also write a PNG plot")

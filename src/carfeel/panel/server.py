@@ -588,7 +588,7 @@ class Panel:
             raise InputError("the session is still starting: tune it once it runs")
         return tuning.Session(
             s.model, s.preset, s.physics, s.ready, s.run.get("steering_model", "paper"),
-            s.run.get("road", "dry"), s.model_speed_m_s,
+            s.run.get("road"), s.model_speed_m_s,
         )  # fmt: skip
 
     async def tune(self, body: dict[str, Any]) -> dict[str, Any]:

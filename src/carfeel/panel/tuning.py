@@ -212,7 +212,8 @@ class Session:
     """From the loop's ready event: info, sizing, scaling, rate_hz, speed_m_s, aligning (and
     for the physical steering: physical, its PhysicalSizing, and substeps)."""
     steering_model: str = "paper"
-    road: str = "dry"
+    road: str | None = None
+    """The physical model's road, or None: the preset's own mu."""
     speed_m_s: float | None = None
     """The model's speed now, m/s, where telemetry moves it (None: the run's)."""
 

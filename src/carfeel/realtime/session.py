@@ -95,8 +95,9 @@ class RealtimeRun:
     steering_model: str = "paper"
     """--model steering: the paper's law, or the physical model behind a virtual coupling
     (`realtime.physical_steering`)."""
-    road: str = "dry"
-    """--steering-model physical: the road under its tyres (dry, wet, snow)."""
+    road: str | None = None
+    """--steering-model physical: the road under its tyres (dry, wet, snow), or None: the
+    preset's own tyres.friction_coefficient."""
     passivity_controller: bool = True
     synchronizer: str | None = None
     """--model hpattern: fixed (the paper's timer) or physics; None: the preset's."""
@@ -272,11 +273,11 @@ def _check_steering_model(run: RealtimeRun) -> None:
         raise InputError(
             f"--steering-model {run.steering_model!r}: choose one of {', '.join(STEERING_MODELS)}"
         )
-    if run.road not in ROAD_FRICTION:
+    if run.road is not None and run.road not in ROAD_FRICTION:
         raise InputError(f"--road {run.road!r}: choose one of {', '.join(ROAD_FRICTION)}")
     if run.steering_model == "physical" and run.model != "steering":
         raise InputError("--steering-model physical needs --model steering")
-    if run.road != "dry" and run.steering_model != "physical":
+    if run.road is not None and run.steering_model != "physical":
         raise InputError(
             "--road sets the physical model's tyres: give --steering-model physical too"
         )
@@ -632,7 +633,7 @@ def _run_realtime(
     if wheel:
         metadata["steering_model"] = run.steering_model
         if run.steering_model == "physical":
-            metadata["road"] = run.road
+            metadata["road"] = run.road or "the preset's"
         else:
             metadata["aligning"] = run.aligning
     axes = info.axes

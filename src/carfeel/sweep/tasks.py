@@ -260,7 +260,7 @@ def _steering(params: Any, seed: int, settings: dict[str, Any]) -> dict[str, Any
         dt_s=float(settings.get("dt_s", 1e-3)),
         substeps=int(settings.get("substeps", 1)),
         model=model,
-        road=settings.get("road", "dry") if model == "physical" else None,
+        road=settings.get("road") if model == "physical" else None,
     )
     torque, ay = result["torque_Nm"], result["lateral_accel_m_s2"]
     if not (np.all(np.isfinite(torque)) and np.all(np.isfinite(ay))):

@@ -90,7 +90,7 @@ async function loadOptions() {
   fill($("hand"), options.hands);
   fill($("clock"), options.clocks);
   fill($("steering-model"), options.steering_models);
-  fill($("road"), options.roads);
+  fill($("road"), ["preset", ...options.roads]);   // preset: its own tyres' mu
   modelChanged();
 }
 function startBody() {
@@ -107,7 +107,7 @@ function startBody() {
   if (model === "hpattern") body.sequence = $("sequence").value.trim();
   if (model === "steering") {
     body.steering_model = $("steering-model").value;
-    if (body.steering_model === "physical") body.road = $("road").value;
+    if (body.steering_model === "physical" && $("road").value !== "preset") body.road = $("road").value;
   }
   return body;
 }
@@ -260,7 +260,7 @@ function setSession(s) {
   pill.className = "pill " + (s.state || "idle");
   if (s.device) {
     const clock = s.run.clock === "simulated" ? "simulated clock" : "wall clock";
-    const model = s.model === "steering" && s.run.steering_model === "physical" ? `steering (physical, ${s.run.road || "dry"} road)` : s.model;
+    const model = s.model === "steering" && s.run.steering_model === "physical" ? `steering (physical, ${s.run.road ? s.run.road + " road" : "the preset's road"})` : s.model;
     $("where").textContent = `${model} · ${s.device.name} · ${s.run.mode || "impedance"} · ${fmt(s.rate_hz)} Hz · ${clock}`;
   }
   const steering = s.model === "steering";
