@@ -87,6 +87,40 @@ BAD_SPECS = {
         '"driver.push_force_N" = { distribution = "normal", mean = 80, sd = 5 }\n',
         ["samples = None", "number of draws"],
     ),
+    "a run setting in [run] and [vary]": (
+        'model = "steering"\n[run]\nmanoeuvre = "iso7401-step"\nspeed_kmh = 100\n[vary]\n'
+        '"run.speed_kmh" = { values = [60, 80] }\n',
+        ["run.speed_kmh: given in [run] and in [set] or [vary]"],
+    ),
+    # Parameters the run's model does not read (their rows would all be equal).
+    "the physical model's tyres on the paper's law": (
+        'model = "steering"\n[run]\nmanoeuvre = "iso7401-step"\n[vary]\n'
+        '"tyres.pneumatic_trail_m" = { values = [0.03, 0.05] }\n',
+        [
+            "tyres.pneumatic_trail_m",
+            "only the physical steering model",
+            'steering_model = "physical"',
+        ],
+    ),
+    "the paper law's gain on the physical model": (
+        'model = "steering"\n[run]\nmanoeuvre = "iso7401-step"\nsteering_model = "physical"\n'
+        '[vary]\n"torque.k1_Nm_s2_m" = { values = [2.0, 3.0] }\n',
+        ["torque.k1_Nm_s2_m", "the paper's torque law reads it"],
+    ),
+    "a road for the paper's law": (
+        'model = "steering"\n[run]\nmanoeuvre = "iso7401-step"\nroad = "snow"\n',
+        ["[run] road", 'add steering_model = "physical"'],
+    ),
+    "a road and a mu": (
+        'model = "steering"\n[run]\nmanoeuvre = "iso7401-step"\nsteering_model = "physical"\n'
+        'road = "wet"\n[vary]\n"tyres.friction_coefficient" = { values = [0.3, 1.0] }\n',
+        ["tyres.friction_coefficient and [run] road", "give one"],
+    ),
+    "a cone friction with the fixed synchronizer": (
+        'model = "hpattern"\n[run]\nsequence = "N,1,2"\nsynchronizer = "fixed"\n[vary]\n'
+        '"synchronizer.cone_friction" = { values = [0.08, 0.12] }\n',
+        ["synchronizer.cone_friction", "only the physics synchronizer", 'synchronizer = "physics"'],
+    ),
 }
 
 
@@ -437,3 +471,21 @@ def test_the_draws_follow_their_distributions_and_the_ranks_handle_ties():
         assert np.allclose(vary.sample(u), reference.ppf(u), rtol=0.0, atol=1e-9)
     values = np.array([3.0, 1.0, 2.0, 2.0, 5.0, 1.0, 1.0])
     assert np.array_equal(sensitivity._ranks(values), stats.rankdata(values))
+
+
+def test_a_failed_sweep_leaves_no_plot_folder_behind(tmp_path, monkeypatch, capsys):
+    """The plot folder is made, whole, only once every case has run: a run that fails (here a
+    scheduler that cannot be reached, as the runner reports it) leaves nothing new."""
+    from carfeel.errors import InputError
+    from carfeel.sweep import runner
+
+    def unreachable(*args, **kwargs):
+        raise InputError("cannot reach the Dask scheduler tcp://127.0.0.1:1")
+
+    monkeypatch.setattr(runner, "run_cases", unreachable)
+    path = _write(tmp_path, SMALL)
+    before = sorted(p.name for p in tmp_path.iterdir())
+    plots = tmp_path / "newplots"
+    assert main(["sweep", str(path), "--out", str(tmp_path / "r.csv"), "--plot", str(plots)]) == 2
+    assert "cannot reach the Dask scheduler" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == before

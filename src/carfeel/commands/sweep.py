@@ -107,11 +107,11 @@ def _plot_outputs(outputs: Outputs, folder: Path, parameters: Any, metrics: Any)
 
     if folder.exists() and not folder.is_dir():
         raise InputError(f"--plot {folder} exists and is not a folder")
-    folder.mkdir(parents=True, exist_ok=True)
-    return {
-        name: outputs.add(folder / name, Path(name).suffix)
-        for name in plots.file_names(parameters, metrics)
-    }
+    names = plots.file_names(parameters, metrics)
+    if not folder.exists():  # made, whole, only once the run has succeeded
+        staged = outputs.add_folder(folder)
+        return {name: staged / name for name in names}
+    return {name: outputs.add(folder / name, Path(name).suffix) for name in names}
 
 
 def plot_results(results_path: Path, folder: Path) -> tuple[Path, list[str]]:

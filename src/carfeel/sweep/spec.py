@@ -302,10 +302,14 @@ def from_toml(text: str, label: str = "<spec>", folder: Path | None = None) -> S
     paths = [path for path, _ in fixed] + [v.path for v in vary]
     for path in {p for p in paths if paths.count(p) > 1}:
         problems.append(f"{path}: given more than once in [set] and [vary]; give it once")
+    for key, _ in run:
+        if f"run.{key}" in paths:
+            problems.append(f"run.{key}: given in [run] and in [set] or [vary]; give it once")
     for path, value in fixed:
         _check_value(model, base, path, value, "set", problems)
     for v in vary:
         _check_vary(model, base, v, problems)
+    _check_used(model, base, dict(run), paths, problems)
     has_draws = any(v.distribution for v in vary)
     samples = data.get("samples", 0 if not has_draws else None)
     if has_draws and (isinstance(samples, bool) or not isinstance(samples, int) or samples < 1):
@@ -391,6 +395,49 @@ def from_toml(text: str, label: str = "<spec>", folder: Path | None = None) -> S
         text=text,
         hash=digest,
     )
+
+
+def _check_used(
+    model: str, base: Any, run: Mapping[str, Any], paths: list[str], problems: list[str]
+) -> None:
+    """Every parameter set or varied must be one the run's model reads: else its rows would
+    come out identical, as if it did not matter."""
+    if model == "steering":
+        physical = run.get("steering_model", "paper") == "physical"
+        if "road" in run and not physical:
+            problems.append(
+                '[run] road sets the physical model\'s tyres: add steering_model = "physical", '
+                "or drop road"
+            )
+        if "road" in run and "tyres.friction_coefficient" in paths:
+            problems.append(
+                "tyres.friction_coefficient and [run] road both give the tyres' mu: give one"
+            )
+        for path in paths:
+            table = path.split(".")[0]
+            if not physical and table in ("tyres", "steering_system"):
+                problems.append(
+                    f"{path}: only the physical steering model reads it; add [run] "
+                    'steering_model = "physical", or drop it'
+                )
+            elif physical and table == "torque":
+                problems.append(
+                    f"{path}: the paper's torque law reads it, not the physical model (its "
+                    "torque comes from its tyres and steering system); drop it, or use "
+                    'steering_model = "paper"'
+                )
+    elif model == "hpattern" and "synchronizer.physics" not in paths:
+        chosen = run.get("synchronizer")
+        physics = chosen == "physics" if chosen is not None else base.synchronizer.physics
+        if not physics:
+            named = [p for p in paths if p.startswith("synchronizer.") or p == "run.engine_rpm"]
+            if "engine_rpm" in run:
+                named.append("[run] engine_rpm")
+            for path in named:
+                problems.append(
+                    f"{path}: only the physics synchronizer reads it (this run's is the fixed "
+                    'synchronization time); add [run] synchronizer = "physics", or drop it'
+                )
 
 
 def _error(label: str, problems: list[str]) -> SpecError:
@@ -698,7 +745,7 @@ def _run(model: str, table: Any, problems: list[str]) -> list[tuple[str, Any]]:
                 f"[run] steering_model = {out['steering_model']!r}: expected one "
                 f"of {', '.join(STEERING_MODELS)}"
             )
-        if out.get("road", "dry") not in ROAD_FRICTION:
+        if out.get("road", "dry") not in ROAD_FRICTION:  # (no road: the preset's mu)
             problems.append(
                 f"[run] road = {out['road']!r}: expected one of {', '.join(ROAD_FRICTION)}"
             )
