@@ -216,7 +216,8 @@ def test_parameters_carry_the_presets_values_units_and_ranges(fmus):
     mass = v["gearbox.neutral.mass_kg"]
     assert (mass.causality, mass.variability) == ("parameter", "tunable")
     assert float(mass.start) == load_shift("paper-first-gear").params.gearbox.neutral.mass_kg
-    assert (mass.unit, float(mass.min), float(mass.max)) == ("kg", 0.0, 100.0)
+    # FMI's min is inclusive and the mass must be above 0: the least double above it.
+    assert (mass.unit, float(mass.min), float(mass.max)) == ("kg", 5e-324, 100.0)
     assert v["gearbox.stop.stiffness_N_m"].unit == "N/m"
     assert v["gearbox.chamfer.gear_inertia_kg_m2"].unit == "kg.m2"
     assert v["seed"].variability == "fixed"
@@ -573,6 +574,33 @@ def test_tunable_parameters_change_mid_run_and_bad_values_are_refused(fmus, caps
     instance.free()
 
 
+def test_an_ay_source_out_of_range_is_refused(fmus, capsys):
+    """ay_source is one of its four choices (0..3), as its model description says."""
+    for version, value in ((2, 7), (3, -1)):
+        instance = Instance(fmus["steering", version])
+        if instance.fmi3:
+            instance.fmu.enterInitializationMode(startTime=0.0)
+        else:
+            instance.fmu.setupExperiment(startTime=0.0)
+            instance.fmu.enterInitializationMode()
+        with pytest.raises(Exception):  # noqa: B017, PT011 - FMPy raises its own for fmi2Error
+            instance.set("ay_source", value)
+        assert f"ay_source = {value}" in capsys.readouterr().out
+        instance.fmu.freeInstance()
+
+
+@pytest.mark.parametrize(("version", "seed"), [(2, 2**64 - 5), (3, 2**63 + 11), (3, 2**63)])
+def test_a_seed_from_2_to_the_63_is_exported_as_the_fmus_negative_seed(tmp_path, version, seed):
+    """carfeel's seeds run to 2^64-1, the FMU's signed seed parameter holds them in two's
+    complement: the start value is valid for the importer and gives carfeel's seed."""
+    out = tmp_path / "s.fmu"
+    assert main(["export", "fmu", "shift", "--fmi", str(version), "--seed", str(seed),
+                 "--out", str(out)]) == 0  # fmt: skip
+    variables = {v.name: v for v in read_model_description(str(out)).modelVariables}
+    assert int(variables["seed"].start) == seed - 2**64
+    assert validate_fmu(str(out)) == []
+
+
 def test_inconsistent_parameters_are_refused_at_initialization(fmus, capsys):
     instance = Instance(fmus["shift", 2])
     instance.fmu.setupExperiment(startTime=0.0)
@@ -644,6 +672,7 @@ def _bad_preset(tmp_path: Path) -> Path:
         (["steering", "--out", "{t}/x.zip"], "expected a .fmu file name"),
         (["gear"], "invalid choice: 'gear'"),
         (["steering", "--seed", "3"], "--seed is for the shift FMU"),
+        (["shift", "--seed", "2147483648"], "reaches the seeds 0..2147483647 and from"),
     ],
 )
 def test_bad_input_exits_2_with_a_message_and_leaves_no_file(tmp_path, capsys, args, message):

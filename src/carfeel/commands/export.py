@@ -65,7 +65,7 @@ def register(commands: Any) -> None:
 
 def _handle(args: argparse.Namespace) -> int:
     from carfeel.errors import InputError
-    from carfeel.export.fmu import FMI_VERSIONS, export_fmu, spec_for
+    from carfeel.export.fmu import FMI_VERSIONS, INTEGER_MAX, export_fmu, signed_seed, spec_for
     from carfeel.io.outputs import Outputs
 
     if args.fmi not in FMI_VERSIONS:
@@ -74,6 +74,14 @@ def _handle(args: argparse.Namespace) -> int:
         raise InputError("--steering-model is for the steering FMU, not the shift's")
     if args.seed is not None and args.model != "shift":
         raise InputError("--seed is for the shift FMU (its tooth draws); the steering has none")
+    # The FMU's seed is signed (two's complement of carfeel's 0..2^64-1): FMI 2's 32 bits.
+    signed = signed_seed(args.seed or 0)
+    if not -INTEGER_MAX[args.fmi] - 1 <= signed <= INTEGER_MAX[args.fmi]:
+        raise InputError(
+            f"--seed {args.seed}: the FMI 2 FMU's seed parameter is a 32-bit Integer: it "
+            f"reaches the seeds 0..{INTEGER_MAX[2]} and from {2**64 - 2**31}; --fmi 3 reaches "
+            "every seed"
+        )
     steering_model = args.steering_model or "paper"
     spec = spec_for(args.model, args.preset, seed=args.seed or 0, steering_model=steering_model)
     out = Path(args.out)

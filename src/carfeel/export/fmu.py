@@ -64,6 +64,15 @@ MODELS = ("steering", "shift")
 STEERING_MODELS = ("paper", "physical")
 """The steering FMU's model: the paper's law, or the physical model (`--steering-model`)."""
 FMI_VERSIONS = (2, 3)
+INTEGER_MAX = {2: 2**31 - 1, 3: 2**63 - 1}
+"""The largest value of an FMI integer variable: FMI 2's Integer (32 bits), FMI 3's Int64."""
+
+
+def signed_seed(seed: int) -> int:
+    """carfeel's seed (0 .. 2^64-1) as the FMU's signed seed parameter (two's complement)."""
+    return seed - 2**64 if seed >= 2**63 else seed
+
+
 MODEL_STEP_S = 1e-3
 """The FMUs' default model step (the 1 kHz loop's); the parameter model_step_s changes it."""
 
@@ -344,7 +353,9 @@ def shift_spec(preset: Preset[ShiftParams], seed: int = 0) -> ModelSpec:
         *_table_parameters("gearbox", gearbox, preset.name),
         Variable("seed", "parameter", "fixed", "integer", "seed",
                  "Seed of the tooth draws (SplitMix64): the relative tooth angle of each "
-                 "engagement; one seed gives one result, as carfeel's --seed", seed,
+                 "engagement; one seed gives one result, as carfeel's --seed N for N >= 0, "
+                 "and N + 2^64 for N < 0 (FMI 2's 32-bit Integer reaches the seeds below 2^31 "
+                 "and from 2^64 - 2^31; FMI 3's Int64 all)", signed_seed(seed),
                  fmi3_integer="Int64"),
         _model_step(SHIFT_MAX_STEP_S, "at most carfeel's shift step, where a hand closing the "
                     "loop through the importer stays accurate"),
@@ -368,7 +379,7 @@ def shift_spec(preset: Preset[ShiftParams], seed: int = 0) -> ModelSpec:
                  "opens at 1"),
     ]  # fmt: skip
     defaults = [(f"gearbox.{path}", float(value)) for path, value, _, _ in _flatten(gearbox)]
-    defaults += [("seed", seed), ("model_step_s", MODEL_STEP_S)]
+    defaults += [("seed", signed_seed(seed)), ("model_step_s", MODEL_STEP_S)]
     stages = tuple((s.value, _STAGE_DOCS[s]) for s in Stage)
     return ModelSpec(
         "shift", "carfeel_shift", f"carfeel shift ({preset.name})",
@@ -422,7 +433,8 @@ def steering_spec(preset: Preset[SteeringCar]) -> ModelSpec:
         Variable("ay_source", "parameter", "fixed", "AySource", "ay_source",
                  "Where tau0 takes Ay from: " + "; ".join(
                      f"{name} = {i}: {doc}" for i, (name, doc) in
-                     enumerate(zip(AY_SOURCES, _AY_DOCS, strict=True))), 0),
+                     enumerate(zip(AY_SOURCES, _AY_DOCS, strict=True))), 0,
+                 low=0, high=len(AY_SOURCES) - 1),
         _model_step(STEERING_MAX_STEP_S, "the car's trapezoidal step (with ay_source vehicle or "
                     "front_axle); the law itself has no state"),
         Variable("torque_Nm", "output", "continuous", real, "torque_Nm",
@@ -692,10 +704,18 @@ def model_description(spec: ModelSpec, fmi_version: int, token: str) -> str:
             typed["start"] = _number(v.start)
         if v.unit:
             typed["unit"] = fmi_unit(v.unit)
-        if math.isfinite(v.low) and v.kind in ("real", "integer"):
-            typed["min"] = _number(v.low if v.is_real else int(v.low))
-        if math.isfinite(v.high) and v.kind in ("real", "integer"):
-            typed["max"] = _number(v.high if v.is_real else int(v.high))
+        # FMI's min and max are inclusive: an open bound is the next value inside it.
+        low, high = v.low, v.high
+        if v.is_real and not v.low_inclusive:
+            low = math.nextafter(low, math.inf)
+        if v.is_real and not v.high_inclusive:
+            high = math.nextafter(high, -math.inf)
+        if v.kind == "integer" and math.isfinite(high):
+            high = min(high, INTEGER_MAX[fmi_version])  # FMI 2's Integer is 32 bits
+        if math.isfinite(low) and v.kind in ("real", "integer"):
+            typed["min"] = _number(low if v.is_real else int(low))
+        if math.isfinite(high) and v.kind in ("real", "integer"):
+            typed["max"] = _number(high if v.is_real else int(high))
         enumerated = v.kind not in ("real", "integer")
         if enumerated:
             typed["declaredType"] = v.kind
@@ -760,7 +780,8 @@ def source_files(spec: ModelSpec, fmi_version: int) -> tuple[str, ...]:
 
 def _c_number(value: float | int) -> str:
     if isinstance(value, int):
-        return f"{value}LL"
+        # -2^63 has no literal: 9223372036854775808 does not fit a long long.
+        return "(-9223372036854775807LL - 1)" if value == -(2**63) else f"{value}LL"
     if math.isinf(value):
         return "INFINITY" if value > 0 else "-INFINITY"
     return repr(float(value))
