@@ -113,7 +113,12 @@ def _check_angle_unit(
     csv_path: Path, result: Result, preset: str | None, ratio: float, wheelbase: float
 ) -> None:
     """An angle in degrees makes the sensitivity 57 times too small: Ay gives it away."""
-    from carfeel.identification.steering_fit import ay_gain, looks_like_degrees
+    from carfeel.identification.steering_fit import (
+        ay_angle_correlation,
+        ay_gain,
+        looks_like_degrees,
+        opposite_sign_problem,
+    )
 
     vehicle = replace(
         load_steering(preset or "b-segment").params.vehicle,
@@ -121,7 +126,14 @@ def _check_angle_unit(
     )  # fmt: skip
     gain = ay_gain(result["speed_m_s"], result["steering_angle_rad"],
                    result["lateral_accel_m_s2"], vehicle)  # fmt: skip
-    if looks_like_degrees(gain):
+    problem = opposite_sign_problem(
+        str(csv_path),
+        ay_angle_correlation(result.time_s, result["speed_m_s"], result["steering_angle_rad"],
+                             result["lateral_accel_m_s2"], vehicle),
+    )  # fmt: skip
+    if problem:
+        raise InputError(problem)
+    if looks_like_degrees(abs(gain)):
         raise InputError(
             f"{csv_path}: the measured lateral_accel_m_s2 is {gain:.3g} times the steady-state Ay "
             "of the car from speed and steering_angle_rad (about 1 expected): the angle looks like "

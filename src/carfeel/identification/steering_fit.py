@@ -51,6 +51,7 @@ by another instance without touching the fit's machinery.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import itertools
 import math
 from collections.abc import Callable, Sequence
@@ -324,9 +325,24 @@ def read_log(result: Result, name: str) -> SteeringLog:
         else None
     )
     speed = lowpass(t, speed, CUTOFF_HZ["speed_m_s"])
+    if ay is not None:  # a sign convention, judged on any car: the steering's sign is the test
+        problem = opposite_sign_problem(
+            name, ay_angle_correlation(t, speed, angle, ay, _nominal_vehicle())
+        )
+        if problem:
+            raise InputError(problem)
     return SteeringLog(
         name, t, speed, angle, rate, torque, ay, "steering_rate_rad_s" in result.names
     )
+
+
+@functools.cache
+def _nominal_vehicle() -> VehicleParams:
+    """The car the sign check's steady-state Ay comes from before any preset is chosen (the
+    sign of a steady state does not depend on the car)."""
+    from carfeel.io.presets import load_steering
+
+    return load_steering("b-segment").params.vehicle
 
 
 def steady_ay(
@@ -832,6 +848,58 @@ def ay_gain(speed: FloatArray, angle: FloatArray, ay: FloatArray, vehicle: Vehic
     use = (speed > 5.0) & (np.abs(ay) > 0.5)
     power = float(np.sum(model[use] ** 2))
     return float(np.sum(ay[use] * model[use]) / power) if power > 0.0 else math.nan
+
+
+SIGN_SMOOTHING_S = 0.5
+"""Ay and the angle are averaged over this long before their correlation is taken (a real Ay
+channel's noise and the car's vibration swamp a highway's small steering)."""
+OPPOSITE_SIGN_CORRELATION = -0.5
+"""A measured Ay this anti-correlated with the steady-state Ay from the steering angle turns the
+other way from the wheel: a sign convention, not a car (a real car's is +0.8 or more on a log
+with steering in it; -0.82 on the RAV4's CAN log read with Ay + to the right)."""
+
+
+def ay_angle_correlation(
+    time: FloatArray, speed: FloatArray, angle: FloatArray, ay: FloatArray,
+    vehicle: VehicleParams,
+) -> float | None:  # fmt: skip
+    """Correlation of a measured Ay with the steady-state Ay from speed and angle, both averaged
+    over SIGN_SMOOTHING_S, on the samples at speed (V > 5 m/s); None with under 10 s of them or
+    no steering to speak of (the averaged angle's spread under 0.05 deg)."""
+    if len(time) < 3:
+        return None
+    dt = float(np.median(np.diff(time)))
+    if not dt > 0.0:
+        return None
+    n = max(1, round(SIGN_SMOOTHING_S / dt))
+    window = np.ones(n) / n
+    model = steady_ay(
+        speed, angle, vehicle.steering_ratio, vehicle.understeer_gradient_rad_s2_m,
+        vehicle.wheelbase_m,
+    )  # fmt: skip
+    smooth_model = np.convolve(model, window, mode="same")
+    smooth_ay = np.convolve(ay, window, mode="same")
+    smooth_angle = np.convolve(angle, window, mode="same")
+    use = speed > 5.0
+    use[: n // 2 + 1] = False  # the averages' edges
+    use[len(use) - n // 2 - 1 :] = False
+    if use.sum() * dt < 10.0 or np.std(smooth_angle[use]) < math.radians(0.05):
+        return None
+    if np.std(smooth_ay[use]) == 0.0 or np.std(smooth_model[use]) == 0.0:
+        return None
+    return float(np.corrcoef(smooth_ay[use], smooth_model[use])[0, 1])
+
+
+def opposite_sign_problem(name: str, correlation: float | None) -> str | None:
+    """The refusal of a log whose Ay turns the other way from its steering angle, or None."""
+    if correlation is None or correlation > OPPOSITE_SIGN_CORRELATION:
+        return None
+    return (
+        f"{name}: lateral_accel_m_s2 turns the other way from steering_angle_rad (their "
+        f"correlation at speed is {correlation:.2f}; a car's is about +0.8 or more): carfeel takes "
+        "both + to the left; negate the one that is + to the right (scale = -1.0 in the channel "
+        "map, or flip the column)"
+    )
 
 
 def looks_like_degrees(factor: float) -> bool:
