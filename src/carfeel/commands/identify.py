@@ -16,6 +16,21 @@ from carfeel.commands.common import (
 from carfeel.errors import InputError
 from carfeel.io.outputs import check_folder
 
+MIN_DRIFT_S = 5.0
+"""The closest --drift knots: closer, the offset follows the steering's own torque (a weave's
+period is 2-5 s) instead of a road's crown or a sensor's drift, and the fit has a parameter for
+every few samples."""
+
+
+def drift_seconds(text: str) -> float:
+    value = positive_float(text)
+    if value < MIN_DRIFT_S:
+        raise argparse.ArgumentTypeError(
+            f"{value:g} s: knots closer than {MIN_DRIFT_S:g} s would follow the steering's own "
+            f"torque (a weave's period is 2-5 s), not a drift; give {MIN_DRIFT_S:g} s or more"
+        )
+    return value
+
 
 def register(commands: Any) -> None:
     """Add `fit`, `validate` and their options."""
@@ -44,7 +59,7 @@ def register(commands: Any) -> None:
     fit_steer.add_argument("--fit-vehicle", action="store_true",
                            help="also fit the understeer gradient (logs without Ay)")  # fmt: skip
     fit_steer.add_argument("--report", metavar="DIR", help="write a report (HTML + PNG)")
-    fit_steer.add_argument("--drift", type=positive_float, metavar="SECONDS",
+    fit_steer.add_argument("--drift", type=drift_seconds, metavar="SECONDS",
                            help="let the torque offset drift: knots this far apart (road crown, "
                            "sensor drift); default one constant offset per log")  # fmt: skip
     fit_steer.add_argument("--holdout", type=float, default=0.0, metavar="FRACTION",
@@ -84,7 +99,7 @@ def register(commands: Any) -> None:
     validate.add_argument("--report", default=None, metavar="DIR",
                           help="folder for the report (HTML + PNG); without it only the "
                           "figures are printed")  # fmt: skip
-    validate.add_argument("--drift", type=positive_float, metavar="SECONDS",
+    validate.add_argument("--drift", type=drift_seconds, metavar="SECONDS",
                           help="remove each log's own drifting torque offset (knots this far "
                           "apart) before the figures; default a constant one")  # fmt: skip
     _steering_model_option(validate, "the steering model to run against the logs")

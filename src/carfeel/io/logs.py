@@ -181,14 +181,35 @@ def load_map(path: Path) -> ChannelMap:
         if numbers["scale"] == 0.0:
             raise InputError(f"--channels {path}: {name}: scale must not be 0")
         entries[name] = MapEntry(entry["signal"], unit, numbers["scale"], numbers["offset"])
-    rate = (
-        data.get("resample", {}).get("rate_hz") if isinstance(data.get("resample"), dict) else None
-    )
+    resample = data.get("resample", {})
+    if not isinstance(resample, dict):
+        raise InputError(f"--channels {path}: [resample] must be a table (rate_hz = 50.0)")
+    if set(resample) - {"rate_hz"}:
+        raise InputError(
+            f"--channels {path}: [resample] {', '.join(sorted(set(resample) - {'rate_hz'}))}: "
+            "unknown key(s); it takes rate_hz"
+        )
+    rate = resample.get("rate_hz")
     if rate is not None and (
-        isinstance(rate, bool) or not isinstance(rate, int | float) or rate <= 0
+        isinstance(rate, bool)
+        or not isinstance(rate, int | float)
+        or not MIN_RESAMPLE_HZ <= rate <= MAX_RESAMPLE_HZ
     ):
-        raise InputError(f"--channels {path}: [resample] rate_hz must be a positive number")
+        number = isinstance(rate, int | float) and not isinstance(rate, bool)
+        raise InputError(
+            f"--channels {path}: [resample] rate_hz = {f'{rate:g}' if number else repr(rate)}: "
+            f"expected a number of Hz, {MIN_RESAMPLE_HZ:g} <= rate_hz <= {MAX_RESAMPLE_HZ:g}"
+        )
     return ChannelMap(entries, None if rate is None else float(rate))
+
+
+MIN_RESAMPLE_HZ = 1.0
+MAX_RESAMPLE_HZ = 20_000.0
+"""A log is resampled to 1 Hz .. 20 kHz (the 1 kHz loop's logs and a car's buses lie within)."""
+MAX_GAP_S = 0.5
+MAX_GAP_PERIODS = 20
+"""A channel silent for longer than both (its own period's multiple and the seconds) is a gap in
+the log, not jitter: interpolating across it would invent the data."""
 
 
 def _si(unit: str) -> str | None:
@@ -428,6 +449,19 @@ def _common_time(
     end = min(float(t[-1]) for t in stamps)
     if not end > start:
         raise InputError(f"{path}: the mapped channels do not overlap in time")
+    for name, (t, _) in converted.items():
+        inside = t[(t >= start) & (t <= end)]
+        steps = np.diff(inside)
+        if len(steps) == 0:
+            continue
+        allowed = max(MAX_GAP_S, MAX_GAP_PERIODS * float(np.median(steps)))
+        if steps.max() > allowed:
+            k = int(np.argmax(steps))
+            raise InputError(
+                f"{path}: {name} has no sample for {steps[k]:.3g} s from t = "
+                f"{inside[k] - start:.3f} s (its period is {np.median(steps):.3g} s): bridging "
+                "that would invent data; cut the log at the gap (one file each side)"
+            )
     if rate_hz is None:
         lead = converted.get("steering_torque_Nm", converted.get("force_N"))
         periods = [float(np.median(np.diff(t))) for t in ([lead[0]] if lead else stamps)]
