@@ -603,3 +603,24 @@ def test_reported_sigmas_match_the_errors_over_repeated_noisy_fits():
     ratio = np.mean((np.std(v, axis=0, ddof=1) / np.median(s, axis=0)) ** 2)
     assert 0.3 < ratio < 3.0
     assert np.mean(np.abs(v - truth) <= 2 * s) >= 0.8
+
+
+def test_validate_gives_the_models_own_understeer_gradient_not_the_logs(tmp_path):
+    """The law is driven with the log's angle and Ay, so an understeer gradient taken from them
+    is the log's (it was, in the model column): the model's is its car's. A D-segment log
+    against its own preset: the measured one agrees with the car's within 5 % (the steady
+    states of a linear car); a B-segment log against the D-segment preset: the model column
+    still gives the D-segment's 2.31 deg/g, the log's is 1.10 (with the D's geometry)."""
+    from carfeel.identification.workflows import steering_sections
+
+    d = load_steering("d-segment").params
+    k_us = d.vehicle.understeer_gradient_deg_per_g
+    for source, near in (("d-segment", True), ("b-segment", False)):
+        car = load_steering(source).params
+        run = simulate_steering(car, manoeuvres.build("iso4138", car.vehicle, None))
+        sections, _ = steering_sections(d, [read_log(run, source)], tmp_path)
+        row = next(r for r in sections[0].table if r[0].startswith("understeer gradient"))
+        measured, model = float(row[1]), float(row[2])
+        assert model == pytest.approx(k_us, rel=1e-3)
+        assert (abs(measured / k_us - 1.0) < 0.05) == near, (source, measured, k_us)
+        assert any("not one from this log" in line for line in sections[0].paragraphs)

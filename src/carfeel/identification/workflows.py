@@ -130,7 +130,16 @@ def steering_sections(
                           steering_ratio=ratio, wheelbase_m=base)
             for torque in (log.torque_Nm, model)
         )  # fmt: skip
+        # The law is driven with the log's angle and Ay: an understeer gradient from them would
+        # be the log's own. The model's is its car's (the preset's linear car).
+        simulated = dataclasses.replace(
+            simulated, understeer_gradient_deg_per_g=car.vehicle.understeer_gradient_deg_per_g
+        )
         table, missing = feel_table(measured, simulated)
+        missing.append(
+            "The model's understeer gradient is its car's (the preset's), not one from this log: "
+            "the law is driven with the log's angle and Ay."
+        )
         source = (
             "measured" if log.lateral_accel_m_s2 is not None else "from the transient car model"
         )
