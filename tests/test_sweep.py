@@ -92,6 +92,16 @@ BAD_SPECS = {
         '"run.speed_kmh" = { values = [60, 80] }\n',
         ["run.speed_kmh: given in [run] and in [set] or [vary]"],
     ),
+    # What a case would only find when it runs.
+    "a gear the layout does not have": (
+        'model = "hpattern"\n[run]\nsequence = "N,1,7"\n',
+        ["[run] sequence: no gear 7 in the preset's layout"],
+    ),
+    "a speed the manoeuvre does not take": (
+        'model = "steering"\n[run]\nmanoeuvre = "steer-cycle"\n[vary]\n'
+        '"run.speed_kmh" = { values = [0, 50] }\n',
+        ["manoeuvre = 'steer-cycle' at run.speed_kmh = 50", "10 km/h"],
+    ),
     # Parameters the run's model does not read (their rows would all be equal).
     "the physical model's tyres on the paper's law": (
         'model = "steering"\n[run]\nmanoeuvre = "iso7401-step"\n[vary]\n'
@@ -489,3 +499,21 @@ def test_a_failed_sweep_leaves_no_plot_folder_behind(tmp_path, monkeypatch, caps
     assert main(["sweep", str(path), "--out", str(tmp_path / "r.csv"), "--plot", str(plots)]) == 2
     assert "cannot reach the Dask scheduler" in capsys.readouterr().err
     assert sorted(p.name for p in tmp_path.iterdir()) == before
+
+
+def test_a_run_that_ends_in_the_synchronization_has_no_synchronization_time():
+    """Cut at 0.2 s the ring (0.3 s) still holds the lever: the time is where the run stopped,
+    not a measured synchronization, so it is NaN (and the shift balked); the full run's is the
+    preset's 0.3 s. Both engines."""
+    text = (
+        'model = "shift"\n[run]\nduration_s = DURATION\n[vary]\n'
+        '"driver.push_force_N" = { values = [80] }\n'
+    )
+    for engine in ("batch", "pure"):
+        short, full = (
+            tasks.run_task(tasks.Task(dataclasses.replace(sweep, engine=engine),
+                                      tuple(spec.cases(sweep))))[0]
+            for sweep in (spec.from_toml(text.replace("DURATION", d)) for d in ("0.2", "1.2"))
+        )  # fmt: skip
+        assert math.isnan(short["synchronization_time_s"]) and short["balked"] is True
+        assert full["synchronization_time_s"] == pytest.approx(0.3, abs=0.01)

@@ -310,6 +310,8 @@ def from_toml(text: str, label: str = "<spec>", folder: Path | None = None) -> S
     for v in vary:
         _check_vary(model, base, v, problems)
     _check_used(model, base, dict(run), paths, problems)
+    if not problems:
+        _check_runs(model, base, dict(run), fixed, vary, problems)
     has_draws = any(v.distribution for v in vary)
     samples = data.get("samples", 0 if not has_draws else None)
     if has_draws and (isinstance(samples, bool) or not isinstance(samples, int) or samples < 1):
@@ -438,6 +440,44 @@ def _check_used(
                     f"{path}: only the physics synchronizer reads it (this run's is the fixed "
                     'synchronization time); add [run] synchronizer = "physics", or drop it'
                 )
+
+
+def _check_runs(
+    model: str,
+    base: Any,
+    run: Mapping[str, Any],
+    fixed: Sequence[tuple[str, Any]],
+    vary: Sequence[Vary],
+    problems: list[str],
+) -> None:
+    """What a case would only find when it runs, found before any does: the sequence's gears in
+    the preset's layout, the manoeuvre at every speed the grid gives it."""
+    if model == "hpattern" and isinstance(run.get("sequence"), str):
+        varied = {v.path.split(".")[0] for v in vary} | {p.split(".")[0] for p, _ in fixed}
+        if "layout" not in varied:
+            names = {g.name.upper() for g in base.layout.gears}
+            unknown = [g for g in gears_of(run["sequence"]) if g not in names]
+            if unknown:
+                problems.append(
+                    f"[run] sequence: no gear {', '.join(dict.fromkeys(unknown))} in the "
+                    f"preset's layout; it has {', '.join(sorted(names))}"
+                )
+    if model == "steering" and isinstance(run.get("manoeuvre"), str):
+        from carfeel.simulation import manoeuvres
+
+        speeds: list[Any] = [run.get("speed_kmh")]
+        for v in vary:
+            if v.path == "run.speed_kmh":
+                speeds = list(v.values) if v.values else [None]
+        speeds += [value for path, value in fixed if path == "run.speed_kmh"]
+        for speed in dict.fromkeys(speeds):
+            if speed is not None and not isinstance(speed, int | float):
+                continue
+            try:
+                manoeuvres.build(run["manoeuvre"], base.vehicle, speed)
+            except CarfeelError as exc:
+                where = "" if speed is None else f" at run.speed_kmh = {speed:g}"
+                problems.append(f"[run] manoeuvre = {run['manoeuvre']!r}{where}: {exc}")
 
 
 def _error(label: str, problems: list[str]) -> SpecError:

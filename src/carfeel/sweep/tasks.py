@@ -89,7 +89,12 @@ def shift_metrics(features: ShiftFeatures, time_to_stop_s: float) -> dict[str, A
     return {
         "synchronization_force_N": features.synchronization_force_N,
         "synchronization_peak_N": features.synchronization_peak_N,
-        "synchronization_time_s": features.synchronization_hold_s,
+        # Not measured where the ring never held the lever or still held it at the run's end.
+        "synchronization_time_s": (
+            features.synchronization_hold_s
+            if "synchronization" in features.stages and features.final_stage != "synchronization"
+            else math.nan
+        ),
         "engagement_peak_N": features.engagement_peak_N,
         "stop_peak_N": features.stop_peak_N,
         "stop_overshoot_m": features.stop_overshoot_m,
