@@ -88,6 +88,12 @@ def test_an_ay_that_turns_the_other_way_is_refused_and_a_highway_gives_no_unders
     feel = json.loads(capsys.readouterr().out)
     assert feel["understeer_gradient_deg_per_g"] is None
     assert any("under the 1.5 m/s^2" in note for note in feel["notes"])
+    # A lane-keeping highway drive identifies no parameter of the law (K1 came out 0.08 +- 0.15
+    # and was written as fitted): nothing is written, and the reasons are named.
+    assert main(["fit", "steering", str(RAV4_LOG), *log, str(right), "--out", str(preset)]) == 2
+    err = capsys.readouterr().err
+    assert "the logs identify none of K1..K9" in err and "within one sigma of its bound" in err
+    assert not preset.exists()
 
 
 @needs_rav4
@@ -316,6 +322,19 @@ def test_impossible_values_duplicates_and_ay_at_a_standstill_are_refused(tmp_pat
     out = tmp_path / "fit.toml"
     assert main(["fit", "steering", str(log), str(log), "--out", str(out)]) == 2
     assert "hold the same log" in capsys.readouterr().err
+    assert not out.exists()
+    # The same log as Parquet beside its CSV (other bytes, the same samples to the CSV's digits).
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from carfeel.simulation.result import Result
+
+    run = Result.from_csv(log)
+    twin = tmp_path / "weave.parquet"
+    named = {"steering_torque_Nm" if k == "torque_Nm" else k: v for k, v in run.signals.items()}
+    pq.write_table(pa.table({"time_s": run.time_s, **named}), twin)
+    assert main(["fit", "steering", str(log), str(twin), "--out", str(out)]) == 2
+    assert "hold the same log (in two files or formats)" in capsys.readouterr().err
     assert not out.exists()
     parked = tmp_path / "parked.csv"
     speed, ay = header.index("speed_m_s"), header.index("lateral_accel_m_s2")

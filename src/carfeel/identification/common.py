@@ -9,6 +9,7 @@ import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -87,15 +88,43 @@ def read_results(
                 "and shrink the uncertainties by the square root of two; give each log once"
             )
         seen[digest] = path
-    results = []
+    results: list[Result] = []
     for path in paths:
         if channel_map is None and path.suffix.lower() == ".csv":
             result = Result.from_csv(path)
         else:
             result = logs.read_channels(path, channel_map, dbc)
         check_physical(result, path)
+        for other, earlier in zip(paths, results, strict=False):
+            if _same_log(result, earlier):
+                raise InputError(
+                    f"{path} and {other} hold the same log (in two files or formats): given "
+                    "twice it would count twice and shrink the uncertainties by the square "
+                    "root of two; give each log once"
+                )
         results.append(result)
     return results
+
+
+def _same_log(a: Result, b: Result) -> bool:
+    """The same samples, to a CSV's digits: the time stamps (from the start) and the measured
+    torque or force."""
+    if len(a) != len(b) or len(a) == 0:
+        return False
+
+    def measured(r: Result) -> Any:  # torque_Nm is what carfeel simulate writes for it
+        return next(
+            (r[n] for n in ("steering_torque_Nm", "torque_Nm", "force_N") if n in r.names), None
+        )
+
+    fa, fb = measured(a), measured(b)
+    if fa is None or fb is None:
+        return False
+    ta, tb = a.time_s - a.time_s[0], b.time_s - b.time_s[0]
+    return bool(
+        np.allclose(ta, tb, rtol=1e-7, atol=1e-9)
+        and np.allclose(fa, fb, rtol=1e-6, atol=1e-9, equal_nan=True)
+    )
 
 
 PHYSICAL_LIMITS = {
