@@ -445,15 +445,34 @@ def test_json_has_null_for_a_kept_parameters_sigma(tmp_path, capsys):
 
     from carfeel.cli import main
 
-    time, signals = weave_signals()
-    signals["lateral_accel_m_s2"] = np.zeros_like(time)  # K1..K3 multiply zero: sigma inf
-    path = tmp_path / "no-ay.csv"
+    time, signals = weave_signals()  # a weave at speed: no parking for K4..K6
+    path = tmp_path / "weave.csv"
     Result(time, signals).to_csv(path)
     assert main(["fit", "steering", str(path), "--out", str(tmp_path / "p.toml"), "--json"]) == 0
     printed = capsys.readouterr().out
     fitted = json.loads(printed, parse_constant=lambda token: pytest.fail(f"{token} in JSON"))
-    assert fitted["parameters"]["k1_Nm_s2_m"]["sigma"] is None
-    assert fitted["parameters"]["k1_Nm_s2_m"]["status"] == "kept"
+    assert fitted["parameters"]["k4_1_Nm"]["sigma"] is None
+    assert fitted["parameters"]["k4_1_Nm"]["status"] == "kept"
+    assert fitted["parameters"]["k1_Nm_s2_m"]["status"] == "fitted"
+    assert fitted["parameters"]["k1_Nm_s2_m"]["sigma"] > 0.0
+
+
+def test_a_log_that_identifies_nothing_writes_no_preset(tmp_path, capsys):
+    """Without Ay, K1..K3 multiply zero; a weave at speed has no parking for K4..K6; what is
+    left (friction, damping) comes out with sigmas thousands of times the values (K7 4.1 +-
+    3.5e4 Nm), within one sigma of their bounds: nothing is identified, so nothing is written
+    (the base preset under a new name, with "fitted" values, was)."""
+    from carfeel.cli import main
+
+    time, signals = weave_signals()
+    signals["lateral_accel_m_s2"] = np.zeros_like(time)
+    path = tmp_path / "no-ay.csv"
+    Result(time, signals).to_csv(path)
+    out = tmp_path / "p.toml"
+    assert main(["fit", "steering", str(path), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "the logs identify none of K1..K9" in err and "within one sigma of its bound" in err
+    assert not out.exists()
 
 
 def test_the_analytic_jacobian_matches_finite_differences():

@@ -827,7 +827,7 @@ def _solve(
         x_all[idx] = solution.x
         r, jac = evaluate(solution.x)
         scale = float(1.4826 * np.median(np.abs(r - np.median(r)))) or scale
-        _, unconstrained = _sandwich(jac, r, scale, data.blocks)
+        covariance, unconstrained = _sandwich(jac, r, scale, data.blocks)
         stuck: dict[int, str] = {}
         for j, i in enumerate(idx.tolist()):
             if i >= n_par:
@@ -838,6 +838,15 @@ def _solve(
                             "the logs cannot place it")  # fmt: skip
             elif unconstrained[j]:
                 stuck[i] = "kept from the base preset: the logs do not constrain it"
+            else:  # within one sigma of a bound the logs cannot tell the value from the bound
+                sigma = math.sqrt(max(float(covariance[j, j]), 0.0))
+                value = float(solution.x[j])
+                near = lower[i] if value - lower[i] <= upper[i] - value else upper[i]
+                if math.isfinite(near) and abs(value - near) < sigma:
+                    stuck[i] = (
+                        f"kept from the base preset: the fit ({value:.3g} +- {sigma:.2g}) lies "
+                        f"within one sigma of its bound {near:g}, the logs cannot place it"
+                    )
         if not stuck or attempt == 2:
             break
         for i, why in stuck.items():

@@ -163,6 +163,12 @@ def _fit_physical_logs(
     progress = Progress("fitting the physical steering model", show_progress)
     fit = fit_physical(logs, base_car, drift_s=drift_s, progress=progress)
     progress.done()
+    if not any(e.status == "fitted" for e in fit.estimates):
+        raise InputError(
+            f"the logs identify none of the physical model's parameters (r2 {fit.r2:.3g}): the "
+            f"preset would be the base {base_name}'s, so none is written. Why: "
+            + "; ".join(fit.warnings)
+        )
     held_figures: dict[str, dict[str, float]] = {}
     held_sections: list[report.Section] = []
     if held:

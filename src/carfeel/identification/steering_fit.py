@@ -30,8 +30,9 @@ tyre-spin scale from parking (V < 2 m/s) if there is any.
 
 What the logs cannot identify keeps the base preset's value and is marked so (status "kept"):
 the tyre-spin terms K4..K6 without parking manoeuvres, the saturation K2, K3 without lateral
-accelerations beyond 3 m/s^2, and, after a first pass, any parameter that stops at a bound or in a
-direction the data do not constrain. Nothing is written at a bound.
+accelerations beyond 3 m/s^2, and, after a first pass, any parameter that stops at a bound, lies
+within one sigma of one (the data cannot tell it from the bound) or in a direction the data do not
+constrain. Nothing is written at a bound.
 
 Uncertainties are a sandwich (M-estimator) covariance: the bread is the loss-weighted Gauss-Newton
 matrix sum(rho'' J J^T), the meat sums the weighted scores sum(rho' r J) over blocks of BLOCK_S
@@ -699,6 +700,16 @@ def _solve(
                                  f"{bound:g}, the logs cannot place it")  # fmt: skip
             elif unconstrained[j]:
                 stuck[int(i)] = "kept from the base preset: the logs do not constrain it"
+            else:
+                # Within one sigma of a bound the logs cannot tell the value from the bound.
+                sigma = math.sqrt(max(float(covariance[j, j]), 0.0))
+                value = float(solution.x[j])
+                near = lo[i] if value - lo[i] <= hi[i] - value else hi[i]
+                if math.isfinite(near) and abs(value - near) < sigma:
+                    stuck[int(i)] = (
+                        f"kept from the base preset: the fit ({value:.3g} +- {sigma:.2g}) lies "
+                        f"within one sigma of its bound {near:g}, the logs cannot place it"
+                    )
         if not stuck or attempt == 2:
             break
         for i, why in stuck.items():

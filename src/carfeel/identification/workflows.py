@@ -218,6 +218,13 @@ def _fit_steering_logs(
     fit = fit_steering(logs, preset.params, fit_vehicle=fit_vehicle, drift_s=drift_s,
                        progress=progress)  # fmt: skip
     progress.done()
+    if not any(e.status == "fitted" for e in fit.estimates):
+        raise InputError(
+            f"the logs identify none of K1..K9 (r2 {fit.r2:.3g}): the preset would be the base "
+            f"{preset.name}'s, so none is written. Why: "
+            + "; ".join(fit.warnings)
+            + ". Log the manoeuvres named (a weave, a steady-state circle, parking)"
+        )
     held_figures: dict[str, dict[str, float]] = {}
     held_sections: list[report.Section] = []
     if held:
