@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import re
 
 import numpy as np
@@ -481,3 +482,29 @@ def test_a_force_no_hand_gives_stops_the_shift_fit(tmp_path, capsys):
         capsys.readouterr().err
     )
     assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    ("factor", "message"),
+    [(math.degrees(1.0), "it looks like deg/s"), (-1.0, "its sign is the opposite")],
+)
+def test_a_rate_in_other_units_or_sign_than_the_angle_is_refused(
+    weave_csv, tmp_path, capsys, factor, message
+):
+    """A logged rate in deg/s under a rad/s name turns the wheel 57 times as far as the angle
+    says (a fit would take K6, K9 57 times off); negated, the other way. Refused by fit and
+    validate, the log as written passes."""
+    run = Result.from_csv(weave_csv)
+    bad = tmp_path / "bad.csv"
+    Result(run.time_s, run.signals | {"steering_rate_rad_s": factor * run["steering_rate_rad_s"]},
+           run.metadata).to_csv(bad)  # fmt: skip
+    out = tmp_path / "x.toml"
+    for command in (
+        ["fit", "steering", str(bad), "--out", str(out)],
+        ["validate", "--preset", "b-segment", str(bad)],
+    ):
+        assert main(command) == 2  # fmt: skip
+        err = capsys.readouterr().err
+        assert "steering_rate_rad_s turns the wheel" in err and message in err, err
+    assert not out.exists()
+    assert main(["validate", "--preset", "b-segment", str(weave_csv)]) == 0

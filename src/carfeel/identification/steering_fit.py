@@ -215,6 +215,40 @@ def lowpass(time_s: FloatArray, values: FloatArray, cutoff_hz: float) -> FloatAr
     return out
 
 
+def _check_rate(name: str, time: FloatArray, logged: FloatArray, angle: FloatArray) -> None:
+    """A logged rate must be the angle's in its units and sign: over 1 s windows in which the
+    angle moves by more than 0.1 rad (a quantized angle's steps, 1.5 deg on a RAV4, stay far
+    below), the rate's integral against the angle's change, as a least-squares gain, within
+    0.5..2 (deg/s make it 57, a flipped sign -1); not judged with fewer than 5 such windows."""
+    window = 1.0
+    starts = np.searchsorted(time, np.arange(time[0], time[-1] - window, window / 2))
+    ends = np.searchsorted(time, time[starts] + window)
+    ends = np.minimum(ends, len(time) - 1)
+    integral = np.concatenate(([0.0], np.cumsum(0.5 * (logged[1:] + logged[:-1]) * np.diff(time))))
+    moved = angle[ends] - angle[starts]
+    turned = integral[ends] - integral[starts]
+    use = np.abs(moved) > 0.1
+    if use.sum() < 5:
+        return
+    gain = float(np.sum(turned[use] * moved[use]) / np.sum(moved[use] ** 2))
+    if 0.5 < gain < 2.0:
+        return
+    hint = (
+        "it looks like deg/s: give its unit (deg/s) in the channel map, or convert to rad/s"
+        if 35.0 < gain < 90.0
+        else "steering_angle_rad looks like degrees: convert it to radians"
+        if 1 / 90 < gain < 1 / 35
+        else "its sign is the opposite of the angle's: negate it (scale = -1.0 in the map)"
+        if -2.0 < gain < -0.5
+        else "check its unit and that it is this angle's rate (or leave it out: the rate is "
+        "then the angle's derivative)"
+    )
+    raise InputError(
+        f"{name}: steering_rate_rad_s turns the wheel {gain:.3g} times as far as "
+        f"steering_angle_rad says (about 1 expected): {hint}"
+    )
+
+
 def _logged_rate(time_s: FloatArray, rate_rad_s: FloatArray) -> FloatArray:
     """A logged rate, low-passed at RATE_CUTOFF_HZ only when its noise (from the MAD of its
     second differences: white noise gives 6 sigma^2 there) exceeds RATE_NOISE_RAD_S. Measured:
@@ -320,6 +354,8 @@ def read_log(result: Result, name: str) -> SteeringLog:
         if "steering_rate_rad_s" in result.names
         else savgol_rate(t, angle)
     )
+    if "steering_rate_rad_s" in result.names:
+        _check_rate(name, t, result["steering_rate_rad_s"][keep], angle)
     ay = (
         lowpass(t, result["lateral_accel_m_s2"][keep], CUTOFF_HZ["lateral_accel_m_s2"])
         if "lateral_accel_m_s2" in result.names
