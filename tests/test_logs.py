@@ -95,6 +95,9 @@ def test_an_ay_that_turns_the_other_way_is_refused_and_a_highway_gives_no_unders
     err = capsys.readouterr().err
     assert "the logs identify none of K1..K9" in err and "within one sigma of its bound" in err
     assert not preset.exists()
+    # Validated against the B-segment's law, r2 is negative: said, as the fit says it.
+    assert main(["validate", "--preset", "b-segment", str(RAV4_LOG), *log, str(right)]) == 0
+    assert "the model explains little of this log's torque" in capsys.readouterr().err
 
 
 @needs_rav4
@@ -496,8 +499,9 @@ def test_a_rate_in_other_units_or_sign_than_the_angle_is_refused(
     validate, the log as written passes."""
     run = Result.from_csv(weave_csv)
     bad = tmp_path / "bad.csv"
-    Result(run.time_s, run.signals | {"steering_rate_rad_s": factor * run["steering_rate_rad_s"]},
-           run.metadata).to_csv(bad)  # fmt: skip
+    signals = dict(run.signals)
+    signals["steering_rate_rad_s"] = factor * run["steering_rate_rad_s"]
+    Result(run.time_s, signals, run.metadata).to_csv(bad)
     out = tmp_path / "x.toml"
     for command in (
         ["fit", "steering", str(bad), "--out", str(out)],
@@ -508,3 +512,27 @@ def test_a_rate_in_other_units_or_sign_than_the_angle_is_refused(
         assert "steering_rate_rad_s turns the wheel" in err and message in err, err
     assert not out.exists()
     assert main(["validate", "--preset", "b-segment", str(weave_csv)]) == 0
+
+
+def test_a_csvs_own_time_column_is_named_in_the_map(tmp_path, capsys):
+    """A logger's CSV with its time in ms under its own name: the map names it (it was refused,
+    'no time column', though the map named it); a name that is not there is refused with the
+    closest one."""
+    t = np.arange(0.0, 30.0, 0.01)
+    rows = ["Zeit,V,SWA"] + [f"{x * 1000:.0f},20.0,{5 * np.sin(np.pi * x):.5f}" for x in t]
+    log = tmp_path / "vendor.csv"
+    log.write_text("\n".join(rows) + "\n")
+    good = tmp_path / "vendor.toml"
+    good.write_text(
+        '[channels]\ntime_s = { signal = "Zeit", unit = "ms" }\n'
+        'speed_m_s = { signal = "V", unit = "m/s" }\n'
+        'steering_angle_rad = { signal = "SWA", unit = "deg" }\n'
+    )
+    result = logs.read_channels(log, logs.load_map(good))
+    assert len(result) == len(t)
+    assert result.time_s[-1] - result.time_s[0] == pytest.approx(29.99)  # ms -> s
+    assert result["steering_angle_rad"].max() == pytest.approx(np.radians(5.0), rel=1e-4)
+    wrong = tmp_path / "wrong.toml"
+    wrong.write_text(good.read_text().replace('"Zeit"', '"Zit"'))
+    with pytest.raises(InputError, match=r"no column 'Zit' \(the map's time_s\).*'Zeit'"):
+        logs.read_channels(log, logs.load_map(wrong))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -16,6 +17,8 @@ from carfeel.commands.common import (
 from carfeel.errors import InputError
 from carfeel.io.outputs import check_folder
 
+LOW_R2 = 0.5
+"""Below this r2 a validation is warned about (the fit's threshold)."""
 MIN_DRIFT_S = 5.0
 """The closest --drift knots: closer, the offset follows the steering's own torque (a weave's
 period is 2-5 s) instead of a road's crown or a sensor's drift, and the fit has a parameter for
@@ -205,4 +208,12 @@ def _validate(args: argparse.Namespace) -> int:
             print(f"{name}: " + ", ".join(f"{k} {v:.4g}" for k, v in values.items()))
         if args.report is not None:
             print(f"wrote {Path(args.report) / 'index.html'}")
+    for name, values in figures.items():  # as the fit warns: a figure that says "do not trust"
+        r2 = values.get("r2", 1.0)
+        if r2 < LOW_R2:
+            print(
+                f"warning: {name}: r2 {r2:.3g}: the model explains little of this log's torque; "
+                "check the log's units, signs and columns, and that the preset is this car's",
+                file=sys.stderr,
+            )
     return 0

@@ -233,14 +233,16 @@ def kind_of(path: Path) -> str:
 
 
 def list_signals(
-    path: Path, dbc: Path | None = None, wanted: set[str] | None = None
-) -> list[Signal]:
-    """The signals a file holds, each with its own time stamps and unit."""
+    path: Path, dbc: Path | None = None, wanted: set[str] | None = None,
+    time_column: str | None = None,
+) -> list[Signal]:  # fmt: skip
+    """The signals a file holds, each with its own time stamps and unit (a CSV's time column:
+    `time_column`, as a channel map names it, else the first of TIME_NAMES)."""
     kind = kind_of(path)
     if not path.is_file():
         raise InputError(f"{path}: no such file")
     if kind == "csv":
-        return _csv(path)
+        return _csv(path, time_column)
     if kind == "parquet":
         return _parquet(path)
     if kind == "mdf":
@@ -253,7 +255,7 @@ def list_signals(
 TIME_NAMES = ("time_s", "time", "timestamp", "t", "Time")
 
 
-def _csv(path: Path) -> list[Signal]:
+def _csv(path: Path, time_column: str | None = None) -> list[Signal]:
     import csv
     import io
 
@@ -263,16 +265,23 @@ def _csv(path: Path) -> list[Signal]:
     if len(rows) < 2:
         raise InputError(f"{path}: no samples (a header row, then one row per sample)")
     header, body = rows[0], rows[1:]
-    time_name = next((n for n in TIME_NAMES if n in header), None)
+    if time_column is not None and time_column not in header:
+        raise InputError(
+            f"{path}: no column {time_column!r} (the map's time_s){_close(time_column, header)}"
+        )
+    time_name = time_column or next((n for n in TIME_NAMES if n in header), None)
     if time_name is None:
-        raise InputError(f"{path}: no time column ({', '.join(TIME_NAMES)}) among {header}")
+        raise InputError(
+            f"{path}: no time column ({', '.join(TIME_NAMES)}) among {header}: name yours in "
+            'the channel map (time_s = { signal = "Zeit", unit = "ms" })'
+        )
     columns = {}
     for i, name in enumerate(header):
         try:
             columns[name] = np.array([float(r[i]) for r in body])
         except (ValueError, IndexError):
             continue  # text columns are not signals
-    time = columns.pop(time_name)
+    time = columns[time_name] if time_column else columns.pop(time_name)
     return [Signal(n, time, v, CHANNELS.get(n, "")) for n, v in columns.items()]
 
 
@@ -396,7 +405,10 @@ def read_channels(
         channel_map = ChannelMap(entries)
     else:
         wanted = {e.signal for e in channel_map.channels.values()}
-        signals = list_signals(path, dbc, wanted if kind == "can" else None)
+        named = channel_map.channels.get("time_s")
+        signals = list_signals(
+            path, dbc, wanted if kind == "can" else None, named.signal if named else None
+        )
     by_name = {s.name: s for s in signals}
     converted: dict[str, tuple[FloatArray, FloatArray]] = {}
     time_entry = channel_map.channels.get("time_s")
