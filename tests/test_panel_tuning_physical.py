@@ -27,11 +27,11 @@ TUNE_AT_S = 5.5
 
 
 class Tuner:
-    """Records (time, rim angle, torque) and applies one tuning at TUNE_AT_S as the panel's loop
+    """Records (time, rim angle, torque) and applies one tuning at `at_s` as the panel's loop
     process does."""
 
-    def __init__(self, values: dict[str, float] | None) -> None:
-        self.values = values
+    def __init__(self, values: dict[str, float] | None, at_s: float = TUNE_AT_S) -> None:
+        self.values, self.at_s = values, at_s
         self.rows: list[tuple[float, float, float]] = []
         self.ramp: tuning.Ramp | None = None
         self.done = False
@@ -55,7 +55,7 @@ class Tuner:
 
     def tick(self, row: tuple[Any, ...]) -> bool:
         self.rows.append((float(row[0]), float(row[self.angle]), float(row[self.torque])))
-        if self.proposal is not None and self.ramp is None and row[0] >= TUNE_AT_S:
+        if self.proposal is not None and self.ramp is None and row[0] >= self.at_s:
             self.ramp = tuning.Ramp(self.renderer, "steering", self.proposal.command, 1000.0)
         if self.ramp is not None and not self.done:
             self.done = self.ramp.step()
@@ -110,6 +110,27 @@ def test_the_assist_at_speed_lightens_the_wheel():
     assert not result.summary.faults and tuned.done
     (a0, t0), (a1, t1) = left_peaks(tuned)
     assert t1 < 0.9 * t0 and a1 > a0 + 0.5, (a0, t0, a1, t1)
+
+
+def test_released_after_the_least_eps_damping_the_check_takes_the_wheel_settles():
+    """The hard case of a tuning: the EPS damping at speed lowered from 1.9 to 1.0 Nm*s/rad
+    (the least the check takes at 100 km/h on this wheel; 0.8 is refused), then the hands let go
+    of the wheel held at 30 deg (virtual wheel: its delays, report rate and quantization; no
+    hand). The wheel comes back and stays: within 5 deg of centre from 1 s after the release
+    (measured 1.7 deg), still over the last 3 s, no fault."""
+    tuner = Tuner({"steering_system.eps_damping_high_speed_Nm_s_rad": 1.0}, at_s=0.1)
+    run = RealtimeRun(model="steering", steering_model="physical", device="virtual:wheel",
+                      clock="simulated", speed_kmh=SPEED_KMH, hand="release",
+                      release_angle_deg=30.0, calibrate=False, duration_s=8.0)  # fmt: skip
+    result = run_realtime(run, observer=tuner)
+    assert tuner.done and not result.summary.faults
+    assert tuner.renderer.params.system.eps_damping_high_speed_Nm_s_rad == 1.0
+    t, angle, _ = np.array(tuner.rows).T
+    angle = np.degrees(angle)
+    assert np.nanmax(np.abs(angle[t < 1.0])) > 25.0  # held at 30 deg until the release
+    assert np.nanmax(np.abs(angle[t > 2.0])) < 5.0
+    last = angle[(t > 5.0) & (t < 8.0)]
+    assert np.nanmax(last) - np.nanmin(last) < 0.5
 
 
 @pytest.fixture(scope="module")
