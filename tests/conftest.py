@@ -39,3 +39,12 @@ def shift_run(seed: int = 0, substeps: int = 1, pull_out: bool = False) -> Resul
 @pytest.fixture
 def params() -> ShiftParams:
     return default_params()
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _device_profiles(tmp_path_factory: pytest.TempPathFactory) -> None:
+    """Device profiles go to a folder of the test run, never the user's configuration (the
+    runs of one session share it, as a user's runs share theirs)."""
+    import os
+
+    os.environ["CARFEEL_CONFIG_DIR"] = str(tmp_path_factory.mktemp("carfeel-config"))

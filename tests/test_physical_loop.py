@@ -9,6 +9,7 @@ import dataclasses
 import itertools
 import json
 import math
+from collections import deque
 from pathlib import Path
 from typing import Any
 
@@ -97,6 +98,7 @@ def opened_devices(monkeypatch: pytest.MonkeyPatch) -> list[Any]:
 
     def keep(*args: Any, **kwargs: Any) -> Any:
         device = original(*args, **kwargs)
+        device.log, device.sent = deque(), deque()  # a session's device keeps none
         made.append(device)
         return device
 

@@ -8,6 +8,7 @@ import dataclasses
 import itertools
 import json
 import math
+from collections import deque
 from typing import Any
 
 import numpy as np
@@ -228,6 +229,7 @@ def run_released(plant: str, speed_kmh: float, monkeypatch=None, flip: bool = Fa
 
     def keep(*args, **kwargs):
         device = original(*args, **kwargs)
+        device.log, device.sent = deque(), deque()  # a session's device keeps none
         made.append(device)
         return device
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -115,6 +116,14 @@ def register(commands: Any) -> None:
         default=None,
         help="--telemetry: presets per car the format names (README)",
     )
+    run.add_argument("--identify", choices=("auto", "full", "off"), default="auto",
+                     help="how the device is known: auto (default: its stored profile checked "
+                     "in a fraction of a second, else identified hands off in a few seconds and "
+                     "stored), full (identified now), off (as declared: sized for inertia "
+                     "x0.5..2, damping x0.3..1, delay x1..2 around it)")  # fmt: skip
+    run.add_argument("--device-profile", metavar="FILE.toml", default=None,
+                     help="the device profile to check and use (or write), instead of the "
+                     "device's own in the user's configuration folder")  # fmt: skip
     run.add_argument("--record", metavar="FILE.csv", help="record every sample (+ FILE.json)")
     run.add_argument("--plot", metavar="FILE.png", help="plot the recording (needs --record)")
     run.add_argument("--json", action="store_true", help="print the summary as one JSON object")
@@ -179,6 +188,8 @@ def _run(args: argparse.Namespace) -> int:
         gear_output=args.gear_output,
         gear_timing=args.gear_timing,
         car_presets=Path(args.car_presets) if args.car_presets else None,
+        identify=args.identify,
+        device_profile=Path(args.device_profile) if args.device_profile else None,
     )
 
     def announce() -> None:
@@ -186,8 +197,11 @@ def _run(args: argparse.Namespace) -> int:
             print(f"carfeel run: {args.model} on {args.device}, {args.mode}, {args.rate_hz:g} Hz "
                   f"({args.clock} clock); Ctrl-C stops", flush=True)  # fmt: skip
 
+    def say(message: str) -> None:
+        print(f"carfeel run: {message}", file=sys.stderr, flush=True)
+
     with outputs:
-        result = run_realtime(config, announce)
+        result = run_realtime(config, announce, say=say)
         if staged_plot is not None and staged_record is not None:
             from carfeel.io.plots import plot_recording
             from carfeel.simulation.result import Result

@@ -51,6 +51,9 @@ class LoopConfig:
     """The passivity controller (off only to show, in tests, what it does)."""
     guard: bool = True
     """The oscillation guard (off only to show, in tests, what it prevents)."""
+    polarity: tuple[float, ...] | None = None
+    """Each axis's force polarity, where an identification measured it (then no polarity
+    pulses are sent, whatever `calibrate` says)."""
 
 
 @dataclass
@@ -161,9 +164,11 @@ def run_loop(
     recorder: Recorder | None = None,
     should_stop: Callable[[], bool] = lambda: False,
     observer: LoopObserver | None = None,
+    origin_ns: int | None = None,
 ) -> LoopSummary:
     """Run until the duration ends, `should_stop()` (or the observer) says so, or a fault has
-    faded out.
+    faded out. Times (the device's, the recording's) are seconds since `origin_ns` (the run's
+    start, before any identification), or since the loop's start.
 
     The device is commanded to zero force before this returns, whatever happened.
     """
@@ -198,7 +203,7 @@ def run_loop(
     overruns = 0
     max_force = 0.0
     stopped = "duration"
-    polarity = [1.0] * axes
+    polarity = list(config.polarity) if config.polarity is not None else [1.0] * axes
     asked = False
     if observer is not None:
         observer.started(SafetyChain(limiter, watchdog, guard, passivity))
@@ -211,9 +216,9 @@ def run_loop(
     # hands the GIL back to the loop within a fraction of a period.
     switch = sys.getswitchinterval()
     sys.setswitchinterval(SWITCH_INTERVAL_S)
-    origin = clock.now_ns()
+    origin = clock.now_ns() if origin_ns is None else origin_ns
     try:
-        if config.calibrate:
+        if config.calibrate and config.polarity is None:
             polarity = calibrate(device, clock, period_ns, limiter, watchdog, origin)
             for axis, sign in enumerate(polarity):
                 if sign < 0:

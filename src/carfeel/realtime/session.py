@@ -108,6 +108,12 @@ class RealtimeRun:
     gear_timing: str = "slot"
     car_presets: Path | None = None
     """A TOML file mapping the car a format names to the presets for it."""
+    identify: str = "auto"
+    """How the device is known (`realtime.knowledge`): auto (its profile checked, else
+    identified hands off), full (identified), off (as declared, sized over DECLARED_SET)."""
+    device_profile: Path | None = None
+    """A device profile to check and use (or write), instead of the device's own under the
+    user's configuration folder."""
 
 
 @dataclass
@@ -119,6 +125,8 @@ class RealtimeResult:
     stability: dict[str, float] = field(default_factory=dict)
     unit: str = "N"
     """The commands' unit: N on a joystick or shifter, Nm on a wheel."""
+    device_knowledge: dict[str, Any] = field(default_factory=dict)
+    """How the device is known and what was measured (`Knowledge.as_dict`)."""
 
     def as_dict(self) -> dict[str, Any]:
         s = self.summary
@@ -142,6 +150,7 @@ class RealtimeResult:
             "oscillation_rms": _json_float(s.oscillation_rms),
             "passivity_acted_s": s.passivity_acted_s,
             "stability": self.stability,
+            "device_knowledge": self.device_knowledge,
         }
 
     def text(self) -> str:
@@ -258,6 +267,19 @@ def _check(run: RealtimeRun) -> None:
     if run.duration_s is not None and not 0.0 < run.duration_s <= 3600.0:
         raise InputError(f"--duration {run.duration_s:g}: allowed 0 < value <= 3600 s")
     _check_telemetry(run)
+    from carfeel.realtime.knowledge import IDENTIFY_MODES
+
+    if run.identify not in IDENTIFY_MODES:
+        raise InputError(f"--identify {run.identify!r}: choose one of {', '.join(IDENTIFY_MODES)}")
+    if run.device_profile is not None and run.identify == "off":
+        raise InputError("--device-profile holds a measured device: drop --identify off")
+    if run.device.startswith("replay") and (
+        run.device_profile is not None or run.identify == "full"
+    ):
+        raise InputError(
+            "a replayed device cannot be identified (it plays back a recording): drop "
+            "--identify full and --device-profile"
+        )
     if run.clock not in ("wall", "simulated"):
         raise InputError(f"--clock {run.clock!r}: choose wall or simulated")
     if run.clock == "simulated" and not run.device.startswith(("virtual", "replay")):
@@ -346,15 +368,24 @@ def open_device(
     reach = travel or travel_default
     name, _, argument = spec.partition(":")
     if name == "virtual":
-        from carfeel.realtime.devices.virtual import PLANTS, virtual_device
+        from carfeel.realtime.devices.virtual import PLANTS, parse_virtual, virtual_device
 
-        plant = argument or ("wheel" if kind == "wheel" else "joystick")
+        try:
+            plant, changes = parse_virtual(argument or ("wheel" if kind == "wheel" else "joystick"))
+        except ValueError as exc:
+            raise InputError(f"--device {spec}: {exc}") from None
         if plant not in PLANTS or PLANTS[plant][2] != kind:
             fitting = [k for k, (_, _, c) in PLANTS.items() if c == kind]
             raise InputError(
-                f"--device {spec}: this model needs one of virtual:{', virtual:'.join(fitting)}"
+                f"--device {spec}: this model needs one of virtual:{', virtual:'.join(fitting)} "
+                "(then :KEY=VALUE,... for a true plant unlike the catalogue's)"
             )
-        return virtual_device(plant, hand, delay_s, report_hz, seed=seed)
+        try:
+            # A session's device keeps no log: its memory must not grow with the session.
+            return virtual_device(plant, hand, delay_s, report_hz, changes, seed=seed,
+                                  log_limit=0)  # fmt: skip
+        except ValueError as exc:
+            raise InputError(f"--device {spec}: {exc}") from None
     if name == "replay" and argument:
         from carfeel.realtime.devices.replay import ReplayDevice
 
@@ -453,17 +484,16 @@ def run_realtime(
     run: RealtimeRun,
     announce: Callable[[], None] | None = None,
     observer: SessionObserver | None = None,
+    say: Callable[[str], None] | None = None,
 ) -> RealtimeResult:
-    """Render a model on a device at a fixed rate; record and summarize. `announce` is called
-    once everything is checked and the device is open, just before the loop starts; then
-    `observer.prepare`, and the observer watches the loop (`LoopObserver`)."""
+    """Render a model on a device at a fixed rate; record and summarize. The device is known
+    first (identified hands off, its profile checked, or as declared: `realtime.knowledge`),
+    `say` telling the user what to do meanwhile; then `announce` is called once everything is
+    checked, just before the loop starts; then `observer.prepare`, and the observer watches the
+    loop (`LoopObserver`)."""
     _check(run)
-    wheel = run.model == "steering"
     preset_name = run.preset or DEFAULT_PRESETS[run.model]
-    # The virtual hand waits for the calibration pulses and the ramp-in.
-    calibration_s = 2 * (CALIBRATION_PULSE_S + CALIBRATION_SETTLE_S) if run.calibrate else 0.0
-    ready_s = calibration_s + SafetyLimits(1.0, 1.0).ramp_s if run.calibrate else 0.0
-    kind = "wheel" if wheel else "joystick"
+    kind = "wheel" if run.model == "steering" else "joystick"
     delay = None if run.device_delay_ms is None else run.device_delay_ms / 1e3
     receiver = None
     if run.telemetry is not None:
@@ -472,8 +502,7 @@ def run_realtime(
 
         receiver = Receiver(Source.parse(run.telemetry))
     try:
-        return _run_realtime(run, announce, receiver, preset_name, calibration_s, ready_s, kind,
-                             delay, observer)  # fmt: skip
+        return _run_realtime(run, announce, receiver, preset_name, kind, delay, observer, say)
     finally:
         if receiver is not None:
             receiver.close()
@@ -484,15 +513,12 @@ def _run_realtime(
     announce: Callable[[], None] | None,
     receiver: Any,
     preset_name: str,
-    calibration_s: float,
-    ready_s: float,
     kind: str,
     delay: float | None,
     observer: SessionObserver | None = None,
+    say: Callable[[str], None] | None = None,
 ) -> RealtimeResult:
-    from carfeel.io.presets import load_hpattern, load_shift, load_steering
-    from carfeel.models.drivers.hpattern import Script
-    from carfeel.realtime import hands, stability
+    from carfeel.realtime.knowledge import know_device, real_max_force
 
     wheel = run.model == "steering"
     if receiver is not None and run.car_presets is not None:
@@ -509,7 +535,54 @@ def _run_realtime(
             f"--model {run.model} needs a {kind} with {1 if wheel else 2} axes; "
             f"{device.info.name} is a {device.info.kind} with {device.info.axes}"
         )
-    info = device.info = _declared_info(device, run, kind)
+    device.info = _declared_info(device, run, kind)
+    clock: Clock = SimulatedClock() if run.clock == "simulated" else WallClock()
+    origin = clock.now_ns()
+    # The device is opened before anything is recorded: a device that cannot be opened leaves
+    # no recording behind.
+    with _stop_on_signals() as stop, device:
+        if not run.device.startswith(("virtual", "replay")):
+            device.info = replace(
+                device.info, max_force=real_max_force(device, run.device_max_force)
+            )
+        knowledge = know_device(
+            device, clock, run.rate_hz, origin, run.identify, run.device_profile, say,
+            recorded=run.device.startswith("replay"),
+        )  # fmt: skip
+        info = device.info = knowledge.info
+        started_s = (clock.now_ns() - origin) / 1e9
+        return _render(run, announce, receiver, preset_name, device, info, knowledge, clock,
+                       origin, started_s, stop, observer)  # fmt: skip
+
+
+def _render(
+    run: RealtimeRun,
+    announce: Callable[[], None] | None,
+    receiver: Any,
+    preset_name: str,
+    device: Device,
+    info: DeviceInfo,
+    knowledge: Any,
+    clock: Clock,
+    origin: int,
+    started_s: float,
+    stop: list[str],
+    observer: SessionObserver | None,
+) -> RealtimeResult:
+    """Size, build and run the rendering on a known, open device (times since `origin`; the
+    loop starts at `started_s`, after the identification)."""
+    from carfeel.io.presets import load_hpattern, load_shift, load_steering
+    from carfeel.models.drivers.hpattern import Script
+    from carfeel.realtime import hands, stability
+    from carfeel.realtime.knowledge import describe
+
+    wheel = run.model == "steering"
+    # The virtual hand waits for the calibration pulses (none where the polarity was measured)
+    # and the ramp-in, from the loop's start.
+    pulses = run.calibrate and knowledge.polarity is None
+    calibration_s = 2 * (CALIBRATION_PULSE_S + CALIBRATION_SETTLE_S) if pulses else 0.0
+    ready_s = calibration_s + SafetyLimits(1.0, 1.0).ramp_s if run.calibrate else 0.0
+    t0 = started_s
     sizing = stability.size(info, run.rate_hz, velocity_sections(run.rate_hz))
     renderer: Renderer
     hand: Any = None
@@ -521,7 +594,8 @@ def _run_realtime(
         _refuse_soft(info, sizing, run)
         shift = load_shift(preset_name).params
         scaling = default_scaling(MODEL_FORCE_N, shift.gearbox.in_gear_position_m + 0.005, info)
-        hand = hands.ShiftHand(shift.driver, scaling.force_scale, scaling.position_scale, ready_s)
+        hand = hands.ShiftHand(shift.driver, scaling.force_scale, scaling.position_scale,
+                               t0 + ready_s)  # fmt: skip
         if run.hand == "release":
             pushing = hand
             # Lets go once the driver has pushed the lever home and relaxed its push.
@@ -554,7 +628,8 @@ def _run_realtime(
         reach = layout.slot_width_m + preset.setup.driver.select_force_N / gains.coupling_stiffness
         script = Script(run.sequence, layout, preset.shift.driver, preset.setup.driver,
                         outer_push_m=reach)  # fmt: skip
-        hand = hands.HPatternHand(script, scaling.force_scale, scaling.position_scale, ready_s)
+        hand = hands.HPatternHand(script, scaling.force_scale, scaling.position_scale,
+                                  t0 + ready_s)  # fmt: skip
         if run.hand == "release":
             scripted = hand
             hand = hands.ReleasingHand(scripted, lambda t: scripted.done)
@@ -569,11 +644,12 @@ def _run_realtime(
         car = load_steering(preset_name).params
         if run.hand == "release":
             hand = hands.holding_wheel(
-                math.radians(run.release_angle_deg), calibration_s, 1.0 + ready_s - calibration_s
-            )
+                math.radians(run.release_angle_deg), t0 + calibration_s,
+                1.0 + ready_s - calibration_s,
+            )  # fmt: skip
         else:
-            weave = hands.weave_target(math.radians(15.0), 0.2, ready_s, WEAVE_CYCLES)
-            hand = hands.WheelHand(weave, start_s=calibration_s)
+            weave = hands.weave_target(math.radians(15.0), 0.2, t0 + ready_s, WEAVE_CYCLES)
+            hand = hands.WheelHand(weave, start_s=t0 + calibration_s)
         duration = duration or ready_s + WEAVE_CYCLES / 0.2 + 2.0
         if run.steering_model == "physical":
             renderer, scaling, physical_figure = _physical_renderer(
@@ -597,7 +673,6 @@ def _run_realtime(
         max_force=info.max_force,
         max_slew_per_s=max(info.max_force / 0.05, 200.0 * info.max_force),
     )
-    clock: Clock = SimulatedClock() if run.clock == "simulated" else WallClock()
     figure = stability_figure(sizing, info, run.rate_hz)
     figure.update(physical_figure)
     metadata = {
@@ -629,6 +704,8 @@ def _run_realtime(
         "noise": info.noise,
         "max_slew_per_s": limits.max_slew_per_s,
         "stability": figure,
+        "device_knowledge": knowledge.as_dict(),
+        "loop_start_s": t0,
     }
     if wheel:
         metadata["steering_model"] = run.steering_model
@@ -641,30 +718,27 @@ def _run_realtime(
                *renderer.columns)  # fmt: skip
     config = LoopConfig(
         run.rate_hz, duration, run.calibrate,
-        passivity=run.passivity_controller,
+        passivity=run.passivity_controller, polarity=knowledge.polarity,
     )  # fmt: skip
     summary = None
     recorder = None
-    # The device is opened before anything is recorded: a device that cannot be opened leaves
-    # no recording behind.
-    with _stop_on_signals() as stop, device:
-        if announce is not None:
-            announce()
-        if observer is not None:
-            observer.prepare(RunParts(renderer, info, sizing, scaling, limits, columns, metadata))
-        recorder = Recorder(run.record, columns, metadata) if run.record else None
-        try:
-            summary = run_loop(
-                renderer, device, clock, config, limits, recorder, should_stop=lambda: bool(stop),
-                observer=observer,
-            )  # fmt: skip
-            if stop and summary.stopped == "stopped":
-                summary.stopped = stop[0]
-        finally:
-            if recorder is not None:
-                recorder.close(summary.as_dict() if summary else {"stopped": "error"})
-            if driven is not None:
-                driven.close()
+    if announce is not None:
+        announce()
+    if observer is not None:
+        observer.prepare(RunParts(renderer, info, sizing, scaling, limits, columns, metadata))
+    recorder = Recorder(run.record, columns, metadata) if run.record else None
+    try:
+        summary = run_loop(
+            renderer, device, clock, config, limits, recorder, should_stop=lambda: bool(stop),
+            observer=observer, origin_ns=origin,
+        )  # fmt: skip
+        if stop and summary.stopped == "stopped":
+            summary.stopped = stop[0]
+    finally:
+        if recorder is not None:
+            recorder.close(summary.as_dict() if summary else {"stopped": "error"})
+        if driven is not None:
+            driven.close()
     if driven is not None:
         r = driven.source.receiver
         notes += driven.source.events
@@ -673,9 +747,11 @@ def _run_realtime(
             f"{r.bad} bad, {r.ignored} "
             f"ignored{'; car ' + r.latest.car if r.latest.car else ''}"
         )
+    summary.notes[:0] = [describe(knowledge), *knowledge.notes]
     summary.notes.extend(notes)
     unit = "Nm" if wheel else "N"
-    return RealtimeResult(summary, scaling, info.name, run.record, figure, unit)
+    return RealtimeResult(summary, scaling, info.name, run.record, figure, unit,
+                          knowledge.as_dict())  # fmt: skip
 
 
 def _drive_by_telemetry(

@@ -50,55 +50,110 @@ Environment = Callable[[Any, float, float], tuple[Any, float]]
 
 @dataclass(frozen=True, slots=True)
 class AxisLoop:
-    """One axis of a device inside the loop, device units."""
+    """One axis of a device inside the loop, device units. The whole round trip (commands
+    and readings, plus the report's hold in whole ticks) is put on the command side: in a
+    linear loop only the delay around it matters, and a fractional delay is discretized
+    exactly (the hold over a tick splits between two commands)."""
 
     mass: float
     damping: float
     rate_hz: float
-    command_ticks: int
-    reading_ticks: int
+    delay_ticks: int
+    """Whole ticks of delay around the loop."""
+    delay_fraction: float
+    """The rest, 0 <= fraction < 1 of a tick."""
     velocity_sections: Sections
+    stiffness: float = 0.0
+    """The device's own centring spring (or a grip on it), N/m or Nm/rad."""
 
     @classmethod
-    def of(cls, info: DeviceInfo, rate_hz: float, velocity_sections: Sections) -> AxisLoop:
+    def of(
+        cls,
+        info: DeviceInfo,
+        rate_hz: float,
+        velocity_sections: Sections,
+        mass: float | None = None,
+        damping: float | None = None,
+        round_trip_s: float | None = None,
+    ) -> AxisLoop:
+        """The axis as `info` describes it, or with another mass, damping or round trip."""
         period = 1.0 / rate_hz
         hold = max(0.0, 0.5 / info.report_hz - 0.5 * period)
+        trip = info.round_trip_s if round_trip_s is None else round_trip_s
+        ticks = trip / period + 1e-9
+        whole = math.floor(ticks)
+        fraction = ticks - whole
+        if fraction < 1e-6:
+            fraction = 0.0
         return cls(
-            mass=info.mass,
-            damping=info.damping,
+            mass=info.mass if mass is None else mass,
+            damping=info.damping if damping is None else damping,
             rate_hz=rate_hz,
-            command_ticks=math.ceil(info.command_delay_s / period - 1e-6),
-            reading_ticks=math.ceil((info.reading_delay_s + hold) / period - 1e-6),
+            delay_ticks=whole + math.ceil(hold / period - 1e-6),
+            delay_fraction=fraction,
             velocity_sections=velocity_sections,
+            stiffness=info.stiffness,
         )
 
 
-@functools.lru_cache(maxsize=64)
-def _device_step(mass: float, damping: float, period: float) -> tuple[np.ndarray, np.ndarray]:
-    """Exact zero-order-hold discretization of m*v' = u - b*v: (Phi, Gamma). Cached: a sizing
-    builds hundreds of loops of one device (the arrays are never written to)."""
+def plant_set(info: DeviceInfo, rate_hz: float, sections: Sections) -> tuple[AxisLoop, ...]:
+    """The plants a rendering must be stable on: the one `info` describes and, where it says
+    how uncertain that is (`mass_range`, `damping_range`, `delay_range_s`), the corners where a
+    loop is least damped: the least damping with the longest delay, at the lightest and at the
+    heaviest mass, and the lightest mass with the shortest delay (`tests/test_stability.py`
+    samples the inside of the set against these)."""
+    nominal = AxisLoop.of(info, rate_hz, sections)
+    if info.mass_range is None and info.damping_range is None and info.delay_range_s is None:
+        return (nominal,)
+    light, heavy = info.mass_range or (info.mass, info.mass)
+    least = (info.damping_range or (info.damping, info.damping))[0]
+    short, long = info.delay_range_s or (info.round_trip_s, info.round_trip_s)
+    corners = {nominal}
+    for mass, trip in ((light, long), (heavy, long), (light, short)):
+        corners.add(AxisLoop.of(info, rate_hz, sections, mass, least, trip))
+    return tuple(sorted(corners, key=lambda a: (a.mass, a.damping, a.delay_ticks)))
+
+
+@functools.lru_cache(maxsize=128)
+def _device_step(
+    mass: float, damping: float, stiffness: float, period: float, fraction: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Exact zero-order-hold discretization of m*x'' = u - b*x' - k*x with the input held
+    `fraction` of a tick late: (Phi, Gamma for this tick's command, Gamma for the one before).
+    Cached: a sizing builds hundreds of loops of one device (the arrays are never written to)."""
     from scipy.linalg import expm
 
-    a = np.array([[0.0, 1.0, 0.0], [0.0, -damping / mass, 1.0 / mass], [0.0, 0.0, 0.0]])
-    e = expm(a * period)
-    return e[:2, :2], e[:2, 2]
+    a = np.array(
+        [[0.0, 1.0, 0.0], [-stiffness / mass, -damping / mass, 1.0 / mass], [0.0, 0.0, 0.0]]
+    )
+    whole = expm(a * period)
+    if fraction <= 0.0:
+        return whole[:2, :2], whole[:2, 2], np.zeros(2)
+    late = expm(a * (1.0 - fraction) * period)  # the current command over the tick's end
+    early = expm(a * fraction * period)  # the previous one over its start
+    # The previous command acts first, then the state moves on under the current one.
+    previous = late[:2, :2] @ early[:2, 2]
+    return whole[:2, :2], late[:2, 2], previous
 
 
 def closed_loop(axis: AxisLoop, environment: Environment, environment_size: int) -> np.ndarray:
     """The matrix of the hands-off loop over one tick (see the module's docstring)."""
     period = 1.0 / axis.rate_hz
-    phi, gamma = _device_step(axis.mass, axis.damping, period)
-    nr, nc, ns = axis.reading_ticks, axis.command_ticks, len(axis.velocity_sections)
-    n = 2 + nr + nc + 1 + 2 * ns + environment_size
+    phi, gamma, gamma_previous = _device_step(
+        axis.mass, axis.damping, axis.stiffness, period, axis.delay_fraction
+    )
+    fractional = axis.delay_fraction > 0.0
+    nc = axis.delay_ticks + (1 if fractional else 0)
+    ns = len(axis.velocity_sections)
+    n = 2 + nc + 1 + 2 * ns + environment_size
 
     def step(z: np.ndarray) -> np.ndarray:
         x, v = z[0], z[1]
-        past_x = z[2 : 2 + nr]
-        past_u = z[2 + nr : 2 + nr + nc]
-        y_prev = z[2 + nr + nc]
-        filt = z[3 + nr + nc : 3 + nr + nc + 2 * ns]
-        env = z[3 + nr + nc + 2 * ns :]
-        y = past_x[nr - 1] if nr else x
+        past_u = z[2 : 2 + nc]
+        y_prev = z[2 + nc]
+        filt = z[3 + nc : 3 + nc + 2 * ns]
+        env = z[3 + nc + 2 * ns :]
+        y = x
         signal = (y - y_prev) / period
         new_filt = []
         for i, (b0, b1, b2, a1, a2) in enumerate(axis.velocity_sections):
@@ -107,12 +162,14 @@ def closed_loop(axis: AxisLoop, environment: Environment, environment_size: int)
             new_filt += [b1 * signal - a1 * out + z1, b2 * signal - a2 * out]
             signal = out
         env_next, u = environment(env, y, signal)
-        applied = past_u[nc - 1] if nc else u
+        whole = axis.delay_ticks
+        applied = past_u[whole - 1] if whole else u
         dev = phi @ np.array([x, v]) + gamma * applied
+        if fractional:
+            dev = dev + gamma_previous * past_u[whole]
         return np.concatenate(
             [
                 dev,
-                np.concatenate([[x], past_x[:-1]]) if nr else [],
                 np.concatenate([[u], past_u[:-1]]) if nc else [],
                 [y],
                 new_filt,
@@ -146,9 +203,20 @@ def spring_damper(stiffness: float, damping: float) -> Environment:
     return environment
 
 
-def zeta_of(axis: AxisLoop, stiffness: float, damping: float) -> float:
-    return least_damping_ratio(
-        closed_loop(axis, spring_damper(stiffness, damping), 0), axis.rate_hz
+def zeta_of(axes: AxisLoop | tuple[AxisLoop, ...], stiffness: float, damping: float) -> float:
+    """The least damping ratio of a spring and damper on an axis, or the least over a set."""
+    if isinstance(axes, AxisLoop):
+        axes = (axes,)
+    environment = spring_damper(stiffness, damping)
+    return min(least_damping_ratio(closed_loop(a, environment, 0), a.rate_hz) for a in axes)
+
+
+def least_over(
+    axes: tuple[AxisLoop, ...], environment: Environment, environment_size: int
+) -> float:
+    """The least damping ratio of a linear environment's loop over a set of plants."""
+    return min(
+        least_damping_ratio(closed_loop(a, environment, environment_size), a.rate_hz) for a in axes
     )
 
 
@@ -195,13 +263,15 @@ def noise_caps(info: DeviceInfo, rate_hz: float) -> tuple[float, float]:
 def size(
     info: DeviceInfo, rate_hz: float, velocity_sections: Sections, zeta_min: float = ZETA_MIN
 ) -> Sizing:
-    """The stiffest spring (and its damper) the device renders with zeta >= zeta_min."""
-    axis = AxisLoop.of(info, rate_hz, velocity_sections)
+    """The stiffest spring (and its damper) the device renders with zeta >= zeta_min, on every
+    plant of its uncertainty set (`plant_set`)."""
+    axis = plant_set(info, rate_hz, velocity_sections)
     k_noise, b_noise = noise_caps(info, rate_hz)
     tiny = 1e-6 * info.max_force / max(info.travel, 1e-9)
-    b_high = min(b_noise, 10.0 * info.mass * rate_hz)
+    heavy = max(a.mass for a in axis)
+    b_high = min(b_noise, 10.0 * heavy * rate_hz)
     damping_cap = _bisect(lambda b: zeta_of(axis, tiny, b) >= zeta_min, 0.0, b_high)
-    k_high = min(k_noise, info.mass * (math.pi * rate_hz) ** 2)
+    k_high = min(k_noise, heavy * (math.pi * rate_hz) ** 2)
     best = (0.0, 0.0)
     for fraction in (0.0, 0.1, 0.2, 0.3, 0.45, 0.6, 0.8):
         b = fraction * damping_cap

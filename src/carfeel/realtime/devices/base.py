@@ -55,6 +55,24 @@ class DeviceInfo:
     """Smallest step of a reading (its quantum), m or rad."""
     noise: float = 0.0
     """Standard deviation of a reading's noise, m or rad."""
+    ident: str = ""
+    """What tells this device from others of its name (vendor and product ids, a serial, the
+    backend's path or GUID): the key of its stored profile (`realtime.profiles`)."""
+    stiffness: float = 0.0
+    """A centring spring of the device's own, N/m or Nm/rad (measured; 0 unless identified)."""
+    mass_range: tuple[float, float] | None = None
+    """Where the true moving mass (or inertia) may lie, least and largest: the sizing holds
+    for every plant of the set (`stability.plant_set`). None: exactly `mass`."""
+    damping_range: tuple[float, float] | None = None
+    """Where the true damping may lie; None: exactly `damping`."""
+    delay_range_s: tuple[float, float] | None = None
+    """Where the true round trip (command delay plus reading delay, the report's hold aside)
+    may lie, s; None: exactly `command_delay_s + reading_delay_s`."""
+
+    @property
+    def round_trip_s(self) -> float:
+        """Command delay plus reading delay (the report's hold aside), s."""
+        return self.command_delay_s + self.reading_delay_s
 
     @property
     def latency_s(self) -> float:

@@ -17,6 +17,14 @@ The catalogue (`PLANTS`, `--device virtual:KIND`): `joystick` (the paper's Wingm
 2-DOF joystick), `wheel` (a belt-driven 4 Nm wheel), `dd-wheel` (a direct-drive wheel) and
 `shifter` (an active H-shifter at the knob). Each number says where it comes from.
 
+What carfeel is *told* about a device (its `info`: mass, damping, delays, report rate) and what
+the device *is* (the plant it integrates) can differ, as they do for every real device:
+`virtual:KIND:KEY=VALUE[,KEY=VALUE...]` (`parse_virtual`) changes the true plant only, with
+`mass` (the moving inertia at the handle, kg or kg m^2), `damping`, `friction` (Coulomb, N or
+Nm), `delay_ms` (each way), `report_hz` and `grip` (a spring to the handle's start, N/m or
+Nm/rad: a stiff hand clamped on it); a value ending in `x` is relative to the catalogue's
+(`virtual:dd-wheel:mass=0.5x,delay_ms=6`). The device still tells the catalogue's figures.
+
 Commands are held for `hold_s` only: a device not commanded again lets its force go to zero,
 like the finite-length effects of the evdev and SDL2 backends. `fail_at_s` makes the device
 vanish (DeviceLost) and `nan_at_s` makes it read NaN, for the watchdog's tests.
@@ -72,6 +80,9 @@ class PlantParams:
     """Coulomb friction of the axis (bearings, gears, belt), N or Nm."""
     report_hz: float = 1000.0
     """Position reports per second; readings are held in between."""
+    grip: float = 0.0
+    """A spring from the handle to where it started, N/m (or Nm/rad): a stiff hand clamped on
+    it, or a device's own centring spring. Not in the catalogue's plants (0)."""
 
     @property
     def mass(self) -> float:
@@ -174,14 +185,21 @@ class VirtualDevice:
         seed: int = 0,
         fail_at_s: float | None = None,
         nan_at_s: float | None = None,
+        told: PlantParams | None = None,
+        ident: str = "",
+        log_limit: int | None = None,
     ) -> None:
         self.plant = plant
+        """The plant integrated: what the device is."""
+        self.told = told = plant if told is None else told
+        """The plant `info` describes: what the device tells carfeel (its catalogue entry)."""
         self.hand = hand
         self.info = DeviceInfo(
-            name, kind, axes, plant.max_force, plant.travel, update_hz, measures_force=False,
-            mass=plant.mass, damping=plant.damping, command_delay_s=plant.delay_s,
-            reading_delay_s=plant.delay_s, report_hz=plant.report_hz,
-            resolution=2.0 * plant.travel / (1 << plant.adc_bits), noise=plant.noise,
+            name, kind, axes, told.max_force, told.travel, update_hz, measures_force=False,
+            mass=told.mass, damping=told.damping, command_delay_s=told.delay_s,
+            reading_delay_s=told.delay_s, report_hz=told.report_hz,
+            resolution=2.0 * told.travel / (1 << told.adc_bits), noise=told.noise,
+            ident=ident or name,
         )  # fmt: skip
         self.hold_s = hold_s
         self.fail_at_s = fail_at_s
@@ -196,10 +214,13 @@ class VirtualDevice:
         self._reports: deque[tuple[float, tuple[float, ...]]] = deque([(0.0, (0.0,) * axes)])
         self._next_report = 0.0
         self.open = False
-        self.log: list[tuple[float, tuple[float, ...], tuple[float, ...]]] = []
-        """(time, true positions, motor forces) of every read, for tests."""
-        self.sent: list[tuple[float, tuple[float, ...]]] = []
-        """(time, forces) of every command, for tests."""
+        self.log: deque[tuple[float, tuple[float, ...], tuple[float, ...]]] = deque(
+            maxlen=log_limit
+        )
+        """(time, true positions, motor forces) of every read, for tests (the last
+        `log_limit` of them: a session's device keeps none, so its memory does not grow)."""
+        self.sent: deque[tuple[float, tuple[float, ...]]] = deque(maxlen=log_limit)
+        """(time, forces) of every command, for tests (the last `log_limit`)."""
 
     def __enter__(self) -> VirtualDevice:
         self.open = True
@@ -236,7 +257,9 @@ class VirtualDevice:
         while self._time + 0.5 * SUBSTEP_S < time_s:
             now = self._time
             if now + 0.5 * SUBSTEP_S >= self._next_report:
-                self._reports.append((now, tuple(self._x)))
+                # A report carries one sample of the sensor, noise and all, held until the
+                # next (a reading between reports repeats it).
+                self._reports.append((now, self._sample()))
                 self._next_report += report_period
                 while len(self._reports) > 1 and self._reports[1][0] + p.delay_s <= now:
                     self._reports.popleft()
@@ -251,11 +274,11 @@ class VirtualDevice:
             )
             for i in range(self.info.axes):
                 x, v = self._x[i], self._v[i]
-                stop = 0.0
+                stop = p.grip * x
                 if x > p.travel:
-                    stop = p.stop_stiffness * (x - p.travel)
+                    stop += p.stop_stiffness * (x - p.travel)
                 elif x < -p.travel:
-                    stop = p.stop_stiffness * (x + p.travel)
+                    stop += p.stop_stiffness * (x + p.travel)
                 # Semi-implicit in the damping (stable for any damping at this step).
                 v = (v + SUBSTEP_S * (motor[i] + hand[i] - stop) / mass) / (
                     1.0 + SUBSTEP_S * p.damping / mass
@@ -266,31 +289,117 @@ class VirtualDevice:
                 self._x[i] = x + SUBSTEP_S * v
             self._time = now + SUBSTEP_S
 
+    def _sample(self) -> tuple[float, ...]:
+        """The sensor now: the true positions with noise, through the ADC."""
+        p = self.plant
+        lsb = 2.0 * p.travel / (1 << p.adc_bits)
+        rng = self._rng
+        return tuple(
+            round((x + (rng.gauss(0.0, p.noise) if p.noise > 0.0 else 0.0)) / lsb) * lsb
+            for x in self._x
+        )
+
     def read(self, time_s: float) -> DeviceSample:
         if self.fail_at_s is not None and time_s >= self.fail_at_s:
             raise DeviceLost(f"{self.info.name} stopped answering at t = {time_s:.3f} s")
         self._advance(time_s)
         p = self.plant
-        lsb = 2.0 * p.travel / (1 << p.adc_bits)
-        readings = []
         seen = self._reports[0][1]
         for when, positions in self._reports:  # the newest report old enough to have arrived
             if when + p.delay_s > time_s + 1e-9:
                 break
             seen = positions
-        for x in seen:
-            noisy = x + (self._rng.gauss(0.0, p.noise) if p.noise > 0.0 else 0.0)
-            readings.append(round(noisy / lsb) * lsb)
+        readings = list(seen)
         if self.nan_at_s is not None and time_s >= self.nan_at_s:
             readings[0] = math.nan
-        self.log.append((time_s, tuple(self._x), self.motor_forces))
+        if self.log.maxlen != 0:
+            self.log.append((time_s, tuple(self._x), self.motor_forces))
         return DeviceSample(time_s, tuple(readings), None)
 
     def command(self, forces: tuple[float, ...], time_s: float) -> None:
         if self.fail_at_s is not None and time_s >= self.fail_at_s:
             raise DeviceLost(f"{self.info.name} stopped answering at t = {time_s:.3f} s")
         self._queue.append((time_s, tuple(forces)))
-        self.sent.append((time_s, tuple(forces)))
+        if self.sent.maxlen != 0:
+            self.sent.append((time_s, tuple(forces)))
+
+
+TRUE_KEYS = {
+    "mass": ("kg at a knob, kg*m^2 at a rim", 1e-4, 50.0),
+    "damping": ("N*s/m or Nm*s/rad", 0.0, 1000.0),
+    "friction": ("N or Nm of Coulomb friction", 0.0, 100.0),
+    "delay_ms": ("ms each way", 0.0, 50.0),
+    "report_hz": ("reports per second", 100.0, 10_000.0),
+    "grip": ("N/m or Nm/rad of a spring to the start", 0.0, 1e5),
+}
+"""The keys of `virtual:KIND:KEY=VALUE,...`: (unit, least, largest) of the absolute value."""
+
+
+def parse_virtual(argument: str) -> tuple[str, dict[str, tuple[float, bool]]]:
+    """`KIND[:KEY=VALUE,...]` -> (KIND, {key: (value, relative)}); `relative` when the value
+    ends in `x` (a factor of the catalogue's). Bad keys and values raise ValueError with the
+    allowed ones."""
+    kind, _, rest = argument.partition(":")
+    changes: dict[str, tuple[float, bool]] = {}
+    for item in filter(None, rest.split(",")):
+        key, equals, text = item.partition("=")
+        key = key.strip()
+        if key not in TRUE_KEYS or not equals:
+            raise ValueError(
+                f"{item!r}: expected KEY=VALUE with KEY one of {', '.join(TRUE_KEYS)} "
+                "(a value ending in x is a factor of the catalogue's: mass=0.5x)"
+            )
+        if key in changes:
+            raise ValueError(f"{key} is given twice")
+        text = text.strip()
+        relative = text.endswith("x")
+        try:
+            value = float(text[:-1] if relative else text)
+        except ValueError:
+            value = math.nan
+        unit, low, high = TRUE_KEYS[key]
+        if relative:
+            if not (math.isfinite(value) and 0.0 <= value <= 100.0):
+                raise ValueError(f"{key}={text}: a factor must be 0 <= value <= 100 (then x)")
+        elif not (math.isfinite(value) and low <= value <= high):
+            raise ValueError(f"{key}={text}: allowed {low:g} <= value <= {high:g} ({unit})")
+        changes[key] = (value, relative)
+    return kind, changes
+
+
+def true_plant(plant: PlantParams, changes: dict[str, tuple[float, bool]]) -> PlantParams:
+    """The catalogue's plant with the true values of `parse_virtual`'s changes."""
+
+    def value(key: str, told: float) -> float:
+        number, relative = changes[key]
+        result = number * told if relative else number
+        unit, low, high = TRUE_KEYS[key]
+        if not low <= result <= high:
+            raise ValueError(
+                f"{key}={number:g}x is {result:g}: allowed {low:g} <= value <= {high:g} ({unit})"
+            )
+        return result
+
+    if "mass" in changes:
+        # Handle and motor scaled together: the same plant, heavier or lighter.
+        factor = value("mass", plant.mass) / plant.mass
+        plant = replace(
+            plant, handle_mass=plant.handle_mass * factor,
+            motor_inertia=plant.motor_inertia * factor,
+        )  # fmt: skip
+    if "damping" in changes:
+        plant = replace(plant, damping=value("damping", plant.damping))
+    if "friction" in changes:
+        plant = replace(plant, coulomb=value("friction", plant.coulomb))
+    if "delay_ms" in changes:
+        plant = replace(plant, delay_s=value("delay_ms", plant.delay_s * 1e3) / 1e3)
+    if "report_hz" in changes:
+        plant = replace(plant, report_hz=value("report_hz", plant.report_hz))
+    if "grip" in changes:
+        if changes["grip"][1]:
+            raise ValueError("grip: the catalogue's plants have none; give N/m or Nm/rad")
+        plant = replace(plant, grip=value("grip", 0.0))
+    return plant
 
 
 def virtual_device(
@@ -298,16 +407,26 @@ def virtual_device(
     hand: Hand | None = None,
     delay_s: float | None = None,
     report_hz: float | None = None,
+    true: dict[str, tuple[float, bool]] | None = None,
     **options: object,
 ) -> VirtualDevice:
-    """A device of the catalogue, optionally with another delay (each way) or report rate."""
+    """A device of the catalogue, optionally with another delay (each way) or report rate
+    (told and true alike), and a true plant unlike what it tells (`parse_virtual`'s changes)."""
     plant, axes, device_kind = PLANTS[kind]
     if delay_s is not None:
         plant = replace(plant, delay_s=delay_s)
     if report_hz is not None:
         plant = replace(plant, report_hz=report_hz)
     name = f"virtual {kind}"
-    return VirtualDevice(plant, axes, hand, kind=device_kind, name=name, **options)  # type: ignore[arg-type]
+    ident = f"virtual:{kind}:delay={plant.delay_s * 1e3:g}ms,report={plant.report_hz:g}Hz"
+    if true:
+        ident += "," + ",".join(
+            f"{k}={v:g}{'x' if r else ''}" for k, (v, r) in sorted(true.items())
+        )
+    return VirtualDevice(
+        true_plant(plant, true or {}), axes, hand, kind=device_kind, name=name, told=plant,
+        ident=ident, **options,  # type: ignore[arg-type]
+    )  # fmt: skip
 
 
 def virtual_joystick(hand: Hand | None = None, **options: object) -> VirtualDevice:
