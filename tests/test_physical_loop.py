@@ -9,7 +9,6 @@ import dataclasses
 import itertools
 import json
 import math
-from collections import deque
 from pathlib import Path
 from typing import Any
 
@@ -98,7 +97,7 @@ def opened_devices(monkeypatch: pytest.MonkeyPatch) -> list[Any]:
 
     def keep(*args: Any, **kwargs: Any) -> Any:
         device = original(*args, **kwargs)
-        device.log, device.sent = deque(), deque()  # a session's device keeps none
+        device.keep_log = True  # a session's device keeps no log: this one does
         made.append(device)
         return device
 

@@ -127,12 +127,15 @@ def test_the_plateau_and_the_filtered_force_as_the_paper_measured(tmp_path):
     read through the 20 Hz low-pass settles on the driver's F_max (the last third of it within
     5 %: the potentiometer's noise and the servo's own dynamics). With 2 ms each way the servo
     must be softer (stability), the handle sinks further while the hand's push builds, and the
-    plateau reaches F_max only toward its end (within 10 %)."""
+    plateau reaches F_max only toward its end: within 15 %, the servo being sized for the
+    corner of the identified plant's uncertainty (373 N/m where the plant exactly as told gave
+    416 and a plateau within 10 %). Both on the device identified afresh."""
     push = load_shift().params.driver.push_force_N
-    for delay_ms, tolerance in ((0.0, 0.05), (2.0, 0.10)):
+    for delay_ms, tolerance in ((0.0, 0.05), (2.0, 0.15)):
         record = tmp_path / f"adm{delay_ms:g}.csv"
         run_realtime(RealtimeRun(model="shift", mode="admittance", clock="simulated",
-                                 record=record, device_delay_ms=delay_ms))  # fmt: skip
+                                 record=record, device_delay_ms=delay_ms,
+                                 identify="full"))  # fmt: skip
         result = Result.from_csv(record)
         sync = np.flatnonzero(result["stage"] == "synchronization")
         assert len(sync) > 250

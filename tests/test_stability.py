@@ -8,7 +8,6 @@ import dataclasses
 import itertools
 import json
 import math
-from collections import deque
 from typing import Any
 
 import numpy as np
@@ -229,7 +228,7 @@ def run_released(plant: str, speed_kmh: float, monkeypatch=None, flip: bool = Fa
 
     def keep(*args, **kwargs):
         device = original(*args, **kwargs)
-        device.log, device.sent = deque(), deque()  # a session's device keeps none
+        device.keep_log = True  # a session's device keeps no log: this one does
         made.append(device)
         return device
 

@@ -124,6 +124,9 @@ def register(commands: Any) -> None:
     run.add_argument("--device-profile", metavar="FILE.toml", default=None,
                      help="the device profile to check and use (or write), instead of the "
                      "device's own in the user's configuration folder")  # fmt: skip
+    run.add_argument("--loop-cpu", type=int, default=None, metavar="N",
+                     help="wall clock: the core the run is pinned to (default: the last one "
+                     "it may use); it also takes real-time scheduling where allowed")  # fmt: skip
     run.add_argument("--record", metavar="FILE.csv", help="record every sample (+ FILE.json)")
     run.add_argument("--plot", metavar="FILE.png", help="plot the recording (needs --record)")
     run.add_argument("--json", action="store_true", help="print the summary as one JSON object")
@@ -189,6 +192,7 @@ def _run(args: argparse.Namespace) -> int:
         gear_timing=args.gear_timing,
         car_presets=Path(args.car_presets) if args.car_presets else None,
         identify=args.identify,
+        loop_cpu=args.loop_cpu,
         device_profile=Path(args.device_profile) if args.device_profile else None,
     )
 

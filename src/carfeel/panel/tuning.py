@@ -400,11 +400,11 @@ def _physical_sized(session: Session, car: Any, changes: Mapping[str, object]) -
 def released_zeta(renderer: Any, speed_m_s: float, info: Any, rate_hz: float) -> float:
     """The least damping ratio of the released wheel on `renderer` at a speed: the law
     linearized on centre, its added damping and the friction's stick spring, on the device's
-    exact discrete-time loop (as the schedule is sized)."""
+    exact discrete-time loop, over its uncertainty set (as the schedule is sized)."""
     from carfeel.realtime import stability
     from carfeel.realtime.rendering import steering_environment, velocity_sections
 
-    axis = stability.AxisLoop.of(info, rate_hz, velocity_sections(rate_hz))
+    plants = stability.plant_set(info, rate_hz, velocity_sections(rate_hz))
     law = steering_environment(
         renderer.car, renderer.scaling, speed_m_s, renderer.rendering, 1.0 / rate_hz,
         renderer.tire_spin_rate(speed_m_s),
@@ -415,8 +415,7 @@ def released_zeta(renderer: Any, speed_m_s: float, info: Any, rate_hz: float) ->
         state, u = law(state, y, v)
         return state, u - b * v - k * y
 
-    matrix = stability.closed_loop(axis, environment, 3 if law.stateful else 0)
-    return float(stability.least_damping_ratio(matrix, rate_hz))
+    return float(stability.least_over(plants, environment, 3 if law.stateful else 0))
 
 
 class Ramp:

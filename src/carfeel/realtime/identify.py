@@ -57,7 +57,7 @@ REST_S = 0.2
 PROBE_QUIET_S = 0.15
 PROBES = ((0.05, 0.015), (0.1, 0.015), (IDENTIFY_FRACTION, 0.015), (IDENTIFY_FRACTION, 0.04))
 """The probe's doublets, gentlest first: (share of the force limit, seconds each way)."""
-CHIRP_S = 0.6
+CHIRP_S = 1.0
 CHIRP_HZ = (4.0, 40.0)
 SERVO_HZ = 2.0
 """The centring servo's natural frequency on the first guess of the inertia: far below any
@@ -76,18 +76,21 @@ STUCK_TICKS = 8
 """The axis stands still where its velocity stays within STILL_FACTOR times its noise at rest
 for STUCK_TICKS ticks or more."""
 MAX_DELAY_S = 0.08
+MODEL_ERROR = 0.005
+DELAY_RESOLUTION_TICKS = 0.05
+"""The least standard deviations of an inertia (a share of it) and a delay (of a tick): what
+the model's own error is on plants without noise."""
 MIN_R2 = 0.9
 """A fit that explains less of the command than this is not of a free device: a hand is on it,
 or it is not the plant the model describes."""
 PLAUSIBLE = {"joystick": (0.005, 5.0, 500.0), "wheel": (1e-3, 1.0, 10.0)}
 """Per kind, the range of a device's moving mass (kg, or kg m^2) and the largest damping
 (N*s/m, or Nm*s/rad) a device of its kind has without a hand on it."""
-MASS_MARGIN = 0.15
-DELAY_MARGIN_TICKS = 0.5
-DAMPING_MARGIN = 0.2
-"""The least uncertainty the sizing takes around a measured inertia and delay: what a
-profile's check at a later start lets pass (`profiles.CHECK_GAIN`, `CHECK_SHIFT_TICKS`), and
-the jitter of a real device's delay."""
+MASS_MARGIN = 0.05
+DELAY_MARGIN_TICKS = 0.125
+"""The least uncertainty the sizing takes around an inertia and a delay: the resolution of the
+check at a later start (its gain's scatter on an unchanged device, its grid of shifts), so that a
+checked profile and a fresh identification size alike unless the check found more."""
 CHECK_TOLERANCE = 0.25
 """A stored profile still holds when its model predicts a fresh probe's motion within this
 share of the motion (a changed delay, inertia or polarity gives far more)."""
@@ -140,33 +143,36 @@ class Identification:
     def polarity(self) -> tuple[float, ...]:
         return tuple(a.polarity for a in self.axes)
 
-    def info(self, base: DeviceInfo) -> DeviceInfo:
+    def info(self, base: DeviceInfo, shift_s: float = 0.0, gain: float = 1.0) -> DeviceInfo:
         """`base` with what was measured and where the truth may lie (`stability.plant_set`
-        sizes for every plant of that set): per figure its estimate +- 3 sigma, but at least
-        what a later start's check lets pass (`profiles.check`: the inertia +-MASS_MARGIN, the
-        delay +-DELAY_MARGIN_TICKS) and +-DAMPING_MARGIN of the damping, over all axes."""
+        sizes for every plant of that set): per figure its estimate +- 3 sigma over all axes
+        (the delay also +- a report period: the phase of the reports), but at least the
+        resolution of a later start's check (`profiles.check`: the inertia
+        +-MASS_MARGIN, the delay +-DELAY_MARGIN_TICKS) and what such a check found: the largest
+        `shift_s` of its probes' timing and `gain` of their reach (1: none)."""
         period = 1.0 / self.rate_hz
-        masses = [(a.mass - 3 * a.mass_sigma, a.mass + 3 * a.mass_sigma) for a in self.axes]
+        found = abs(gain - 1.0)
+
+        def mass_spread(a: AxisEstimate) -> float:
+            return a.mass * max(3.0 * a.mass_sigma / a.mass, MASS_MARGIN, found)
+
         mass = max(a.mass for a in self.axes)
-        light = min(
-            min(lo, (1.0 - MASS_MARGIN) * a.mass)
-            for (lo, _), a in zip(masses, self.axes, strict=True)
-        )
-        heavy = max(
-            max(hi, (1.0 + MASS_MARGIN) * a.mass)
-            for (_, hi), a in zip(masses, self.axes, strict=True)
-        )
+        light = min(a.mass - mass_spread(a) for a in self.axes)
+        heavy = max(a.mass + mass_spread(a) for a in self.axes)
         damping = min(a.damping for a in self.axes)
         least = min(
-            max(0.0, min(a.damping - 3 * a.damping_sigma, (1.0 - DAMPING_MARGIN) * a.damping))
-            for a in self.axes
+            max(0.0, a.damping - max(3 * a.damping_sigma, found * a.damping)) for a in self.axes
         )
-        most = max(
-            max(a.damping + 3 * a.damping_sigma, (1.0 + DAMPING_MARGIN) * a.damping)
-            for a in self.axes
-        )
+        most = max(a.damping + max(3 * a.damping_sigma, found * a.damping) for a in self.axes)
         trip = max(a.round_trip_s for a in self.axes)
-        spread = max(max(3 * a.round_trip_sigma_s, DELAY_MARGIN_TICKS * period) for a in self.axes)
+        # A report is taken at a phase of the loop's tick that nobody controls (a device's
+        # clock is not the host's): the round trip measured holds the phase of that moment,
+        # and the truth may be up to a report period either side of it.
+        spread = max(
+            max(3 * a.round_trip_sigma_s + 1.0 / a.report_hz, DELAY_MARGIN_TICKS * period,
+                abs(shift_s))
+            for a in self.axes
+        )  # fmt: skip
         short = max(0.0, min(a.round_trip_s for a in self.axes) - spread)
         report = min(a.report_hz for a in self.axes)
         stiffness = min(max(0.0, a.stiffness - 3 * a.stiffness_sigma) for a in self.axes)
@@ -325,6 +331,10 @@ def _excite_axis(session: _Session, axis: int, polarity: list[float]) -> _Trace:
     import numpy as np
 
     info, rate, dt = session.info, session.rate_hz, session.dt
+    # Everything that takes time is made before the first tick (the filter's design imports
+    # scipy: a second, the first time).
+    velocity = SosFilter(butterworth_sections(min(30.0, 0.3 * rate), rate))
+    session.resume()  # the fit of the axis before took time: no stall
     trace = _Trace()
     zero = (0.0,) * session.axes
     window = WINDOW_FRACTION * info.travel
@@ -387,7 +397,6 @@ def _excite_axis(session: _Session, axis: int, polarity: list[float]) -> _Trace:
     guess = abs(force) * pulse**2 / max(abs(moved), need)
     servo_k = guess * (2.0 * math.pi * SERVO_HZ) ** 2
     servo_b = 2.0 * 0.7 * math.sqrt(servo_k * guess)
-    velocity = SosFilter(butterworth_sections(min(30.0, 0.3 * rate), rate))
     last = session.positions[axis]
     home = last
 
@@ -398,8 +407,9 @@ def _excite_axis(session: _Session, axis: int, polarity: list[float]) -> _Trace:
         last = reading
         send(servo_k * (reference - reading) + servo_b * (speed - v) + extra)
 
+    chirp = _chirp(rate, guess, window, top)
     trace.phases["chirp"] = len(trace.forces)
-    for value in _chirp(rate, guess, window, top):
+    for value in chirp:
         servo(home, 0.0, value)
         if session.faulted():
             return trace
@@ -568,6 +578,10 @@ def estimate_axis(
     hold = max(0.0, 0.5 / report - 0.5 * period)
     # The fitted delay holds the command's zero-order hold (half a tick) and the report's.
     trip = max(0.0, delay * period - 0.5 * period - hold)
+    # Floors for what the model itself gets wrong (the plant integrates between ticks, the
+    # smoothing is not exact): seen on noise-free plants, whose statistics alone claim more.
+    sigma[0] = max(sigma[0], MODEL_ERROR * abs(m))
+    delay_sigma_ticks = max(delay_sigma_ticks, DELAY_RESOLUTION_TICKS)
     return AxisEstimate(
         polarity=1.0, mass=m, mass_sigma=sigma[0], damping=b, damping_sigma=sigmas["b"],
         friction=friction, friction_sigma=sigmas["f"], stiffness=k, stiffness_sigma=sigma[2],
@@ -586,8 +600,10 @@ class _Fit:
 
 
 def _least_squares(matrix: Any, target: Any, window: int) -> _Fit:
-    """Least squares with standard deviations widened by the residuals' correlation (the
-    smoothing correlates them over its window: there are fewer independent samples)."""
+    """Least squares with Newey-West standard deviations (Bartlett weights over twice the
+    smoothing's window): the smoothing correlates the residuals, and how much that widens a
+    coefficient's uncertainty depends on how fast its regressor varies (the damping's, at the
+    chirp's frequencies, far less than a constant's)."""
     import numpy as np
 
     beta, *_ = np.linalg.lstsq(matrix, target, rcond=None)
@@ -595,13 +611,20 @@ def _least_squares(matrix: Any, target: Any, window: int) -> _Fit:
     n, p = matrix.shape
     cost = float(residual @ residual)
     variance = cost / max(1, n - p)
-    centred = residual - residual.mean()
-    denominator = float(centred @ centred) or 1.0
-    rho = [float(centred[:-k] @ centred[k:]) / denominator for k in range(1, min(4 * window, n))]
-    inflation = max(1.0, 1.0 + 2.0 * sum(r for r in rho if r > 0.0))
-    covariance = np.linalg.pinv(matrix.T @ matrix) * variance * inflation
+    scores = matrix * residual[:, None]
+    lags = min(2 * window, n - 1)
+    meat = scores.T @ scores
+    for k in range(1, lags + 1):
+        weight = 1.0 - k / (lags + 1)
+        cross = scores[k:].T @ scores[:-k]
+        meat += weight * (cross + cross.T)
+    bread = np.linalg.pinv(matrix.T @ matrix)
+    covariance = bread @ meat @ bread * n / max(1, n - p)
     sigma = np.sqrt(np.maximum(np.diag(covariance), 0.0))
-    return _Fit(beta, sigma, cost, variance, inflation)
+    # The plain least-squares variance over the robust one: how much the correlation widens.
+    plain = np.sqrt(np.maximum(np.diag(bread) * variance, 1e-300))
+    inflation = float(np.max((sigma / plain) ** 2)) if sigma.size else 1.0
+    return _Fit(beta, sigma, cost, variance, max(1.0, inflation))
 
 
 def _smoothing_kernel(rate_hz: float) -> Any:

@@ -140,14 +140,18 @@ def know_device(
         if stored is not None:
             if say is not None:
                 say(f"checking {info.name} against its profile {path}: hands off")
-            why = profiles.check(device, clock, rate_hz, origin_ns, limits, stored)
-            if not why:
+            checked = profiles.check(device, clock, rate_hz, origin_ns, limits, stored)
+            if not checked.reason:
                 known = stored.identification
                 return Knowledge(
-                    known.info(info), "profile", known.polarity, known, path,
-                    [f"device profile {path} (measured {stored.measured_at}) checked"],
+                    known.info(info, checked.shift_s, checked.gain), "profile", known.polarity,
+                    known, path,
+                    [f"device profile {path} (measured {stored.measured_at}) checked: its probes "
+                     f"{checked.shift_s * 1e3:.2g} ms off its delay, {checked.gain:.3f} of its "
+                     "reach"],
                     (clock.now_ns() - start) / 1e9,
                 )  # fmt: skip
+            why = checked.reason
             notes.append(f"the device differs from its profile ({why}): identified again")
             if say is not None:
                 say(f"{info.name} differs from its profile ({why}): identifying it again")

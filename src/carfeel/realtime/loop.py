@@ -141,15 +141,20 @@ def calibrate(
 
     for axis in range(axes):
         start = tick((0.0,) * axes)[axis]
-        moved = 0.0
+        way = 0.0
         pulse = [0.0] * axes
         pulse[axis] = CALIBRATION_FRACTION * limiter.limits.max_force
+        departs = 0.005 * device.info.travel
+        # The way the axis first moves, during the pulse or after it (a reading is a round trip
+        # late: the pulse's motion shows once it is over).
         for _ in range(round(CALIBRATION_PULSE_S / dt)):
             moved = tick(tuple(pulse))[axis] - start
-        signs.append(-1.0 if moved < -0.005 * device.info.travel else 1.0)
+            way = way or (math.copysign(1.0, moved) if abs(moved) > departs else 0.0)
         # Let the axis come to rest before the next pulse (or the run).
         for _ in range(round(CALIBRATION_SETTLE_S / dt)):
-            tick((0.0,) * axes)
+            moved = tick((0.0,) * axes)[axis] - start
+            way = way or (math.copysign(1.0, moved) if abs(moved) > departs else 0.0)
+        signs.append(-1.0 if way < 0.0 else 1.0)
         if watchdog.faulted:
             break
     return signs + [1.0] * (axes - len(signs))

@@ -293,7 +293,8 @@ class _Sizer:
         from carfeel.realtime import stability
 
         self.stability = stability
-        self.axis = stability.AxisLoop.of(info, rate_hz, sections)
+        self.plants = stability.plant_set(info, rate_hz, sections)
+        """The device's uncertainty set: every linearization must hold on each of them."""
         self.rate_hz, self.scaling, self.sizing, self.substeps = rate_hz, scaling, sizing, substeps
         self.speeds = speeds_m_s
         dt = 1.0 / rate_hz / substeps
@@ -331,9 +332,10 @@ class _Sizer:
         worst = lowest = math.inf
         for case in per_speed:
             env = coupled_environment(case.a, case.b, k, c, fs, ps, added, self.substeps, wall)
-            matrix = self.stability.closed_loop(self.axis, env, len(KEPT))
-            zeta = least_rim_damping(matrix, self.rate_hz, case.clamped)
-            worst, lowest = min(worst, zeta - case.goal), min(lowest, zeta)
+            for plant in self.plants:
+                matrix = self.stability.closed_loop(plant, env, len(KEPT))
+                zeta = least_rim_damping(matrix, self.rate_hz, case.clamped)
+                worst, lowest = min(worst, zeta - case.goal), min(lowest, zeta)
         return worst, lowest
 
     def added_damping(self, share: float, per_speed: list[_Case]) -> float | None:

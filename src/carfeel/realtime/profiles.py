@@ -31,9 +31,7 @@ from carfeel.realtime.clock import Clock
 from carfeel.realtime.devices.base import Device, DeviceInfo
 from carfeel.realtime.identify import (
     CHECK_TOLERANCE,
-    DELAY_MARGIN_TICKS,
     IDENTIFY_FRACTION,
-    MASS_MARGIN,
     REST_S,
     WINDOW_FRACTION,
     AxisEstimate,
@@ -47,12 +45,15 @@ MAX_PROFILE_BYTES = 64 * 1024
 """A profile is a few hundred bytes: anything larger is not one (checked before reading)."""
 CHECK_PULSE_S = 0.015
 CHECK_QUIET_S = 0.08
-CHECK_SHIFT_TICKS = DELAY_MARGIN_TICKS
+CHECK_SHIFT_TICKS = 0.3
 """A probe that answers more than this share of a tick later or sooner than the profile's
-delay says the delay changed (the identification finds it within a tenth of a tick)."""
-CHECK_GAIN = MASS_MARGIN
+delay says the delay changed: the device is identified again (below it, the sizing takes the
+shift found into its delay's range)."""
+CHECK_GAIN = 0.1
 """A probe that moves more than this share farther or less far than predicted says the
-inertia or the friction changed."""
+inertia or the friction changed (below it, the sizing widens the inertia's range by it)."""
+CHECK_GRID_TICKS = 0.125
+"""The shifts tried, a share of a tick apart."""
 
 
 def profile_dir() -> Path:
@@ -268,6 +269,16 @@ def find_any(info: DeviceInfo) -> DeviceProfile | None:
 # ------------------------------------------------------------------ the check at start-up
 
 
+@dataclass(frozen=True, slots=True)
+class Check:
+    """What a start-up check found: why the profile no longer holds (empty: it holds), and
+    the largest timing shift and the reach (gain) furthest from 1 of its probes."""
+
+    reason: str
+    shift_s: float = 0.0
+    gain: float = 1.0
+
+
 def check(
     device: Device,
     clock: Clock,
@@ -275,16 +286,17 @@ def check(
     origin_ns: int,
     limits: SafetyLimits,
     profile: DeviceProfile,
-) -> str:
-    """Probe each axis once (hands off, through the safety chain) and compare its motion with
-    what the profile's model predicts for the same commands. Empty when every axis agrees;
-    else what disagrees (the caller identifies the device again)."""
+) -> Check:
+    """Probe each axis (hands off, through the safety chain: a doublet out, its mirror back)
+    and compare its motion with what the profile's model predicts for the same commands."""
     info = device.info
     session = _Session(device, clock, rate_hz, origin_ns, limits)
     reasons = []
+    shift, gain = 0.0, 1.0
     try:
         session.tick((0.0,) * info.axes)
         for axis, estimate in enumerate(profile.identification.axes):
+            session.resume()  # the comparison of the axis before took time: no stall
             for _ in range(round(0.5 * REST_S * rate_hz)):
                 session.tick((0.0,) * info.axes)
             if session.faulted():
@@ -309,55 +321,72 @@ def check(
                     moved.append(positions[axis] - start)
             if session.faulted():
                 break
-            why = compare(estimate, sent, moved, rate_hz)
+            why, found_shift, found_gain = compare(estimate, sent, moved, rate_hz)
             if why:
                 reasons.append(f"axis {axis} {why}")
+            shift = max(shift, abs(found_shift))
+            gain = found_gain if abs(found_gain - 1.0) > abs(gain - 1.0) else gain
     finally:
         session.fade()
     if session.faulted():
         reasons.append(f"the check stopped: {session.watchdog.faults[0]}")
-    return "; ".join(reasons)
+    return Check("; ".join(reasons), shift, gain)
 
 
-def compare(estimate: AxisEstimate, forces: list[float], moved: list[float], rate_hz: float) -> str:
-    """Empty when a probe's motion is the profile's: the prediction shifted in time by the
-    least-squares best shift and scaled by the best gain must match it within CHECK_TOLERANCE
-    of its largest excursion, with a shift within CHECK_SHIFT_TICKS of a tick (or three of the
-    delay's sigmas) and a gain within CHECK_GAIN of 1. Else what differs."""
+def compare(
+    estimate: AxisEstimate, forces: list[float], moved: list[float], rate_hz: float
+) -> tuple[str, float, float]:
+    """(why not, shift, gain): a probe's motion against the profile's prediction shifted in
+    time by the least-squares best shift (on a grid of CHECK_GRID_TICKS) and scaled by the best
+    gain. It holds when it matches within CHECK_TOLERANCE of its largest excursion with a shift
+    within a report period and CHECK_SHIFT_TICKS of a tick (or three of the delay's sigmas),
+    and a gain within
+    CHECK_GAIN of 1."""
     period = 1.0 / rate_hz
     peak = max(abs(m) for m in moved) or 1e-12
-    best: tuple[float, float, float] | None = None  # (misfit, shift, gain)
-    step = 0.25 * period
-    for i in range(-12, 25):
+    best: tuple[float, float, float, float] | None = None  # (squares, shift, gain, misfit)
+    step = CHECK_GRID_TICKS * period
+    for i in range(round(-4.0 / CHECK_GRID_TICKS), round(6.0 / CHECK_GRID_TICKS) + 1):
         shift = i * step
         trial = replace_delay(estimate, estimate.round_trip_s + shift)
         predicted = predict(trial, forces, rate_hz)
         energy = sum(p * p for p in predicted) or 1e-30
         gain = sum(m * p for m, p in zip(moved, predicted, strict=True)) / energy
-        misfit = max(abs(m - gain * p) for m, p in zip(moved, predicted, strict=True))
-        if best is None or misfit < best[0]:
-            best = (misfit, shift, gain)
+        errors = [m - gain * p for m, p in zip(moved, predicted, strict=True)]
+        squares = sum(e * e for e in errors)
+        if best is None or squares < best[0]:
+            best = (squares, shift, gain, max(abs(e) for e in errors))
     assert best is not None
-    misfit, shift, gain = best
+    _, shift, gain, misfit = best
     if gain < 0.0:
-        return "moved against its profile's polarity (the device's force is reversed now)"
-    allowed = max(CHECK_SHIFT_TICKS * period, 3.0 * estimate.round_trip_sigma_s)
+        return "moved against its profile's polarity (the device's force is reversed)", shift, gain
+    # The reports' phase moves between runs (a device's clock is not the host's): a shift
+    # within a report period is the same device.
+    allowed = max(
+        CHECK_SHIFT_TICKS * period + 1.0 / estimate.report_hz, 3.0 * estimate.round_trip_sigma_s
+    )
     if abs(shift) > allowed:
         return (
             f"answered {abs(shift) * 1e3:.2g} ms {'later' if shift > 0 else 'sooner'} than its "
-            f"profile (its delay changed; at most {allowed * 1e3:.2g} ms)"
+            f"profile (its delay changed; at most {allowed * 1e3:.2g} ms)",
+            shift,
+            gain,
         )
     if abs(gain - 1.0) > CHECK_GAIN:
         return (
             f"moved {gain:.2f} times as far as its profile predicts (its inertia or friction "
-            f"changed; at most {CHECK_GAIN:.0%} off)"
+            f"changed; at most {CHECK_GAIN:.0%} off)",
+            shift,
+            gain,
         )
     if misfit > CHECK_TOLERANCE * peak:
         return (
             f"moved unlike its profile predicts ({misfit / peak:.0%} of its motion; at most "
-            f"{CHECK_TOLERANCE:.0%})"
+            f"{CHECK_TOLERANCE:.0%})",
+            shift,
+            gain,
         )
-    return ""
+    return "", shift, gain
 
 
 def replace_delay(estimate: AxisEstimate, round_trip_s: float) -> AxisEstimate:

@@ -488,11 +488,12 @@ def damping_schedule(
     friction_stiffness: float,
 ) -> tuple[tuple[float, float], ...]:
     """Per speed, the least added damping (device units, within the velocity cap less what the
-    law's own terms take) that gives the released wheel zeta_released, or the cap. Small
-    swings stay inside the friction's stick spring, so it counts as a spring here."""
+    law's own terms take) that gives the released wheel zeta_released on every plant of the
+    device's uncertainty set, or the cap. Small swings stay inside the friction's stick spring,
+    so it counts as a spring here."""
     from carfeel.realtime import stability
 
-    axis = stability.AxisLoop.of(info, rate_hz, velocity_sections(rate_hz))
+    plants = stability.plant_set(info, rate_hz, velocity_sections(rate_hz))
     table = []
     for speed in SCHEDULE_SPEEDS_M_S:
         law = steering_environment(
@@ -507,8 +508,7 @@ def damping_schedule(
                 state, u = law(state, y, v)
                 return state, u - b * v - friction_stiffness * y
 
-            matrix = stability.closed_loop(axis, environment, size)
-            return stability.least_damping_ratio(matrix, rate_hz) >= rendering.zeta_released
+            return stability.least_over(plants, environment, size) >= rendering.zeta_released
 
         if ok(0.0):
             added = 0.0

@@ -99,7 +99,12 @@ class Watchdog:
     def check(self, positions: tuple[float, ...], period_s: float, time_s: float) -> None:
         """Record a fault for a stall or a bad reading at this tick."""
         if period_s > self.limits.stall_s:
-            self.fault(f"stall: {period_s * 1e3:.1f} ms between ticks at t = {time_s:.3f} s")
+            self.fault(
+                f"stall: {period_s * 1e3:.1f} ms between ticks at t = {time_s:.3f} s (the loop "
+                f"was not run for longer than {self.limits.stall_s * 1e3:g} ms: the machine is "
+                "busy. Close other programs, give the loop a core of its own (--loop-cpu N), or "
+                "run it where real-time scheduling is allowed: see the run's 'scheduling' note)"
+            )
         bound = self.travel * (1.0 + self.limits.range_margin)
         for axis, value in enumerate(positions):
             if not math.isfinite(value):

@@ -6,6 +6,7 @@ Kept apart from `loop.py` so that the loop itself imports no model, preset or fi
 from __future__ import annotations
 
 import math
+import os
 import signal
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -114,6 +115,8 @@ class RealtimeRun:
     device_profile: Path | None = None
     """A device profile to check and use (or write), instead of the device's own under the
     user's configuration folder."""
+    loop_cpu: int | None = None
+    """The core a wall-clock run is pinned to (`realtime.scheduling`); None: the last."""
 
 
 @dataclass
@@ -280,6 +283,15 @@ def _check(run: RealtimeRun) -> None:
             "a replayed device cannot be identified (it plays back a recording): drop "
             "--identify full and --device-profile"
         )
+    if run.loop_cpu is not None:
+        cores = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
+        if not cores:
+            raise InputError("--loop-cpu: this system cannot pin a process to a core")
+        if run.loop_cpu not in cores:
+            raise InputError(
+                f"--loop-cpu {run.loop_cpu}: this process may use cores "
+                f"{', '.join(map(str, cores))}"
+            )
     if run.clock not in ("wall", "simulated"):
         raise InputError(f"--clock {run.clock!r}: choose wall or simulated")
     if run.clock == "simulated" and not run.device.startswith(("virtual", "replay")):
@@ -519,6 +531,7 @@ def _run_realtime(
     say: Callable[[str], None] | None = None,
 ) -> RealtimeResult:
     from carfeel.realtime.knowledge import know_device, real_max_force
+    from carfeel.realtime.scheduling import claimed
 
     wheel = run.model == "steering"
     if receiver is not None and run.car_presets is not None:
@@ -540,7 +553,8 @@ def _run_realtime(
     origin = clock.now_ns()
     # The device is opened before anything is recorded: a device that cannot be opened leaves
     # no recording behind.
-    with _stop_on_signals() as stop, device:
+    wall = run.clock == "wall"
+    with claimed(run.loop_cpu, wanted=wall) as taken, _stop_on_signals() as stop, device:
         if not run.device.startswith(("virtual", "replay")):
             device.info = replace(
                 device.info, max_force=real_max_force(device, run.device_max_force)
@@ -551,8 +565,11 @@ def _run_realtime(
         )  # fmt: skip
         info = device.info = knowledge.info
         started_s = (clock.now_ns() - origin) / 1e9
-        return _render(run, announce, receiver, preset_name, device, info, knowledge, clock,
-                       origin, started_s, stop, observer)  # fmt: skip
+        result = _render(run, announce, receiver, preset_name, device, info, knowledge, clock,
+                         origin, started_s, stop, observer)  # fmt: skip
+        if wall:
+            result.summary.notes.insert(0, taken.text())
+        return result
 
 
 def _render(

@@ -33,7 +33,10 @@ class ReplayDevice:
                 f"{path}: not a carfeel recording; expected the columns "
                 f"{', '.join(JOYSTICK_COLUMNS)} or {', '.join(WHEEL_COLUMNS)}"
             )
-        self._times = [float(t) for t in result.time_s]
+        # Times since the recorded loop's start (a run's times count from before its device
+        # was identified, `loop_start_s` in the sidecar): the replay's loop starts there.
+        start = _number(_sidecar(path), "loop_start_s") or 0.0
+        self._times = [float(t) - start for t in result.time_s]
         self._positions = [tuple(float(result[c][i]) for c in columns) for i in range(len(result))]
         if len(self._times) < 2:
             raise DeviceError(
@@ -64,6 +67,7 @@ class ReplayDevice:
             report_hz=_number(meta, "report_hz") or 1000.0,
             resolution=_number(meta, "resolution") or 0.0,
             noise=_number(meta, "noise") or 0.0,
+            **_knowledge(meta),
         )  # fmt: skip
         self.commands: list[tuple[float, tuple[float, ...]]] = []
 
@@ -83,7 +87,8 @@ class ReplayDevice:
         return self._times[-1] if self._times else 0.0
 
     def read(self, time_s: float) -> DeviceSample:
-        i = max(0, bisect.bisect_right(self._times, time_s) - 1)
+        # The sample at or before the time (a nanosecond of slack: times are shifted floats).
+        i = max(0, bisect.bisect_right(self._times, time_s + 1e-9) - 1)
         return DeviceSample(time_s, self._positions[i], None)
 
     def command(self, forces: tuple[float, ...], time_s: float) -> None:
@@ -98,6 +103,26 @@ def _sidecar(path: Path) -> dict[str, object]:
     except (OSError, ValueError):
         return {}
     return meta if isinstance(meta, dict) else {}
+
+
+def _knowledge(meta: dict[str, object]) -> dict[str, object]:
+    """What the recorded run knew of its device beyond its figures (the ranges its sizing
+    covered, a measured spring), so that the replay sizes its rendering alike."""
+    known = meta.get("device_knowledge")
+    out: dict[str, object] = {}
+    if not isinstance(known, dict):
+        return out
+    for key in ("mass_range", "damping_range", "delay_range_s"):
+        pair = known.get(key)
+        if (
+            isinstance(pair, list) and len(pair) == 2
+            and all(isinstance(v, int | float) and v >= 0 for v in pair)
+        ):  # fmt: skip
+            out[key] = (float(pair[0]), float(pair[1]))
+    stiffness = known.get("stiffness")
+    if isinstance(stiffness, int | float) and stiffness >= 0:
+        out["stiffness"] = float(stiffness)
+    return out
 
 
 def _number(meta: dict[str, object], key: str) -> float | None:

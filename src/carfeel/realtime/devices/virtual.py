@@ -21,8 +21,9 @@ What carfeel is *told* about a device (its `info`: mass, damping, delays, report
 the device *is* (the plant it integrates) can differ, as they do for every real device:
 `virtual:KIND:KEY=VALUE[,KEY=VALUE...]` (`parse_virtual`) changes the true plant only, with
 `mass` (the moving inertia at the handle, kg or kg m^2), `damping`, `friction` (Coulomb, N or
-Nm), `delay_ms` (each way), `report_hz` and `grip` (a spring to the handle's start, N/m or
-Nm/rad: a stiff hand clamped on it); a value ending in `x` is relative to the catalogue's
+Nm), `delay_ms` (each way), `report_hz`, `report_phase` (when in a tick the reports are taken,
+0..1 of a report period; by default drawn from the seed) and `grip` (a spring to the handle's
+start, N/m or Nm/rad: a stiff hand clamped on it); a value ending in `x` is relative to the catalogue's
 (`virtual:dd-wheel:mass=0.5x,delay_ms=6`). The device still tells the catalogue's figures.
 
 Commands are held for `hold_s` only: a device not commanded again lets its force go to zero,
@@ -83,6 +84,9 @@ class PlantParams:
     grip: float = 0.0
     """A spring from the handle to where it started, N/m (or Nm/rad): a stiff hand clamped on
     it, or a device's own centring spring. Not in the catalogue's plants (0)."""
+    report_phase: float | None = None
+    """When in the loop's tick the reports are taken, a share of a report period: a device's
+    clock is its own. None: drawn from the device's seed."""
 
     @property
     def mass(self) -> float:
@@ -188,6 +192,7 @@ class VirtualDevice:
         told: PlantParams | None = None,
         ident: str = "",
         log_limit: int | None = None,
+        # None: keep the whole log (tests); 0: none (sessions).
     ) -> None:
         self.plant = plant
         """The plant integrated: what the device is."""
@@ -212,15 +217,16 @@ class VirtualDevice:
         self._applied: tuple[float, ...] = (0.0,) * axes
         self._applied_at = -math.inf
         self._reports: deque[tuple[float, tuple[float, ...]]] = deque([(0.0, (0.0,) * axes)])
-        self._next_report = 0.0
+        phase = plant.report_phase
+        self._next_report = (self._rng.random() if phase is None else phase) / plant.report_hz
         self.open = False
-        self.log: deque[tuple[float, tuple[float, ...], tuple[float, ...]]] = deque(
-            maxlen=log_limit
-        )
-        """(time, true positions, motor forces) of every read, for tests (the last
-        `log_limit` of them: a session's device keeps none, so its memory does not grow)."""
-        self.sent: deque[tuple[float, tuple[float, ...]]] = deque(maxlen=log_limit)
-        """(time, forces) of every command, for tests (the last `log_limit`)."""
+        self.keep_log = log_limit != 0
+        """Whether `log` and `sent` are kept: a session's device keeps neither, so that its
+        memory does not grow with the session."""
+        self.log: list[tuple[float, tuple[float, ...], tuple[float, ...]]] = []
+        """(time, true positions, motor forces) of every read, for tests."""
+        self.sent: list[tuple[float, tuple[float, ...]]] = []
+        """(time, forces) of every command, for tests."""
 
     def __enter__(self) -> VirtualDevice:
         self.open = True
@@ -288,6 +294,11 @@ class VirtualDevice:
                 self._v[i] = v
                 self._x[i] = x + SUBSTEP_S * v
             self._time = now + SUBSTEP_S
+        if self._time + 0.5 * SUBSTEP_S >= self._next_report:
+            # A report due now is taken now: a reading with no delay sees the sensor as it is
+            # (else every reading would be a tick older than the delay says).
+            self._reports.append((self._time, self._sample()))
+            self._next_report += report_period
 
     def _sample(self) -> tuple[float, ...]:
         """The sensor now: the true positions with noise, through the ADC."""
@@ -312,7 +323,7 @@ class VirtualDevice:
         readings = list(seen)
         if self.nan_at_s is not None and time_s >= self.nan_at_s:
             readings[0] = math.nan
-        if self.log.maxlen != 0:
+        if self.keep_log:
             self.log.append((time_s, tuple(self._x), self.motor_forces))
         return DeviceSample(time_s, tuple(readings), None)
 
@@ -320,7 +331,7 @@ class VirtualDevice:
         if self.fail_at_s is not None and time_s >= self.fail_at_s:
             raise DeviceLost(f"{self.info.name} stopped answering at t = {time_s:.3f} s")
         self._queue.append((time_s, tuple(forces)))
-        if self.sent.maxlen != 0:
+        if self.keep_log:
             self.sent.append((time_s, tuple(forces)))
 
 
@@ -331,6 +342,7 @@ TRUE_KEYS = {
     "delay_ms": ("ms each way", 0.0, 50.0),
     "report_hz": ("reports per second", 100.0, 10_000.0),
     "grip": ("N/m or Nm/rad of a spring to the start", 0.0, 1e5),
+    "report_phase": ("of a report period", 0.0, 1.0),
 }
 """The keys of `virtual:KIND:KEY=VALUE,...`: (unit, least, largest) of the absolute value."""
 
@@ -395,6 +407,10 @@ def true_plant(plant: PlantParams, changes: dict[str, tuple[float, bool]]) -> Pl
         plant = replace(plant, delay_s=value("delay_ms", plant.delay_s * 1e3) / 1e3)
     if "report_hz" in changes:
         plant = replace(plant, report_hz=value("report_hz", plant.report_hz))
+    if "report_phase" in changes:
+        if changes["report_phase"][1]:
+            raise ValueError("report_phase: a share of a report period, 0..1 (no x)")
+        plant = replace(plant, report_phase=value("report_phase", 0.0))
     if "grip" in changes:
         if changes["grip"][1]:
             raise ValueError("grip: the catalogue's plants have none; give N/m or Nm/rad")
