@@ -23,8 +23,9 @@ the device *is* (the plant it integrates) can differ, as they do for every real 
 `mass` (the moving inertia at the handle, kg or kg m^2), `damping`, `friction` (Coulomb, N or
 Nm), `delay_ms` (each way), `report_hz`, `report_phase` (when in a tick the reports are taken,
 0..1 of a report period; by default drawn from the seed) and `grip` (a spring to the handle's
-start, N/m or Nm/rad: a stiff hand clamped on it); a value ending in `x` is relative to the catalogue's
-(`virtual:dd-wheel:mass=0.5x,delay_ms=6`). The device still tells the catalogue's figures.
+start, N/m or Nm/rad: a stiff hand clamped on it); a value ending in `x` is relative to the
+catalogue's (`virtual:dd-wheel:mass=0.5x,delay_ms=6`). The device still tells the catalogue's
+figures.
 
 Commands are held for `hold_s` only: a device not commanded again lets its force go to zero,
 like the finite-length effects of the evdev and SDL2 backends. `fail_at_s` makes the device
