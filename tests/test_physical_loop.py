@@ -237,7 +237,7 @@ def test_a_device_that_cannot_render_the_car_is_refused_with_the_reason(tmp_path
                  "simulated", "--record", str(record)])  # fmt: skip
     assert code == 2
     err = capsys.readouterr().err
-    assert "cannot render the physical steering model" in err and "8 + 8 ms" in err
+    assert "cannot render the physical steering model" in err and "ms of round-trip delay" in err
     assert "on-centre stiffness" in err
     assert not record.exists() and not record.with_suffix(".json").exists()
 

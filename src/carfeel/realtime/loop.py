@@ -72,7 +72,7 @@ class LoopSummary:
     time_at_limit_s: float = 0.0
     """Time any axis was commanded at its force limit."""
     oscillation_rms: float = 0.0
-    """Largest 10-100 Hz rms of the command the oscillation guard saw (device units)."""
+    """Largest 2-100 Hz rms of the command the oscillation guard saw (device units)."""
     passivity_acted_s: float = 0.0
     """Time the passivity controller added damping."""
 
@@ -183,8 +183,11 @@ def run_loop(
     limiter = ForceLimiter(limits, axes)
     watchdog = Watchdog(limits, device.info.travel)
     info = device.info
+    round_trip = math.ceil((info.command_delay_s + info.reading_delay_s) * config.rate_hz - 1e-6)
     guard = (
-        OscillationGuard(axes, limits.max_force, info.travel, config.rate_hz)
+        OscillationGuard(
+            axes, limits.max_force, info.travel, config.rate_hz, round_trip_ticks=round_trip
+        )
         if config.guard
         else None
     )
@@ -194,9 +197,7 @@ def run_loop(
             DAMPING_CREDIT * info.damping,
             deadband=1e-3 * limits.max_force * info.travel,
             ceiling=0.05 * limits.max_force * info.travel,
-            round_trip_ticks=math.ceil(
-                (info.command_delay_s + info.reading_delay_s) * config.rate_hz - 1e-6
-            ),
+            round_trip_ticks=round_trip,
         )
         if config.passivity
         else None

@@ -13,13 +13,15 @@
   behind the sizing (`stability.py`): it counts the work the device's force does on the handle;
   when the rendering has put out more energy than it took in (and the device burnt), it lowers
   the force until the books balance again.
-- `OscillationGuard`: a sustained limit cycle (the command's energy in the 10-100 Hz band, where
-  no hand moves on purpose, above a fraction of the force limit while the handle barely moves)
-  is a fault like any other: the force fades to zero and the run reports it.
+- `OscillationGuard`: any sustained oscillation of the command, 2-100 Hz, the handle still or
+  swinging end to end (regular half-cycles over a tenth of the limit that do not die down while
+  the rendering feeds them; the limit reached both ways; a buzz) is a fault like any other: the
+  force fades to zero and the run reports it.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections import deque
 from dataclasses import dataclass
@@ -202,15 +204,30 @@ class PassivityController:
 
 
 class OscillationGuard:
-    """A fault for a sustained limit cycle on any axis.
+    """A fault for any sustained oscillation on any axis, 2-100 Hz, with the handle still or
+    swinging end to end. Per axis, the command (less the vibrations the model renders on
+    purpose) goes through a 2-100 Hz band-pass, and three rules watch it:
 
-    Per axis, the command (less the vibrations the model renders on purpose) and the reading
-    go through a 10-100 Hz band-pass; their mean squares are smoothed over `window_s`. When the
-    command's band rms exceeds `force_fraction` of the force limit while the reading's band rms
-    stays below `motion_fraction` of the travel, for longer than `hold_s`, it is a limit cycle.
+    - cycles: CYCLES half-cycles in a row, each swinging over `force_fraction` of the force
+      limit, none decaying by more than DECAY from the one before (a sized loop's ringing,
+      zeta >= 0.2, halves each half-cycle), at a steady pace, while the rendering puts energy
+      into the handle over them (the work of the force commanded one round trip earlier on the
+      handle's motion, over what passes between them: at least INJECTION of it) or the handle
+      barely moves. A hand shaking the lever against a rendering that absorbs what the hand
+      puts in is not an oscillation of the loop. Two such half-cycles suffice at over half the
+      force limit: a full-force limit cycle fades within a period of its onset.
+    - saturation: the command at the force limit both ways for more than `saturated_s` within
+      `saturation_window_s` (a bang-bang limit cycle; one way only is a hand pushing).
+    - buzz: the band's rms over `window_s` above `force_fraction` of the limit for `hold_s` while
+      the handle barely moves (an irregular chatter the cycles rule does not see).
     """
 
-    BAND_HZ = (10.0, 100.0)
+    BAND_HZ = (2.0, 100.0)
+    CYCLES = 3
+    DECAY = 0.7
+    INJECTION = 0.2
+    PACE = 2.5
+    """Successive half-cycles' durations within this ratio of one another: a steady pace."""
 
     def __init__(
         self,
@@ -222,19 +239,49 @@ class OscillationGuard:
         motion_fraction: float = 0.1,
         hold_s: float = 0.5,
         window_s: float = 0.1,
+        round_trip_ticks: int = 0,
+        saturated_s: float = 0.1,
+        saturation_window_s: float = 0.3,
     ) -> None:
         low, high = self.BAND_HZ
         high = min(high, 0.45 * rate_hz)
+        self.band_hz = (low, high)
         self._force: list[SosFilter] = [bandpass(low, high, rate_hz) for _ in range(axes)]
         self._motion: list[SosFilter] = [bandpass(low, high, rate_hz) for _ in range(axes)]
         self._force_ms = [0.0] * axes
         self._motion_ms = [0.0] * axes
         self._alpha = min(1.0, 1.0 / (window_s * rate_hz))
+        self.max_force = max_force
         self.force_limit = (force_fraction * max_force) ** 2
         self.motion_limit = (motion_fraction * travel) ** 2
         self.hold_s = hold_s
         self.force_fraction = force_fraction
+        self.swing = force_fraction * max_force
+        self.hysteresis = 0.02 * max_force
+        self.longest_half_s = 0.5 / low
+        self.shortest_half_s = 0.5 / high
+        self.still = (0.02 * travel) ** 2
+        """Below this mean square band motion the handle is still (the injection is moot)."""
         self._for = 0.0
+        self._time = 0.0
+        # Per axis: the open half-cycle's sign, start, extreme, work done and work passed, and
+        # the last closed ones: (amplitude, duration, work done, work passed).
+        self._sign = [0] * axes
+        self._start = [0.0] * axes
+        self._extreme = [0.0] * axes
+        self._work = [0.0] * axes
+        self._passed = [0.0] * axes
+        self._halves: list[deque[tuple[float, float, float, float]]] = [
+            deque(maxlen=self.CYCLES - 1) for _ in range(axes)
+        ]
+        self._commands = [deque([0.0] * (round_trip_ticks + 1)) for _ in range(axes)]
+        self._last_x: list[float | None] = [None] * axes
+        ticks = max(1, round(saturation_window_s * rate_hz))
+        self._saturation: list[deque[int]] = [deque([0] * ticks, maxlen=ticks) for _ in range(axes)]
+        self._plus = [0] * axes
+        self._minus = [0] * axes
+        self._saturated_ticks = saturated_s * rate_hz
+        self.top = 0.999 * max_force
         self.worst_rms = 0.0
         """Largest smoothed band rms of the command seen, device units (for the summary)."""
 
@@ -245,29 +292,116 @@ class OscillationGuard:
 
     @property
     def held_s(self) -> float:
-        """How long the limit-cycle condition has held so far (a fault past hold_s)."""
+        """How long the buzz condition has held so far (a fault past hold_s)."""
         return self._for
 
     def check(
         self, commands: tuple[float, ...], positions: tuple[float, ...], dt_s: float
     ) -> str | None:
-        """A fault message once a limit cycle has lasted hold_s, else None."""
+        """A fault message once an oscillation is sustained, else None. `commands` are what
+        the device was sent this tick (after the limiter), `positions` this tick's readings."""
         a = self._alpha
-        cycling = False
+        self._time += dt_s
+        buzzing = False
+        trouble = None
         for i, (u, x) in enumerate(zip(commands, positions, strict=True)):
-            f = self._force[i].step(u if math.isfinite(u) else 0.0)
-            m = self._motion[i].step(x if math.isfinite(x) else 0.0)
+            u = u if math.isfinite(u) else 0.0
+            x_ok = math.isfinite(x)
+            f = self._force[i].step(u)
+            m = self._motion[i].step(x if x_ok else 0.0)
             self._force_ms[i] += a * (f * f - self._force_ms[i])
             self._motion_ms[i] += a * (m * m - self._motion_ms[i])
             self.worst_rms = max(self.worst_rms, math.sqrt(self._force_ms[i]))
             if self._force_ms[i] > self.force_limit and self._motion_ms[i] < self.motion_limit:
-                cycling = True
-        self._for = self._for + dt_s if cycling else 0.0
-        if self._for > self.hold_s:
+                buzzing = True
+            # The work of the force that acts on the handle now (commanded a round trip ago).
+            past = self._commands[i]
+            last = self._last_x[i]
+            moved = 0.0 if last is None or not x_ok else x - last
+            if x_ok:
+                self._last_x[i] = x
+            work = past[0] * moved
+            past.popleft()
+            past.append(u)
+            trouble = trouble or self._cycles(i, f, work) or self._saturated(i, u)
+        self._for = self._for + dt_s if buzzing else 0.0
+        if trouble is None and self._for > self.hold_s:
             rms = max(math.sqrt(v) for v in self._force_ms)
+            trouble = (
+                f"oscillation: the command's {self.band_hz[0]:g}-{self.band_hz[1]:g} Hz content "
+                f"held {rms:.3g} rms (over {self.force_fraction:.0%} of the force limit) for "
+                f"{self._for:.2f} s while the handle barely moved: a limit cycle"
+            )
+        return trouble
+
+    def _cycles(self, i: int, f: float, work: float) -> str | None:
+        sign = self._sign[i]
+        self._work[i] += work
+        self._passed[i] += abs(work)
+        if sign == 0:
+            if abs(f) > self.hysteresis:
+                self._open(i, 1 if f > 0 else -1)
+            return None
+        self._extreme[i] = max(self._extreme[i], sign * f)
+        duration = self._time - self._start[i]
+        if duration > self.longest_half_s:
+            # Slower than the band: no oscillation; the chain starts again.
+            self._halves[i].clear()
+            self._open(i, sign)
+            return None
+        if sign * f < -self.hysteresis:  # crossed over: the half-cycle is complete
+            self._halves[i].append((self._extreme[i], duration, self._work[i], self._passed[i]))
+            self._open(i, -sign)
+            return None
+        # The open half-cycle judged at its peak, with those before it: no need to wait for
+        # its end (a full-force cycle must fade within a period).
+        halves = self._halves[i]
+        if not halves:
+            return None
+        amplitude = self._extreme[i]
+        needed = self.CYCLES - 1 if amplitude < 0.5 * self.max_force else 1
+        if len(halves) < needed:
+            return None
+        recent = list(halves)[-needed:]
+        swings = [h[0] for h in recent] + [amplitude]
+        if min(swings) < self.swing:
+            return None
+        if any(b < self.DECAY * a for a, b in itertools.pairwise(swings)):
+            return None
+        times = [h[1] for h in recent]
+        if min(times) < self.shortest_half_s or max(times) > self.PACE * min(times):
+            return None
+        if duration < 0.5 * min(times):  # not yet at this half-cycle's peak
+            return None
+        done = sum(h[2] for h in recent) + self._work[i]
+        passed = sum(h[3] for h in recent) + self._passed[i]
+        if self._motion_ms[i] > self.still and done < self.INJECTION * passed:
+            return None  # the rendering takes in what moves it: a hand, not the loop
+        frequency = 0.5 / (sum(times) / len(times))
+        return (
+            f"oscillation: axis {i} swung {len(swings)} half-cycles in a row at {frequency:.3g} "
+            f"Hz, each over {self.force_fraction:.0%} of the force limit (the last "
+            f"{amplitude:.3g}) and none dying down: a limit cycle"
+        )
+
+    def _open(self, i: int, sign: int) -> None:
+        self._sign[i] = sign
+        self._start[i] = self._time
+        self._extreme[i] = 0.0
+        self._work[i] = self._passed[i] = 0.0
+
+    def _saturated(self, i: int, u: float) -> str | None:
+        now = 1 if u >= self.top else -1 if u <= -self.top else 0
+        window = self._saturation[i]
+        gone = window[0]
+        window.append(now)
+        self._plus[i] += (now == 1) - (gone == 1)
+        self._minus[i] += (now == -1) - (gone == -1)
+        plus, minus = self._plus[i], self._minus[i]
+        if plus and minus and plus + minus > self._saturated_ticks:
             return (
-                f"oscillation: the command's 10-100 Hz content held {rms:.3g} rms (over "
-                f"{self.force_fraction:.0%} of the force limit) for {self._for:.2f} s while the "
-                "handle barely moved: a limit cycle"
+                f"oscillation: axis {i} was at its force limit both ways for "
+                f"{(plus + minus) / len(window) * 100:.0f} % of the last "
+                f"{len(window)} ticks: a limit cycle at full force"
             )
         return None

@@ -165,7 +165,7 @@ class RealtimeResult:
             f"peak command {s.peak_command:.2f} {self.unit}; scales: force "
             f"{self.scaling.force_scale:.3g}, position {self.scaling.position_scale:.3g}",
             f"gears engaged: {' '.join(s.gears) or 'none'}; stopped by {s.stopped}",
-            f"time at the force limit {s.time_at_limit_s:.3f} s; largest 10-100 Hz command "
+            f"time at the force limit {s.time_at_limit_s:.3f} s; largest 2-100 Hz command "
             f"{s.oscillation_rms:.3g} rms; passivity controller active {s.passivity_acted_s:.3f} s",
         ]
         if self.stability:
@@ -457,18 +457,51 @@ def _declared_info(device: Device, run: RealtimeRun, kind: str) -> DeviceInfo:
     )
 
 
+def _delay_text(info: DeviceInfo) -> str:
+    """The round trip the sizing covered, as a refusal names it."""
+    short, long = info.delay_range_s or (info.round_trip_s, info.round_trip_s)
+    text = f"{info.round_trip_s * 1e3:.3g} ms of round-trip delay"
+    if long > short:
+        text += f" (sized for {short * 1e3:.3g} to {long * 1e3:.3g} ms)"
+    return text
+
+
 def _refuse_soft(info: DeviceInfo, sizing: Sizing, run: RealtimeRun) -> None:
     """A coupling softer than the force limit over the whole travel cannot render a gearbox."""
     need = info.max_force / info.travel
     if sizing.stiffness < need:
         raise InputError(
             f"{info.name} cannot render --model {run.model} stably at {run.rate_hz:g} Hz with "
-            f"{info.command_delay_s * 1e3:g} + {info.reading_delay_s * 1e3:g} ms of delay and "
+            f"{_delay_text(info)} and "
             f"{info.report_hz:g} reports a second: hands off, it stays stable only up to "
             f"{sizing.stiffness:.3g} (device units per m) of coupling, and a gearbox needs at "
             f"least {need:.3g} (its force limit over its travel). Lower the delay, raise the rate "
             "or use a device with more damping"
         )
+
+
+class _Shifted:
+    """A device seen from the loop, whose times start at the loop's start: the device itself
+    is `offset_s` further on (the time its identification took)."""
+
+    def __init__(self, device: Device, offset_s: float) -> None:
+        self.device, self.offset_s = device, offset_s
+
+    @property
+    def info(self) -> DeviceInfo:
+        return self.device.info
+
+    def __enter__(self) -> _Shifted:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        return None
+
+    def read(self, time_s: float) -> Any:
+        return self.device.read(time_s + self.offset_s)._replace(time_s=time_s)
+
+    def command(self, forces: tuple[float, ...], time_s: float) -> None:
+        self.device.command(forces, time_s + self.offset_s)
 
 
 @dataclass(frozen=True, slots=True)
@@ -722,7 +755,6 @@ def _render(
         "max_slew_per_s": limits.max_slew_per_s,
         "stability": figure,
         "device_knowledge": knowledge.as_dict(),
-        "loop_start_s": t0,
     }
     if wheel:
         metadata["steering_model"] = run.steering_model
@@ -745,9 +777,11 @@ def _render(
         observer.prepare(RunParts(renderer, info, sizing, scaling, limits, columns, metadata))
     recorder = Recorder(run.record, columns, metadata) if run.record else None
     try:
+        # The loop's times (the recording's, the renderer's) count from its start; the device
+        # (and a virtual device's hand) lives on in its own time, after the identification.
         summary = run_loop(
-            renderer, device, clock, config, limits, recorder, should_stop=lambda: bool(stop),
-            observer=observer, origin_ns=origin,
+            renderer, _Shifted(device, t0), clock, config, limits, recorder,
+            should_stop=lambda: bool(stop), observer=observer,
         )  # fmt: skip
         if stop and summary.stopped == "stopped":
             summary.stopped = stop[0]
@@ -823,7 +857,7 @@ def _steering_scaling(
         if lowered < 0.25 * fs:
             raise InputError(
                 f"{info.name} cannot render the steering at {run.speed_kmh:g} km/h stably with "
-                f"{info.latency_s * 1e3:.3g} ms of round-trip delay at {run.rate_hz:g} Hz: "
+                f"{_delay_text(info)} at {run.rate_hz:g} Hz: "
                 f"the car's on-centre spring ({gradient * fs:.3g} Nm/rad on the device) is "
                 f"beyond the {room:.3g} Nm/rad it can hold hands off, by more than 4 times. "
                 "Lower the delay, raise the rate or the speed's"
@@ -870,7 +904,7 @@ def _physical_renderer(
     )  # fmt: skip
     cannot = (
         f"{info.name} cannot render the physical steering model at {run.rate_hz:g} Hz with "
-        f"{info.command_delay_s * 1e3:g} + {info.reading_delay_s * 1e3:g} ms of delay"
+        f"{_delay_text(info)}"
     )
     if isinstance(sized, str):
         raise InputError(

@@ -33,10 +33,7 @@ class ReplayDevice:
                 f"{path}: not a carfeel recording; expected the columns "
                 f"{', '.join(JOYSTICK_COLUMNS)} or {', '.join(WHEEL_COLUMNS)}"
             )
-        # Times since the recorded loop's start (a run's times count from before its device
-        # was identified, `loop_start_s` in the sidecar): the replay's loop starts there.
-        start = _number(_sidecar(path), "loop_start_s") or 0.0
-        self._times = [float(t) - start for t in result.time_s]
+        self._times = [float(t) for t in result.time_s]
         self._positions = [tuple(float(result[c][i]) for c in columns) for i in range(len(result))]
         if len(self._times) < 2:
             raise DeviceError(
@@ -67,8 +64,8 @@ class ReplayDevice:
             report_hz=_number(meta, "report_hz") or 1000.0,
             resolution=_number(meta, "resolution") or 0.0,
             noise=_number(meta, "noise") or 0.0,
-            **_knowledge(meta),
         )  # fmt: skip
+        self.info = _with_knowledge(self.info, meta)
         self.commands: list[tuple[float, tuple[float, ...]]] = []
 
     def __enter__(self) -> ReplayDevice:
@@ -105,24 +102,32 @@ def _sidecar(path: Path) -> dict[str, object]:
     return meta if isinstance(meta, dict) else {}
 
 
-def _knowledge(meta: dict[str, object]) -> dict[str, object]:
+def _with_knowledge(info: DeviceInfo, meta: dict[str, object]) -> DeviceInfo:
     """What the recorded run knew of its device beyond its figures (the ranges its sizing
     covered, a measured spring), so that the replay sizes its rendering alike."""
+    import dataclasses
+
     known = meta.get("device_knowledge")
-    out: dict[str, object] = {}
     if not isinstance(known, dict):
-        return out
-    for key in ("mass_range", "damping_range", "delay_range_s"):
-        pair = known.get(key)
+        return info
+
+    def pair(key: str) -> tuple[float, float] | None:
+        value = known.get(key)
         if (
-            isinstance(pair, list) and len(pair) == 2
-            and all(isinstance(v, int | float) and v >= 0 for v in pair)
+            isinstance(value, list) and len(value) == 2
+            and all(isinstance(v, int | float) and v >= 0 for v in value)
         ):  # fmt: skip
-            out[key] = (float(pair[0]), float(pair[1]))
+            return float(value[0]), float(value[1])
+        return None
+
     stiffness = known.get("stiffness")
-    if isinstance(stiffness, int | float) and stiffness >= 0:
-        out["stiffness"] = float(stiffness)
-    return out
+    return dataclasses.replace(
+        info,
+        mass_range=pair("mass_range"),
+        damping_range=pair("damping_range"),
+        delay_range_s=pair("delay_range_s"),
+        stiffness=float(stiffness) if isinstance(stiffness, int | float) and stiffness > 0 else 0.0,
+    )
 
 
 def _number(meta: dict[str, object], key: str) -> float | None:
