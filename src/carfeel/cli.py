@@ -15,6 +15,7 @@ from collections.abc import Sequence
 
 from carfeel import __version__
 from carfeel.commands import (
+    calibrate,
     channels,
     demo,
     devices,
@@ -61,8 +62,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"carfeel {__version__}")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
-    families = (demo, simulate, metrics, run, identify, channels, devices, presets, telemetry,
-                sweep, export, panel)  # fmt: skip
+    families = (demo, simulate, metrics, run, calibrate, identify, channels, devices, presets,
+                telemetry, sweep, export, panel)  # fmt: skip
     for family in families:
         family.register(commands)
     return parser

@@ -135,6 +135,15 @@ class AbsInfo(NamedTuple):
     resolution: int
 
 
+class DeviceIds(NamedTuple):
+    """evdev.DeviceInfo (`InputDevice.info`): the device's bus and USB ids."""
+
+    bustype: int
+    vendor: int
+    product: int
+    version: int
+
+
 class EvdevError(Exception):
     """evdev.EvdevError: raised by `write` on a device opened read-only."""
 
@@ -163,6 +172,10 @@ class DeviceSpec:
     keys: tuple[int, ...] = ()
     values: dict[int, int] = field(default_factory=dict)
     """Current axis values; a test moves an axis by setting one."""
+    ids: tuple[int, int, int, int] = (0x03, 0x0000, 0x0000, 0x0111)
+    """evdev.DeviceInfo: bus type, vendor, product, version."""
+    uniq: str = ""
+    phys: str = "usb-0000:00:14.0-1/input0"
 
     def __post_init__(self) -> None:
         for code, info in self.axes.items():
@@ -170,7 +183,8 @@ class DeviceSpec:
 
 
 def wheel(path: str = "/dev/input/event7", name: str = "Logitech G29 Driving Force Racing Wheel"):
-    """A G29 as hid-lg4ff presents it: 16-bit wheel on ABS_X, pedals, constant force only."""
+    """A G29 as hid-lg4ff presents it: 16-bit wheel on ABS_X, pedals, constant force only
+    (USB 046d:c24f, as the kernel's hid-ids.h has it)."""
     pedal = AbsInfo(255, 0, 255, 0, 0, 0)
     return DeviceSpec(
         path,
@@ -179,6 +193,7 @@ def wheel(path: str = "/dev/input/event7", name: str = "Logitech G29 Driving For
         ff=(E.FF_CONSTANT, E.FF_GAIN, E.FF_AUTOCENTER),
         ff_effects_count=16,
         keys=(E.BTN_TRIGGER,),
+        ids=(0x03, 0x046D, 0xC24F, 0x0111),
     )
 
 
@@ -207,6 +222,9 @@ class FakeInputDevice:
         self.spec = spec
         self.path = spec.path
         self.name = spec.name
+        self.info = DeviceIds(*spec.ids)
+        self.uniq = spec.uniq
+        self.phys = spec.phys
         self.fd = 3
         self.ff_effects_count = spec.ff_effects_count if spec.ff else 0
         self.effects: dict[int, Uploaded] = {}

@@ -13,6 +13,7 @@ import math
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -153,3 +154,198 @@ def matrix(models: tuple[str, ...] = MODELS) -> list[Cell]:
         for delay in DELAYS_MS
         for hand in HANDS
     ]
+
+
+# ------------------------------------------------------------------ the mismatch matrix
+
+GRIP_N_M = 3500.0
+"""A stiff grip (2-5 kN/m at a knob); on a rim at RIM_RADIUS_M it is GRIP_N_M * r^2 Nm/rad."""
+RIM_RADIUS_M = 0.15
+TRUE_PLANTS = {
+    "mass 0.4x": "mass=0.4x",
+    "mass 0.6x": "mass=0.6x",
+    "mass 2x": "mass=2x",
+    "damping 0.1x": "damping=0.1x",
+    "delay 2x": "delay_ms=4",
+    "delay 3x": "delay_ms=6",
+    "delay 4x": "delay_ms=8",
+    "report 250 Hz": "report_hz=250",
+    "grip": "grip",
+}
+"""The true plants of the mismatch matrix, as `virtual:KIND:...` changes to the catalogue's
+(its delay is 2 ms each way: 2x is 4 ms); `grip` is GRIP_N_M at the knob."""
+MISMATCH_HANDS = ("none", "release", "script")
+OSCILLATION_FRACTION = 0.1
+"""An oscillation of the command over this share of the force limit (its 2-100 Hz amplitude)
+is one the guard must end within GUARD_S."""
+GUARD_S = 0.2
+
+
+@dataclass(frozen=True, slots=True)
+class MismatchCell:
+    """One run of a model on a virtual plant whose true dynamics differ from what it tells."""
+
+    model: str
+    plant: str
+    true: str
+    hand: str
+    identify: str
+    refused: str | None = None
+    faults: tuple[str, ...] = ()
+    ripple_fraction: float = math.nan
+    """Peak-to-peak of the command over the last second, a share of the force limit."""
+    at_limit: bool = False
+    """Whether the command touched the force limit over the last second."""
+    oscillating_s: float = 0.0
+    """How long the command oscillated over OSCILLATION_FRACTION of the limit before the fade
+    began (0 without a fault)."""
+    knowledge: str = ""
+
+    @property
+    def stable(self) -> bool:
+        """Refused with a reason, or calm at the end with nothing faulted."""
+        if self.refused is not None:
+            return True
+        return not self.faults and self.ripple_fraction < RIPPLE_FRACTION and not self.at_limit
+
+    @property
+    def guarded(self) -> bool:
+        """Refused, stable, or ended by the safety chain within GUARD_S of its oscillation."""
+        if self.refused is not None:
+            return True
+        if self.faults:
+            return self.oscillating_s <= GUARD_S
+        return self.ripple_fraction < 2 * OSCILLATION_FRACTION and not self.at_limit
+
+
+def true_spec(plant: str, true: str) -> str:
+    """The `--device` of a plant with a true-plant change of TRUE_PLANTS."""
+    change = TRUE_PLANTS[true]
+    if change == "grip":
+        wheel = plant in ("wheel", "dd-wheel")
+        change = f"grip={GRIP_N_M * RIM_RADIUS_M**2 if wheel else GRIP_N_M:g}"
+    return f"virtual:{plant}:{change}"
+
+
+def oscillation_envelope(commands: np.ndarray, rate_hz: float, window_s: float = 0.1) -> Any:
+    """Per sample, the largest 2-100 Hz amplitude (half the peak to peak over a window) over
+    the axes: zero-phase filtered offline, independent of the loop's guard."""
+    from numpy.lib.stride_tricks import sliding_window_view
+    from scipy.signal import butter, sosfiltfilt
+
+    sos = butter(2, [2.0, min(100.0, 0.45 * rate_hz)], "bandpass", fs=rate_hz, output="sos")
+    width = max(3, round(window_s * rate_hz))
+    envelope = np.zeros(commands.shape[0])
+    for column in commands.T:
+        band = sosfiltfilt(sos, np.nan_to_num(column))
+        padded = np.pad(band, (width // 2, width - width // 2), mode="edge")
+        view = sliding_window_view(padded, width + 1)[: len(band)]
+        envelope = np.maximum(envelope, 0.5 * (view.max(axis=1) - view.min(axis=1)))
+    return envelope
+
+
+def run_mismatch_cell(
+    model: str,
+    plant: str,
+    true: str,
+    hand: str,
+    identify: str = "auto",
+    speed_kmh: float = 100.0,
+    settle_s: float = 2.0,
+    guard: bool = True,
+) -> MismatchCell:
+    """One cell: a `carfeel run` in simulated time on `true_spec(plant, true)`, recorded."""
+    import json
+    from unittest import mock
+
+    from carfeel.realtime import loop
+    from carfeel.realtime.session import RealtimeRun, run_realtime
+    from carfeel.simulation.result import Result
+
+    wheel = model in WHEEL_MODELS
+    duration: float | None
+    if hand == "none":
+        duration = 3.0 if not wheel else 2.2 + settle_s + 1.0
+    elif wheel:
+        duration = 2.2 + 1.0 + settle_s + 1.0 if hand == "release" else None
+    elif model == "shift":
+        duration = 2.2 + 2.0 + settle_s
+    else:
+        duration = 2.2 + 1.2 * len(SEQUENCE) + 1.0 + settle_s
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "cell.csv"
+        run = RealtimeRun(
+            model="steering" if wheel else model, device=true_spec(plant, true),
+            duration_s=duration, sequence=SEQUENCE, speed_kmh=speed_kmh if wheel else 30.0,
+            clock="simulated", record=path, hand=hand, identify=identify,
+            steering_model="physical" if model == "physical" else "paper",
+        )  # fmt: skip
+        config = loop.LoopConfig
+        patch = mock.patch(
+            "carfeel.realtime.session.LoopConfig",
+            lambda *a, **k: config(*a, **{**k, "guard": guard}),
+        )
+        try:
+            with patch:
+                result = run_realtime(run)
+        except InputError as exc:
+            return MismatchCell(model, plant, true, hand, identify, refused=str(exc))
+        rec = Result.from_csv(path)
+        meta = json.loads(path.with_suffix(".json").read_text(encoding="utf-8"))
+    limit = float(meta["max_force"])
+    t = rec.time_s
+    commands = np.column_stack(
+        [np.asarray(rec[c], dtype=float) for c in rec.names if c.startswith("command_")]
+    )
+    keep = np.isfinite(np.asarray(rec[_force(model)], dtype=float))
+    window = commands[keep][t[keep] >= t[keep][-1] - 1.0]
+    ripple = float(np.max(np.ptp(window, axis=0))) / limit
+    at_limit = bool(np.any(np.abs(window) >= 0.999 * limit))
+    oscillating = 0.0
+    faulted = np.flatnonzero(np.asarray(rec["fault"], dtype=float) > 0)
+    if faulted.size:
+        start = int(faulted[0])
+        envelope = oscillation_envelope(commands, float(meta["rate_hz"])) / limit
+        above = envelope > OSCILLATION_FRACTION
+        i = start
+        while i > 0 and above[i - 1]:
+            i -= 1
+        oscillating = float(t[start] - t[i]) if above[max(0, start - 1)] else 0.0
+    return MismatchCell(
+        model, plant, true, hand, identify, None, tuple(result.summary.faults), ripple,
+        at_limit, oscillating, str(meta.get("device_knowledge", {}).get("how", "")),
+    )  # fmt: skip
+
+
+def mismatch_cells(
+    models: tuple[str, ...] = MODELS, trues: tuple[str, ...] = tuple(TRUE_PLANTS)
+) -> list[tuple[str, str, str, str]]:
+    """(model, plant, true plant, hand) of every cell, in order."""
+    return [
+        (model, plant, true, hand)
+        for model in models
+        for plant in PLANTS_FOR[model]
+        for true in trues
+        for hand in MISMATCH_HANDS
+    ]
+
+
+def _mismatch(args: tuple[str, str, str, str, str, bool]) -> MismatchCell:
+    model, plant, true, hand, identify, guard = args
+    return run_mismatch_cell(model, plant, true, hand, identify, guard=guard)
+
+
+def mismatch_matrix(
+    identify: str = "auto",
+    workers: int = 2,
+    cells: list[tuple[str, str, str, str]] | None = None,
+    guard: bool = True,
+) -> list[MismatchCell]:
+    """Every cell of the mismatch matrix (or `cells`), in a pool of `workers` processes."""
+    jobs = [(*cell, identify, guard) for cell in (cells or mismatch_cells())]
+    if workers <= 1:
+        return [_mismatch(job) for job in jobs]
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(workers) as pool:
+        return list(pool.map(_mismatch, jobs, chunksize=4))

@@ -210,12 +210,13 @@ class OscillationGuard:
 
     - cycles: CYCLES half-cycles in a row, each swinging over `force_fraction` of the force
       limit, none decaying by more than DECAY from the one before (a sized loop's ringing,
-      zeta >= 0.2, halves each half-cycle), at a steady pace, while the rendering puts energy
-      into the handle over them (the work of the force commanded one round trip earlier on the
-      handle's motion, over what passes between them: at least INJECTION of it) or the handle
-      barely moves. A hand shaking the lever against a rendering that absorbs what the hand
-      puts in is not an oscillation of the loop. Two such half-cycles suffice at over half the
-      force limit: a full-force limit cycle fades within a period of its onset.
+      zeta >= 0.2, halves each half-cycle), at a steady pace; below VOLUNTARY_HZ (as slow as a
+      hand shakes a lever) also while the rendering puts energy into the handle over them (the
+      work of the force commanded one round trip earlier on the handle's motion, over what
+      passes between them: at least INJECTION of it) or the handle barely moves: a hand
+      shaking the lever against a rendering that absorbs what the hand puts in is not an
+      oscillation of the loop. Two such half-cycles suffice at over half the force limit: a
+      full-force limit cycle fades within a period of its onset.
     - saturation: the command at the force limit both ways for more than `saturated_s` within
       `saturation_window_s` (a bang-bang limit cycle; one way only is a hand pushing).
     - buzz: the band's rms over `window_s` above `force_fraction` of the limit for `hold_s` while
@@ -228,6 +229,9 @@ class OscillationGuard:
     INJECTION = 0.2
     PACE = 2.5
     """Successive half-cycles' durations within this ratio of one another: a steady pace."""
+    VOLUNTARY_HZ = 6.0
+    """Below this a hand can shake a lever on purpose: there the rule also asks that the
+    rendering feed the oscillation. Above it, a sustained regular swing is the loop's."""
 
     def __init__(
         self,
@@ -373,11 +377,15 @@ class OscillationGuard:
             return None
         if duration < 0.5 * min(times):  # not yet at this half-cycle's peak
             return None
-        done = sum(h[2] for h in recent) + self._work[i]
-        passed = sum(h[3] for h in recent) + self._passed[i]
-        if self._motion_ms[i] > self.still and done < self.INJECTION * passed:
-            return None  # the rendering takes in what moves it: a hand, not the loop
         frequency = 0.5 / (sum(times) / len(times))
+        if frequency < self.VOLUNTARY_HZ and self._motion_ms[i] > self.still:
+            # As slow as a hand can shake a lever: an oscillation of the loop only where the
+            # rendering feeds it. (At these frequencies the work is sound even if the device's
+            # true delay is not the one told: the phase it costs is small.)
+            done = sum(h[2] for h in recent) + self._work[i]
+            passed = sum(h[3] for h in recent) + self._passed[i]
+            if done < self.INJECTION * passed:
+                return None  # the rendering takes in what moves it: a hand, not the loop
         return (
             f"oscillation: axis {i} swung {len(swings)} half-cycles in a row at {frequency:.3g} "
             f"Hz, each over {self.force_fraction:.0%} of the force limit (the last "

@@ -249,7 +249,12 @@ class EvdevDevice:
                 raise DeviceError(f"{self.path} axis {code}: range [{info.min}, {info.max}]")
             scales.append(axis_scale(info.min, info.max, self.info.travel, sign))
         self._codes, self._scales = tuple(codes), tuple(scales)
-        self.info = dataclasses.replace(self.info, name=name)
+        # Its identity for its profile: the USB ids and serial (or the port it is on), which
+        # outlive the event node's number.
+        ids = getattr(device, "info", None)
+        where = str(getattr(device, "uniq", "") or getattr(device, "phys", "") or self.path)
+        ident = f"evdev:{getattr(ids, 'vendor', 0):04x}:{getattr(ids, 'product', 0):04x}:{where}"
+        self.info = dataclasses.replace(self.info, name=name, ident=ident)
         # Full gain and no spring of the driver's own: the model renders every force.
         device.write(ecodes.EV_FF, ecodes.FF_GAIN, GAIN_FULL)
         device.write(ecodes.EV_FF, ecodes.FF_AUTOCENTER, 0)

@@ -152,7 +152,14 @@ class SDL2Device:
         haptic_axes = int(sdl2.SDL_HapticNumAxes(haptic))
         if haptic_axes < self.info.axes:
             raise DeviceError(f"{name} renders forces on {haptic_axes} axes, not {self.info.axes}")
-        self.info = dataclasses.replace(self.info, name=name)
+        guid = ""
+        if hasattr(sdl2, "SDL_JoystickGetGUID") and hasattr(sdl2, "SDL_JoystickGetGUIDString"):
+            buffer = ctypes.create_string_buffer(33)
+            sdl2.SDL_JoystickGetGUIDString(sdl2.SDL_JoystickGetGUID(joystick), buffer, 33)
+            guid = buffer.value.decode("ascii", "replace")
+        # Its identity for its profile: SDL's GUID (bus, vendor, product, version) and name.
+        ident = f"sdl:{guid or index}:{name}"
+        self.info = dataclasses.replace(self.info, name=name, ident=ident)
         # Full gain and no spring of the driver's own, where the device has these settings.
         if features & sdl2.SDL_HAPTIC_GAIN and (
             sdl2.SDL_HapticSetGain(haptic, GAIN_FULL_PERCENT) < 0
