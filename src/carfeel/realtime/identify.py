@@ -146,7 +146,7 @@ class Identification:
     def info(self, base: DeviceInfo, shift_s: float = 0.0, gain: float = 1.0) -> DeviceInfo:
         """`base` with what was measured and where the truth may lie (`stability.plant_set`
         sizes for every plant of that set): per figure its estimate +- 3 sigma over all axes
-        (the delay also +- a report period: the phase of the reports), but at least the
+        (the delay also +- the reports' phase, `_phase_s`), but at least the
         resolution of a later start's check (`profiles.check`: the inertia
         +-MASS_MARGIN, the delay +-DELAY_MARGIN_TICKS) and what such a check found: the largest
         `shift_s` of its probes' timing and `gain` of their reach (1: none)."""
@@ -169,8 +169,8 @@ class Identification:
         # clock is not the host's): the round trip measured holds the phase of that moment,
         # and the truth may be up to a report period either side of it.
         spread = max(
-            max(3 * a.round_trip_sigma_s + 1.0 / a.report_hz, DELAY_MARGIN_TICKS * period,
-                abs(shift_s))
+            max(3 * a.round_trip_sigma_s + _phase_s(a.report_hz, self.rate_hz),
+                DELAY_MARGIN_TICKS * period, abs(shift_s))
             for a in self.axes
         )  # fmt: skip
         short = max(0.0, min(a.round_trip_s for a in self.axes) - spread)
@@ -200,6 +200,14 @@ class Identification:
             "axes": [a.as_dict() for a in self.axes],
             "notes": list(self.notes),
         }
+
+
+def _phase_s(report_hz: float, rate_hz: float) -> float:
+    """How far a measured round trip may be from the truth for the reports' phase: a report
+    period where the device reports as often as the loop ticks (each reading a report of a
+    fixed, unknown age that drifts between runs), none where it reports more slowly (a
+    reading's age then cycles through every phase within a report: the sizing's hold)."""
+    return 1.0 / report_hz if report_hz >= 0.9 * rate_hz else 0.0
 
 
 # ------------------------------------------------------------------ the excitation

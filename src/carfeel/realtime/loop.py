@@ -284,9 +284,12 @@ def run_loop(
             if passivity is not None:
                 passivity.applied(safe)
             if guard is not None and not watchdog.faulted:
+                # What the rendering asks (before the limiter clips a swing's peaks flat and
+                # hides whether it dies down), less the vibrations it renders on purpose; and
+                # what the device was sent.
                 effect = renderer.effect
-                heard = (safe[0] - effect, *safe[1:]) if effect else safe
-                trouble = guard.check(heard, positions, dt)
+                heard = (commands[0] - effect, *commands[1:]) if effect else commands
+                trouble = guard.check(heard, positions, dt, safe)
                 if trouble is not None:
                     watchdog.fault(f"{trouble} at t = {t:.3f} s")
             if recorder is not None:

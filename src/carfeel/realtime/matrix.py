@@ -159,7 +159,9 @@ def matrix(models: tuple[str, ...] = MODELS) -> list[Cell]:
 # ------------------------------------------------------------------ the mismatch matrix
 
 GRIP_N_M = 3500.0
-"""A stiff grip (2-5 kN/m at a knob); on a rim at RIM_RADIUS_M it is GRIP_N_M * r^2 Nm/rad."""
+GRIP_N_S_M = 15.0
+"""A stiff grip (2-5 kN/m at a knob) with a hand's damping (tissue: 5-50 N*s/m, after Hajian
+and Howe 1997; zeta 0.4 on the joystick's 0.1 kg); on a rim at RIM_RADIUS_M both times r^2."""
 RIM_RADIUS_M = 0.15
 TRUE_PLANTS = {
     "mass 0.4x": "mass=0.4x",
@@ -222,8 +224,8 @@ def true_spec(plant: str, true: str) -> str:
     """The `--device` of a plant with a true-plant change of TRUE_PLANTS."""
     change = TRUE_PLANTS[true]
     if change == "grip":
-        wheel = plant in ("wheel", "dd-wheel")
-        change = f"grip={GRIP_N_M * RIM_RADIUS_M**2 if wheel else GRIP_N_M:g}"
+        arm = RIM_RADIUS_M**2 if plant in ("wheel", "dd-wheel") else 1.0
+        change = f"grip={GRIP_N_M * arm:g},grip_damping={GRIP_N_S_M * arm:g}"
     return f"virtual:{plant}:{change}"
 
 

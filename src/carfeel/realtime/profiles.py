@@ -36,6 +36,7 @@ from carfeel.realtime.identify import (
     WINDOW_FRACTION,
     AxisEstimate,
     Identification,
+    _phase_s,
     _Session,
 )
 from carfeel.realtime.safety import SafetyLimits
@@ -363,7 +364,8 @@ def compare(
     # The reports' phase moves between runs (a device's clock is not the host's): a shift
     # within a report period is the same device.
     allowed = max(
-        CHECK_SHIFT_TICKS * period + 1.0 / estimate.report_hz, 3.0 * estimate.round_trip_sigma_s
+        CHECK_SHIFT_TICKS * period + _phase_s(estimate.report_hz, rate_hz),
+        3.0 * estimate.round_trip_sigma_s,
     )
     if abs(shift) > allowed:
         return (

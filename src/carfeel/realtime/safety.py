@@ -205,27 +205,31 @@ class PassivityController:
 
 class OscillationGuard:
     """A fault for any sustained oscillation on any axis, 2-100 Hz, with the handle still or
-    swinging end to end. Per axis, the command (less the vibrations the model renders on
-    purpose) goes through a 2-100 Hz band-pass, and three rules watch it:
+    swinging end to end. Per axis, the command the rendering asks (less the vibrations the
+    model renders on purpose; before the limiter, which would clip a swing's peaks flat and
+    hide whether it dies down) goes through a 2-100 Hz band-pass, and three rules watch it:
 
     - cycles: CYCLES half-cycles in a row, each swinging over `force_fraction` of the force
-      limit, none decaying by more than DECAY from the one before (a sized loop's ringing,
-      zeta >= 0.2, halves each half-cycle), at a steady pace; below VOLUNTARY_HZ (as slow as a
+      limit, none below DECAY of the one before (a sized loop's ringing, zeta >= 0.2, halves
+      each half-cycle; DECAY is zeta 0.07), at a steady pace; below VOLUNTARY_HZ (as slow as a
       hand shakes a lever) also while the rendering puts energy into the handle over them (the
       work of the force commanded one round trip earlier on the handle's motion, over what
       passes between them: at least INJECTION of it) or the handle barely moves: a hand
       shaking the lever against a rendering that absorbs what the hand puts in is not an
-      oscillation of the loop. Two such half-cycles suffice at over half the force limit: a
-      full-force limit cycle fades within a period of its onset.
-    - saturation: the command at the force limit both ways for more than `saturated_s` within
-      `saturation_window_s` (a bang-bang limit cycle; one way only is a hand pushing).
-    - buzz: the band's rms over `window_s` above `force_fraction` of the limit for `hold_s` while
-      the handle barely moves (an irregular chatter the cycles rule does not see).
+      oscillation of the loop. Below VOLUNTARY_HZ two such half-cycles suffice at over half the
+      force limit: a full-force limit cycle fades within 0.2 s of its onset at every pace.
+    - saturation: the command sent at the force limit both ways for more than `saturated_s`
+      within `saturation_window_s` (a bang-bang limit cycle; one way only is a hand pushing;
+      a ringing that dies down leaves the limit sooner).
+    - buzz: the 10-100 Hz rms over `window_s` above `force_fraction` of the limit for `hold_s`
+      while the handle barely moves (an irregular chatter the cycles rule does not see).
     """
 
     BAND_HZ = (2.0, 100.0)
+    BUZZ_HZ = (10.0, 100.0)
+    """The buzz rule's band: chatter, above what a released device's own ringing is."""
     CYCLES = 3
-    DECAY = 0.7
+    DECAY = 0.8
     INJECTION = 0.2
     PACE = 2.5
     """Successive half-cycles' durations within this ratio of one another: a steady pace."""
@@ -244,20 +248,24 @@ class OscillationGuard:
         hold_s: float = 0.5,
         window_s: float = 0.1,
         round_trip_ticks: int = 0,
-        saturated_s: float = 0.1,
-        saturation_window_s: float = 0.3,
+        saturated_s: float = 0.2,
+        saturation_window_s: float = 0.4,
     ) -> None:
         low, high = self.BAND_HZ
         high = min(high, 0.45 * rate_hz)
         self.band_hz = (low, high)
-        self._force: list[SosFilter] = [bandpass(low, high, rate_hz) for _ in range(axes)]
-        self._motion: list[SosFilter] = [bandpass(low, high, rate_hz) for _ in range(axes)]
+        self._band: list[SosFilter] = [bandpass(low, high, rate_hz) for _ in range(axes)]
+        self._band_motion: list[SosFilter] = [bandpass(low, high, rate_hz) for _ in range(axes)]
+        buzz_low, _ = self.BUZZ_HZ
+        self._force: list[SosFilter] = [bandpass(buzz_low, high, rate_hz) for _ in range(axes)]
+        self._motion: list[SosFilter] = [bandpass(buzz_low, high, rate_hz) for _ in range(axes)]
         self._force_ms = [0.0] * axes
         self._motion_ms = [0.0] * axes
         self._alpha = min(1.0, 1.0 / (window_s * rate_hz))
         self.max_force = max_force
         self.force_limit = (force_fraction * max_force) ** 2
         self.motion_limit = (motion_fraction * travel) ** 2
+        self._band_ms = [0.0] * axes
         self.hold_s = hold_s
         self.force_fraction = force_fraction
         self.swing = force_fraction * max_force
@@ -300,18 +308,29 @@ class OscillationGuard:
         return self._for
 
     def check(
-        self, commands: tuple[float, ...], positions: tuple[float, ...], dt_s: float
+        self,
+        commands: tuple[float, ...],
+        positions: tuple[float, ...],
+        dt_s: float,
+        sent: tuple[float, ...] | None = None,
     ) -> str | None:
         """A fault message once an oscillation is sustained, else None. `commands` are what
-        the device was sent this tick (after the limiter), `positions` this tick's readings."""
+        the rendering asks this tick (before the limiter: its swings' peaks as they are),
+        `sent` what the device was sent (after it; the same if None), `positions` this tick's
+        readings."""
         a = self._alpha
         self._time += dt_s
         buzzing = False
         trouble = None
-        for i, (u, x) in enumerate(zip(commands, positions, strict=True)):
+        sent = commands if sent is None else sent
+        for i, (wanted, u, x) in enumerate(zip(commands, sent, positions, strict=True)):
+            wanted = wanted if math.isfinite(wanted) else 0.0
             u = u if math.isfinite(u) else 0.0
             x_ok = math.isfinite(x)
-            f = self._force[i].step(u)
+            band = self._band[i].step(wanted)
+            swing = self._band_motion[i].step(x if x_ok else 0.0)
+            self._band_ms[i] += a * (swing * swing - self._band_ms[i])
+            f = self._force[i].step(wanted)
             m = self._motion[i].step(x if x_ok else 0.0)
             self._force_ms[i] += a * (f * f - self._force_ms[i])
             self._motion_ms[i] += a * (m * m - self._motion_ms[i])
@@ -327,12 +346,12 @@ class OscillationGuard:
             work = past[0] * moved
             past.popleft()
             past.append(u)
-            trouble = trouble or self._cycles(i, f, work) or self._saturated(i, u)
+            trouble = trouble or self._cycles(i, band, work) or self._saturated(i, u)
         self._for = self._for + dt_s if buzzing else 0.0
         if trouble is None and self._for > self.hold_s:
             rms = max(math.sqrt(v) for v in self._force_ms)
             trouble = (
-                f"oscillation: the command's {self.band_hz[0]:g}-{self.band_hz[1]:g} Hz content "
+                f"oscillation: the command's {self.BUZZ_HZ[0]:g}-{self.band_hz[1]:g} Hz content "
                 f"held {rms:.3g} rms (over {self.force_fraction:.0%} of the force limit) for "
                 f"{self._for:.2f} s while the handle barely moved: a limit cycle"
             )
@@ -363,7 +382,11 @@ class OscillationGuard:
         if not halves:
             return None
         amplitude = self._extreme[i]
-        needed = self.CYCLES - 1 if amplitude < 0.5 * self.max_force else 1
+        # Slower than a hand's pace and at over half the limit, two half-cycles (then the
+        # rendering must be seen feeding them, below): three would take longer than a
+        # full-force limit cycle may last.
+        slow = halves[-1][1] > 0.5 / self.VOLUNTARY_HZ
+        needed = 1 if slow and amplitude >= 0.5 * self.max_force else self.CYCLES - 1
         if len(halves) < needed:
             return None
         recent = list(halves)[-needed:]
@@ -378,7 +401,7 @@ class OscillationGuard:
         if duration < 0.5 * min(times):  # not yet at this half-cycle's peak
             return None
         frequency = 0.5 / (sum(times) / len(times))
-        if frequency < self.VOLUNTARY_HZ and self._motion_ms[i] > self.still:
+        if frequency < self.VOLUNTARY_HZ and self._band_ms[i] > self.still:
             # As slow as a hand can shake a lever: an oscillation of the loop only where the
             # rendering feeds it. (At these frequencies the work is sound even if the device's
             # true delay is not the one told: the phase it costs is small.)

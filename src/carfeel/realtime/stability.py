@@ -27,6 +27,7 @@ This runs once at start-up (numpy and scipy are fine there); nothing here runs p
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from collections.abc import Callable
@@ -111,7 +112,28 @@ def plant_set(info: DeviceInfo, rate_hz: float, sections: Sections) -> tuple[Axi
     corners = {nominal}
     for mass, trip in ((light, long), (heavy, long), (light, short)):
         corners.add(AxisLoop.of(info, rate_hz, sections, mass, least, trip))
-    return tuple(sorted(corners, key=lambda a: (a.mass, a.damping, a.delay_ticks)))
+    if info.stiffness > 0.0:
+        # A spring measured on the device may be a hand that lets go: the free device too.
+        corners |= {dataclasses.replace(a, stiffness=0.0) for a in list(corners)}
+    return tuple(sorted(corners, key=lambda a: (a.mass, a.damping, a.delay_ticks, a.stiffness)))
+
+
+def own_damping_ratio(axis: AxisLoop) -> float:
+    """The least damping ratio of the device alone in the loop (nothing rendered): 1 for a
+    free handle (no oscillation), its own spring's mode's ratio where it has one."""
+    return zeta_of(axis, 0.0, 0.0)
+
+
+ZETA_FLOOR = 0.05
+"""The least a rendering keeps where the device alone is less damped than ZETA_MIN."""
+
+
+def goal_of(axis: AxisLoop, zeta_min: float) -> float:
+    """What a rendering must keep on this plant: zeta_min; where the device alone is less
+    damped (a stiff grip on a light rim, whose mode the rendering cannot damp through its
+    delay), ZETA_FLOOR, or half the device's own ratio where even that is above it."""
+    own = own_damping_ratio(axis)
+    return min(zeta_min, max(min(ZETA_FLOOR, own - 0.005), 0.5 * own))
 
 
 @functools.lru_cache(maxsize=128)
@@ -266,20 +288,25 @@ def size(
     """The stiffest spring (and its damper) the device renders with zeta >= zeta_min, on every
     plant of its uncertainty set (`plant_set`)."""
     axis = plant_set(info, rate_hz, velocity_sections)
+    goals = [goal_of(a, zeta_min) for a in axis]
+
+    def holds(k: float, b: float) -> bool:
+        return all(zeta_of(a, k, b) >= g for a, g in zip(axis, goals, strict=True))
+
     k_noise, b_noise = noise_caps(info, rate_hz)
     tiny = 1e-6 * info.max_force / max(info.travel, 1e-9)
     heavy = max(a.mass for a in axis)
     b_high = min(b_noise, 10.0 * heavy * rate_hz)
-    damping_cap = _bisect(lambda b: zeta_of(axis, tiny, b) >= zeta_min, 0.0, b_high)
+    damping_cap = _bisect(lambda b: holds(tiny, b), 0.0, b_high)
     k_high = min(k_noise, heavy * (math.pi * rate_hz) ** 2)
     best = (0.0, 0.0)
     for fraction in (0.0, 0.1, 0.2, 0.3, 0.45, 0.6, 0.8):
         b = fraction * damping_cap
-        if zeta_of(axis, tiny, b) < zeta_min:
+        if not holds(tiny, b):
             continue
 
         def stable(k: float, b: float = b) -> bool:
-            return zeta_of(axis, k, b) >= zeta_min
+            return holds(k, b)
 
         k = _bisect(stable, tiny, k_high, 30)
         if k > best[0]:

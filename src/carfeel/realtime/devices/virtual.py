@@ -22,8 +22,9 @@ the device *is* (the plant it integrates) can differ, as they do for every real 
 `virtual:KIND:KEY=VALUE[,KEY=VALUE...]` (`parse_virtual`) changes the true plant only, with
 `mass` (the moving inertia at the handle, kg or kg m^2), `damping`, `friction` (Coulomb, N or
 Nm), `delay_ms` (each way), `report_hz`, `report_phase` (when in a tick the reports are taken,
-0..1 of a report period; by default drawn from the seed) and `grip` (a spring to the handle's
-start, N/m or Nm/rad: a stiff hand clamped on it); a value ending in `x` is relative to the
+0..1 of a report period; by default drawn from the seed), `grip` (a spring to the handle's
+start, N/m or Nm/rad: a stiff hand clamped on it) and `grip_damping` (its damper); a value
+ending in `x` is relative to the
 catalogue's (`virtual:dd-wheel:mass=0.5x,delay_ms=6`). The device still tells the catalogue's
 figures.
 
@@ -85,6 +86,8 @@ class PlantParams:
     grip: float = 0.0
     """A spring from the handle to where it started, N/m (or Nm/rad): a stiff hand clamped on
     it, or a device's own centring spring. Not in the catalogue's plants (0)."""
+    grip_damping: float = 0.0
+    """The grip's damping, N*s/m (or Nm*s/rad): a hand's tissue damps what it holds."""
     report_phase: float | None = None
     """When in the loop's tick the reports are taken, a share of a report period: a device's
     clock is its own. None: drawn from the device's seed."""
@@ -281,7 +284,7 @@ class VirtualDevice:
             )
             for i in range(self.info.axes):
                 x, v = self._x[i], self._v[i]
-                stop = p.grip * x
+                stop = p.grip * x + p.grip_damping * v
                 if x > p.travel:
                     stop += p.stop_stiffness * (x - p.travel)
                 elif x < -p.travel:
@@ -343,6 +346,7 @@ TRUE_KEYS = {
     "delay_ms": ("ms each way", 0.0, 50.0),
     "report_hz": ("reports per second", 100.0, 10_000.0),
     "grip": ("N/m or Nm/rad of a spring to the start", 0.0, 1e5),
+    "grip_damping": ("N*s/m or Nm*s/rad of the grip's damper", 0.0, 1000.0),
     "report_phase": ("of a report period", 0.0, 1.0),
 }
 """The keys of `virtual:KIND:KEY=VALUE,...`: (unit, least, largest) of the absolute value."""
@@ -408,6 +412,12 @@ def true_plant(plant: PlantParams, changes: dict[str, tuple[float, bool]]) -> Pl
         plant = replace(plant, delay_s=value("delay_ms", plant.delay_s * 1e3) / 1e3)
     if "report_hz" in changes:
         plant = replace(plant, report_hz=value("report_hz", plant.report_hz))
+    if "grip_damping" in changes:
+        if changes["grip_damping"][1]:
+            raise ValueError(
+                "grip_damping: the catalogue's plants have none; give N*s/m or Nm*s/rad"
+            )
+        plant = replace(plant, grip_damping=value("grip_damping", 0.0))
     if "report_phase" in changes:
         if changes["report_phase"][1]:
             raise ValueError("report_phase: a share of a report period, 0..1 (no x)")
