@@ -100,7 +100,6 @@ def test_the_sizing_follows_the_delay_and_the_rate():
     """More delay or a slower rate: a softer coupling (the rate compared without transport
     delay: a delay that is a whole tick at 250 Hz and four at 1 kHz is the same delay, exactly
     discretized at both). The passivity index is reported as the conservative bound it is."""
-    info = virtual_device("joystick").info
     sections = velocity_sections(1000.0)
     stiff = [
         size(virtual_device("joystick", delay_s=d).info, 1000.0, sections).stiffness
