@@ -561,7 +561,9 @@ def _root_type(model: str) -> type[Any]:
     return {"shift": ShiftParams, "steering": SteeringCar, "hpattern": HPatternCase}[model]
 
 
-_SEGMENT = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)(?:\[(\d+)\])?$")
+_SEGMENT = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)(?:\[([0-9]{1,6})\])?")
+"""One segment of a key path: a field name, or a list's field with its index (`gears[2]`).
+Always `fullmatch`: `$` would match before a trailing newline."""
 
 
 def field_type(model: str, base: Any, path: str) -> tuple[Any, Any]:
@@ -579,7 +581,7 @@ def field_type(model: str, base: Any, path: str) -> tuple[Any, Any]:
     value = base
     walked: list[str] = []
     for part in path.split("."):
-        match = _SEGMENT.match(part)
+        match = _SEGMENT.fullmatch(part)
         if match is None:
             raise KeyError(f"{part!r} is not a field name")
         name, index = match.group(1), match.group(2)
@@ -927,7 +929,7 @@ def apply(base: Any, values: Mapping[str, Value]) -> Any:
 
 
 def _replace(obj: Any, parts: list[str], value: Value) -> Any:
-    match = _SEGMENT.match(parts[0])
+    match = _SEGMENT.fullmatch(parts[0])
     assert match is not None  # checked by field_type
     name, index = match.group(1), match.group(2)
     current = getattr(obj, name)
