@@ -120,7 +120,9 @@ class Plots:
             while len(self._cache) > CACHE_SIZE:
                 self._cache.popitem(last=False)
 
-    def close(self) -> None:
+    def close(self, wait: bool = False) -> None:
+        """Drop the waiting drawings; with `wait`, also wait for the one under way (at the
+        panel's end: its worker exits cleanly, leaving no semaphore behind)."""
         if self._pool is not None:
-            self._pool.shutdown(wait=False, cancel_futures=True)
+            self._pool.shutdown(wait=wait, cancel_futures=True)
             self._pool = None

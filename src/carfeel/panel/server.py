@@ -467,7 +467,7 @@ class Panel:
             self.closing.set()
             await asyncio.sleep(2.0 / self.config.stream_hz)  # the streams see it and end
             await self.shutdown()
-            self.plots.close()
+            await asyncio.to_thread(self.plots.close, True)
 
     async def shutdown(self) -> None:
         """Stop the session (its fade) and wait for the loop's process to end."""
