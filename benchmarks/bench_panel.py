@@ -20,7 +20,11 @@ everything unpinned (the loop, the server, its plot worker and the browser share
 `carfeel panel` does without --loop-cpu). The loop's processes run at the panel's raised
 priority (nice -10 where allowed) in every case. Other sessions on a shared machine are not
 pinned: compare the rows of one run, not runs.
-    python benchmarks/bench_panel.py [--seconds 15] [--repeats 2] [--no-pin]
+6. limits (issue 24, before the sessions): what the panel answers, how long it takes and what
+   the server's peak memory (VmHWM) is after it, for a 300 MB body declared, 300 MB sent
+   chunked, a 60 kB name, a 401-digit tuning integer (a simulated session runs) and a request
+   without the credential.
+    python benchmarks/bench_panel.py [--seconds 15] [--repeats 2] [--no-pin] [--cases ...]
 Needs carfeel[panel,test] and /usr/bin/chromium. Prints figures; asserts nothing.
 """
 
@@ -166,8 +170,89 @@ def _plot_status(port: int, name: str) -> int:
         return -1
 
 
-def make_recordings(port: int, folder: Path) -> list[str]:
-    """PLOT_FILES copies of a 20 s recording of the benchmark's session (simulated clock)."""
+def _peak_mb(pid: int) -> float:
+    """A process's peak resident memory so far (Linux VmHWM), MB."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def _answer(sock: socket.socket) -> str:
+    answer = b""
+    while b"\r\n" not in answer:
+        chunk = sock.recv(4096)
+        if not chunk:
+            break
+        answer += chunk
+    return answer.split(b"\r\n")[0].decode(errors="replace")
+
+
+def _timed_raw(port: int, head: str, chunks: int = 0) -> tuple[str, float]:
+    """Send `head` (and, from a thread, up to `chunks` chunks of 64 kB of a chunked body until
+    the answer comes); the answer's status line and the seconds it took."""
+    piece = b"10000\r\n" + b" " * 0x10000 + b"\r\n"
+    stop = threading.Event()
+    t0 = time.perf_counter()
+    with socket.create_connection(("127.0.0.1", port), timeout=60) as sock:
+        sock.sendall(head.encode())
+
+        def feed() -> None:
+            with contextlib.suppress(OSError):
+                for _ in range(chunks):
+                    if stop.is_set():
+                        return
+                    sock.sendall(piece)
+
+        sender = threading.Thread(target=feed, daemon=True)
+        sender.start()
+        status = _answer(sock)
+        took = time.perf_counter() - t0
+        stop.set()
+        with contextlib.suppress(OSError):
+            sock.shutdown(socket.SHUT_RDWR)
+        sender.join(timeout=60)
+    return status, took
+
+
+def limits(port: int, server_pid: int) -> None:
+    """Section 6 of the module's docstring."""
+    auth = f"Authorization: Bearer {TOKEN}\r\n"
+    post = f"POST /api/session HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\n{auth}"
+    print(f"limits: the server's peak memory before: {_peak_mb(server_pid):.0f} MB")
+    declared = post + "Content-Type: application/json\r\nContent-Length: 300000000\r\n\r\n"
+    status, took = _timed_raw(port, declared)
+    print(f"  300 MB body declared      {status:28s} {took * 1e3:7.1f} ms  peak "
+          f"{_peak_mb(server_pid):.0f} MB")  # fmt: skip
+    chunked = post + "Content-Type: application/json\r\nTransfer-Encoding: chunked\r\n\r\n"
+    status, took = _timed_raw(port, chunked, chunks=4800)  # up to 300 MB
+    print(f"  300 MB body sent chunked  {status:28s} {took * 1e3:7.1f} ms  peak "
+          f"{_peak_mb(server_pid):.0f} MB")  # fmt: skip
+    for label, path, body in (
+        ("60 kB preset name", "/api/session", {"model": "hpattern", "force": True,
+                                               "preset": "x" * 60_000}),
+        ("401-digit tuning integer", "/api/tune", {"values": {"gearbox.stop.stiffness_N_m":
+                                                              10**400}}),
+    ):  # fmt: skip
+        data = json.dumps(body).encode()
+        head = (f"POST {path} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\n{auth}Content-Type: "
+                f"application/json\r\nContent-Length: {len(data)}\r\n\r\n")  # fmt: skip
+        t0 = time.perf_counter()
+        with socket.create_connection(("127.0.0.1", port), timeout=60) as sock:
+            sock.sendall(head.encode() + data)
+            status = _answer(sock)
+        print(f"  {label:25s} {status:28s} {(time.perf_counter() - t0) * 1e3:7.1f} ms  peak "
+              f"{_peak_mb(server_pid):.0f} MB")  # fmt: skip
+    t0 = time.perf_counter()
+    with socket.create_connection(("127.0.0.1", port), timeout=60) as sock:
+        sock.sendall(f"GET /api/options HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\n\r\n".encode())
+        status = _answer(sock)
+    print(f"  without the credential    {status:28s} {(time.perf_counter() - t0) * 1e3:7.1f} ms")
+
+
+def make_recordings(port: int, folder: Path, server_pid: int | None = None) -> list[str]:
+    """PLOT_FILES copies of a 20 s recording of the benchmark's session (simulated clock);
+    with the server's pid, the limits (section 6) are measured while that session runs."""
     _call(port, "POST", "/api/session", {
         "model": "hpattern", "duration_s": 600, "sequence": ",".join(SEQUENCE),
         "calibrate": False, "clock": "simulated", "hand": "script", "force": True,
@@ -179,6 +264,8 @@ def make_recordings(port: int, folder: Path) -> list[str]:
     source = folder / "recordings" / "plotted-0.csv"
     while not source.with_suffix(".json").exists():
         time.sleep(0.2)
+    if server_pid is not None:  # a session runs: the tuning's limit is checked on it
+        limits(port, server_pid)
     _call(port, "POST", "/api/session/stop", {})
     while _call(port, "GET", "/api/session")["state"] != "ended":
         time.sleep(0.2)
@@ -333,7 +420,7 @@ def main() -> None:
                 break
             except OSError:
                 time.sleep(0.1)
-        names = make_recordings(port, folder) if "plots" in cases else []
+        names = make_recordings(port, folder, server.pid) if "plots" in cases else []
         results: dict[str, list[dict[str, Any]]] = {c: [] for c in cases}
         waves: list[PlotWaves] = []
         labels = {"ref": "reference (carfeel run)", "browser": "panel + headless chromium",

@@ -235,6 +235,29 @@ def test_names_numbers_and_devices_are_checked_and_never_echoed_whole(tmp_path):
         assert panel.run_of({**start, "device": "virtual:shifter"})["device"] == "virtual:shifter"
 
 
+def test_a_device_this_machine_has_is_taken_and_only_such(tmp_path, monkeypatch):
+    """A real device is one the listing found usable (force feedback, writable): the same
+    path with no such device, or any other path, is refused. (A recorded listing: there is no
+    /dev/input here.)"""
+    from carfeel.errors import InputError
+    from carfeel.realtime.devices import listing
+
+    found = {"evdev": {"devices": [{"path": "/dev/input/event5", "constant_force": True,
+                                    "writable": True},
+                                   {"path": "/dev/input/event6", "constant_force": True,
+                                    "writable": False}]},
+             "sdl2": {"devices": [{"index": 0, "constant_force": True}]}}  # fmt: skip
+    monkeypatch.setattr(listing, "describe_backends", lambda: found)
+    panel = app_for(tmp_path, "local").state.panel
+    assert panel.detected_devices() == ["evdev:/dev/input/event5", "sdl:0"]
+    assert panel.device_of("evdev:/dev/input/event5") == "evdev:/dev/input/event5"
+    assert panel.device_of("sdl:0") == "sdl:0"
+    for other in ("evdev:/dev/input/event6", "evdev:/dev/input/../input/event5", "sdl:00",
+                  "evdev:/etc/shadow"):  # fmt: skip
+        with pytest.raises(InputError, match="the devices this machine has"):
+            panel.device_of(other)
+
+
 def test_a_tuning_number_of_401_digits_is_a_400_not_a_500():
     from carfeel.errors import InputError
     from carfeel.panel import tuning

@@ -529,7 +529,11 @@ class Panel:
         """The force-feedback devices this machine has now, as `--device` names them: what a
         request may name beside the virtual ones (looked up at most every DETECT_EVERY_S)."""
         now = time.monotonic()
-        if self._detected is None or now - self._detected[0] > DETECT_EVERY_S:
+        running = self.session is not None and self.session.running
+        # Looking opens every device: not while a session drives one (the list it started with
+        # stands until it ends).
+        stale = self._detected is None or now - self._detected[0] > DETECT_EVERY_S
+        if stale and not (running and self._detected is not None):
             from carfeel.realtime.devices.listing import describe_backends
 
             try:
@@ -541,6 +545,7 @@ class Panel:
             found += [f"sdl:{d['index']}" for d in backends["sdl2"]["devices"]
                       if d.get("constant_force")]  # fmt: skip
             self._detected = (now, found)
+        assert self._detected is not None
         return list(self._detected[1])
 
     def replays(self) -> list[str]:
