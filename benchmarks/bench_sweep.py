@@ -86,13 +86,35 @@ def sweep_rate(text: str, **where: object) -> tuple[float, int]:
     return sweep.n_cases / elapsed, sweep.n_cases
 
 
+PEAK = (
+    "import atexit, runpy, sys\n"
+    "def peak():\n"
+    "    hwm = [l for l in open('/proc/self/status') if l.startswith('VmHWM:')]\n"
+    "    sys.stderr.write('peak ' + hwm[0].split()[1] + ' kB\\n')\n"
+    "atexit.register(peak)\n"
+    "args = sys.argv[1:]\n"
+    "if args[0] == '-c':\n"
+    "    sys.argv = ['-c', *args[2:]]\n"
+    "    exec(compile(args[1], '<child>', 'exec'), {'__name__': '__main__'})\n"
+    "else:\n"
+    "    sys.argv = args\n"
+    "    runpy.run_module(args[0], run_name='__main__', alter_sys=True)\n"
+)
+"""Runs `-m MODULE ARGS` or `-c CODE ARGS` and says its own peak memory (VmHWM) as it exits: a
+child's ru_maxrss would count its parent's memory at the fork too."""
+
+
 def child(command: list[str]) -> tuple[int, float, float]:
-    """(exit code, wall seconds, peak RSS in MB) of a command run as a child process."""
+    """(exit code, wall seconds, peak RSS in MB) of `python -m MODULE ...` or `python -c CODE
+    ...` (given without the interpreter) run as a child process."""
     t0 = time.perf_counter()
-    process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    _, status, usage = os.wait4(process.pid, 0)
-    process.returncode = os.waitstatus_to_exitcode(status)
-    return process.returncode, time.perf_counter() - t0, usage.ru_maxrss / 1024
+    arguments = command[1:] if command[0] == "-m" else command
+    done = subprocess.run([sys.executable, "-c", PEAK, *arguments], capture_output=True,
+                          text=True, check=False)  # fmt: skip
+    wall = time.perf_counter() - t0
+    said = done.stderr.rsplit("peak ", 1)
+    peak = float(said[1].split()[0]) / 1024 if len(said) == 2 else float("nan")
+    return done.returncode, wall, peak
 
 
 UNIFORM = '"driver.push_force_N" = { distribution = "uniform", low = 60, high = 100 }'
@@ -132,22 +154,21 @@ with tempfile.TemporaryDirectory() as scratch:
 
 def refusals() -> None:
     print("3. oversized sweeps refused (exit code, wall time, peak memory of the child)")
-    code, wall, rss = child([sys.executable, "-m", "carfeel.cli", "--version"])
+    code, wall, rss = child(["-m", "carfeel.cli", "--version"])
     print(f"   reference: carfeel --version       exit {code}  {wall:5.2f} s  {rss:6.1f} MB")
     with tempfile.TemporaryDirectory() as folder:
         for label, text in OVERSIZED.items():
             path = Path(folder) / "big.toml"
             path.write_text(text)
             out = str(Path(folder) / "r.csv")
-            code, wall, rss = child([sys.executable, "-m", "carfeel.cli", "sweep", str(path),
-                                     "--out", out])  # fmt: skip
+            code, wall, rss = child(["-m", "carfeel.cli", "sweep", str(path), "--out", out])
             print(f"   {label:32s} exit {code}  {wall:5.2f} s  {rss:6.1f} MB")
 
 
 def streamed() -> None:
     print("4. a large sweep's memory (rows made without simulating: the runner and the writing)")
     for n, how in ((100_000, "held"), (100_000, "streamed"), (1_000_000, "streamed")):
-        code, wall, rss = child([sys.executable, "-c", STREAMED, str(n), how])
+        code, wall, rss = child(["-c", STREAMED, str(n), how])
         print(f"   {n:9,d} cases, rows {how:8s}  exit {code}  {wall:6.1f} s  peak {rss:7.1f} MB")
 
 
