@@ -17,7 +17,9 @@ Runs, in one run of this script, one after the other (`--repeats` times, interle
 CPU pinning (Linux): every loop process is pinned to core 0 with `os.sched_setaffinity`; this
 script, the panel's server and the browser (children inherit it) to core 1. `--no-pin` leaves
 everything unpinned (the loop, the server, its plot worker and the browser share both cores, as
-`carfeel panel` does without --loop-cpu). The loop's processes run at the panel's raised
+`carfeel panel` does without --loop-cpu); `--old-plots` draws the plots as the panel did
+before issue 24 (in a thread of its server, one at a time), for comparison. The loop's
+processes run at the panel's raised
 priority (nice -10 where allowed) in every case. Other sessions on a shared machine are not
 pinned: compare the rows of one run, not runs.
 6. limits (issue 24, before the sessions): what the panel answers, how long it takes and what
@@ -63,6 +65,16 @@ import os, socket, sys, uvicorn
 from pathlib import Path
 from carfeel.panel.server import PanelConfig, create_app
 cpu = int(sys.argv[3]) if sys.argv[3] != "none" else None
+if sys.argv[4] == "old-plots":  # before issue 24: in a thread of the server, one at a time
+    import asyncio, threading
+    from carfeel.panel import plotting
+    lock = threading.Lock()
+    def draw(path):
+        with lock:
+            return plotting.render(str(path), path.stem)
+    async def get(self, path):
+        return await asyncio.to_thread(draw, path)
+    plotting.Plots.get = get
 app = create_app(PanelConfig(folder=Path(sys.argv[1]), token=os.environ["CARFEEL_PANEL_TOKEN"],
                              loop_cpu=cpu))
 sock = socket.socket(); sock.bind(("127.0.0.1", int(sys.argv[2]))); sock.listen(64)
@@ -382,6 +394,9 @@ def main() -> None:
                         "2-core VM, and its stalls end runs)")  # fmt: skip
     parser.add_argument("--no-pin", action="store_true",
                         help="pin nothing (as carfeel panel without --loop-cpu)")  # fmt: skip
+    parser.add_argument("--old-plots", action="store_true",
+                        help="draw plots as before issue 24 (a thread of the server, one at a "
+                        "time), for comparison")  # fmt: skip
     parser.add_argument("--cases", default="ref,browser,stalled,idle,plots",
                         help="which of ref, browser, stalled, idle, plots to run")  # fmt: skip
     args = parser.parse_args()
@@ -412,7 +427,10 @@ def main() -> None:
         port = probe.getsockname()[1]
     env = {**os.environ, "CARFEEL_PANEL_TOKEN": TOKEN}
     cpu = str(LOOP_CPU) if pin else "none"
-    server = subprocess.Popen([sys.executable, "-c", SERVER, str(folder), str(port), cpu], env=env)
+    plots_way = "old-plots" if args.old_plots else "plots"
+    server = subprocess.Popen(
+        [sys.executable, "-c", SERVER, str(folder), str(port), cpu, plots_way], env=env
+    )
     try:
         for _ in range(200):
             try:
