@@ -29,6 +29,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 pytest.importorskip("starlette", reason="the panel needs carfeel[panel]")
 pytest.importorskip("httpx2", reason="Starlette's TestClient needs httpx2 (carfeel[test])")
@@ -233,6 +235,43 @@ def test_names_numbers_and_devices_are_checked_and_never_echoed_whole(tmp_path):
         run = panel.run_of({**start, "device": "replay:good", "clock": "simulated"})
         assert run["device"] == f"replay:{(recordings / 'good.csv').resolve()}"
         assert panel.run_of({**start, "device": "virtual:shifter"})["device"] == "virtual:shifter"
+
+
+HOSTILE = st.one_of(
+    st.none(), st.booleans(), st.integers(), st.floats(), st.text(max_size=30),
+    st.sampled_from(["", "N,,1", "R,N", "virtual", "virtual:wheel", "replay:", "replay:..",
+                     "sdl:", "sdl:\u00b2", "evdev:", "\u0000", "physical", "snow", "wall",
+                     "simulated", "impedance", "forza:127.0.0.1:5300", 2**64, -(2**63), 10**400,
+                     1e308, 5e-324]),
+    st.lists(st.integers() | st.text(max_size=5), max_size=4),
+    st.dictionaries(st.text(max_size=5), st.integers(), max_size=3),
+)  # fmt: skip
+FIELDS = ("model", "preset", "device", "mode", "speed_kmh", "hand", "clock", "sequence",
+          "duration_s", "seed", "telemetry", "synchronizer", "rate_hz", "aligning",
+          "device_delay_ms", "calibrate", "steering_model", "road")  # fmt: skip
+
+
+@settings(max_examples=300, deadline=None)
+@given(body=st.dictionaries(st.sampled_from(FIELDS), HOSTILE, max_size=6))
+def test_a_session_request_of_any_values_is_taken_or_refused_never_a_crash(body):
+    """What a session's request holds is checked as `carfeel run`'s options are: any JSON value
+    in any field is taken or an InputError (a 400), never another exception (a 500)."""
+    from carfeel.errors import InputError
+
+    panel = _PANEL.state.panel
+    message = ""
+    try:
+        run = panel.run_of({**body, "force": True})
+    except InputError as exc:
+        message = str(exc)
+    else:
+        assert run["model"] in ("shift", "hpattern", "steering")
+    assert len(message) < 2000  # a refusal quotes nothing long
+
+
+_PANEL = create_app(PanelConfig(folder=Path(__file__).parent / "data" / "no-such-panel-folder",
+                                token=TOKEN))  # fmt: skip
+"""A panel whose folder does not exist (nothing is written: run_of only reads)."""
 
 
 def test_a_device_this_machine_has_is_taken_and_only_such(tmp_path, monkeypatch):

@@ -364,7 +364,7 @@ class Session:
                 self.shm.unlink()
 
     def close(self) -> None:
-        if self.process is not None:
+        if self.process is not None and self.process.pid is not None:  # started
             self.process.join(timeout=STOP_TIMEOUT_S)
             if self.process.is_alive():  # pragma: no cover - a loop that ignores its stop
                 self.process.terminate()
@@ -686,7 +686,11 @@ class Panel:
                 await asyncio.to_thread(old.close)
             session = Session(run, preset, physics)
             session.preset_name = name  # type: ignore[attr-defined]
-            await asyncio.to_thread(session.start, self.config.loop_cpu)
+            try:
+                await asyncio.to_thread(session.start, self.config.loop_cpu)
+            except BaseException:  # no process: its 4 MB segment goes now, not at the exit
+                session.close()
+                raise
             self.session = session
             deadline = time.monotonic() + START_TIMEOUT_S
             while session.state == "starting" and time.monotonic() < deadline:
