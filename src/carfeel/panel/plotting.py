@@ -4,10 +4,10 @@ A plot reads a whole recording and runs matplotlib: a second or more of CPU. In 
 server (a thread beside the event loop) six at once took the cores from the loop's process and
 stalled it 28 ms (issue 24). So: one worker process for every plot (`Plots`), spawned on the
 first one, at the lowest priority the system has (Linux's SCHED_IDLE: it runs only on a core
-nothing else wants; else nice 19) and kept off the loop's core when the loop is pinned. At most
-MAX_WAITING plots are drawn or waiting (one at a time; beyond: `Busy`, a 429); requests for the
-same file share one drawing; the last CACHE_SIZE are kept (by path, size and mtime: a file that
-changed is drawn anew).
+nothing else wants; Windows' idle priority class; else nice 19) and kept off the loop's core
+when the loop is pinned. At most MAX_WAITING plots are drawn or waiting (one at a time;
+beyond: `Busy`, a 429); requests for the same file share one drawing; the last CACHE_SIZE are
+kept (by path, size and mtime: a file that changed is drawn anew).
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ import asyncio
 import contextlib
 import multiprocessing
 import os
+import sys
 from collections import OrderedDict
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -37,6 +38,12 @@ class Busy(InputError):
 
 def lower_priority(avoid_cpu: int | None) -> None:
     """The plot worker's initializer: the lowest priority, and off the loop's core."""
+    if sys.platform == "win32":  # Windows: the idle priority class (no nice, no SCHED_IDLE)
+        import ctypes
+
+        kernel32 = ctypes.windll.kernel32
+        kernel32.SetPriorityClass(kernel32.GetCurrentProcess(), 0x00000040)  # IDLE_PRIORITY_CLASS
+        return
     if hasattr(os, "sched_setscheduler") and hasattr(os, "SCHED_IDLE"):
         with contextlib.suppress(OSError):
             os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
