@@ -291,6 +291,13 @@ def test_a_device_this_machine_has_is_taken_and_only_such(tmp_path, monkeypatch)
     assert panel.detected_devices() == ["evdev:/dev/input/event5", "sdl:0"]
     assert panel.device_of("evdev:/dev/input/event5") == "evdev:/dev/input/event5"
     assert panel.device_of("sdl:0") == "sdl:0"
+    # A virtual plant unlike its catalogue's is names and numbers (the session checks them).
+    assert panel.device_of("virtual:dd-wheel:mass=0.5x,delay_ms=6") == (
+        "virtual:dd-wheel:mass=0.5x,delay_ms=6"
+    )
+    for other in ("virtual:dd-wheel:/etc/shadow", "virtual:tank:mass=1", "virtual:wheel:"):
+        with pytest.raises(InputError, match="the panel opens the virtual devices"):
+            panel.device_of(other)
     for other in ("evdev:/dev/input/event6", "evdev:/dev/input/../input/event5", "sdl:00",
                   "evdev:/etc/shadow"):  # fmt: skip
         with pytest.raises(InputError, match="the devices this machine has"):

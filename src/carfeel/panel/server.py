@@ -121,6 +121,8 @@ def inside(folder: Path, name: str) -> Path:
     return path
 
 
+VIRTUAL_CHANGES = re.compile(r"[A-Za-z_]+=[0-9.eE+-]+x?(,[A-Za-z_]+=[0-9.eE+-]+x?)*")
+"""`virtual:KIND:KEY=VALUE,...`'s changes to the true plant: names and numbers, nothing else."""
 MAX_TEXT_CHARS = 200
 """The longest text field of a session's request (a device, a mode, a telemetry source)."""
 
@@ -562,6 +564,9 @@ class Panel:
         virtual = ["virtual", *(f"virtual:{k}" for k in PLANTS)]
         if spec in virtual:
             return spec
+        kind, _, changes = spec.removeprefix("virtual:").partition(":")
+        if spec.startswith("virtual:") and kind in PLANTS and VIRTUAL_CHANGES.fullmatch(changes):
+            return spec  # a virtual plant unlike its catalogue's: numbers the session checks
         if spec.startswith("replay:"):
             name = spec[len("replay:") :]
             path = self.recording_file(name if name.endswith(".csv") else f"{name}.csv")
