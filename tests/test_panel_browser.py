@@ -58,7 +58,7 @@ def _need_browser() -> Any:
 
 @contextlib.contextmanager
 def serving(folder: Path, *options: str) -> Iterator[str]:
-    """`carfeel panel --port 0 ...` in a subprocess; its URL (as printed, token included)."""
+    """`carfeel panel --port 0 ...` in a subprocess; its URL (as printed, #token=... included)."""
     process = subprocess.Popen(
         [sys.executable, "-m", "carfeel.cli", "panel", "--port", "0", "--dir", str(folder),
          *options],
@@ -235,15 +235,54 @@ def test_the_physical_steering_from_the_page(page: Any) -> None:
     assert page.problems == []
 
 
-def test_a_panel_with_a_token_serves_its_page_to_its_url_only(tmp_path: Path) -> None:
+@contextlib.contextmanager
+def another_server() -> Iterator[tuple[str, list[str]]]:
+    """A second web server on 127.0.0.1 (another port: what another local user might run),
+    recording every request it receives, whole; its page tries the panel's API and stream."""
+    import http.server
+    import threading
+
+    received: list[str] = []
+
+    class Handler(http.server.BaseHTTPRequestHandler):
+        def do_GET(self) -> None:
+            received.append(f"{self.requestline}\n{self.headers}")
+            page = b"""<!doctype html><title>other</title><script>
+            const panel = new URLSearchParams(location.search).get("panel");
+            fetch(panel + "api/options", {credentials: "include"})
+              .then(r => { document.title = "fetched " + r.status; })
+              .catch(e => { document.title = "fetch failed"; });
+            </script>"""
+            self.send_response(200)
+            self.send_header("Content-Type", "text/html")
+            self.end_headers()
+            self.wfile.write(page)
+
+        def log_message(self, *args: Any) -> None:
+            pass
+
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    try:
+        yield f"http://127.0.0.1:{server.server_address[1]}/", received
+    finally:
+        server.shutdown()
+        server.server_close()
+
+
+def test_the_credential_stays_in_its_tab_and_reaches_no_other_server(tmp_path: Path) -> None:
+    """The panel's URL carries the credential in its fragment (never sent to a server): the page
+    keeps it in the tab's sessionStorage and takes it out of the address bar; no cookie is set,
+    so another server on 127.0.0.1 (another port) receives nothing of it, and its pages cannot
+    read it (another origin). A tab opened without it is refused by the API."""
     sync_playwright = _need_browser()
-    with serving(tmp_path, "--token", "a-long-secret") as url, sync_playwright() as p:
-        assert url.endswith("/?token=a-long-secret")
+    with serving(tmp_path) as url, another_server() as (other, received), sync_playwright() as p:
+        base, token = url.split("#token=")
+        assert re.fullmatch(r"[A-Za-z0-9_-]{43}", token), url
         browser = p.chromium.launch(executable_path=str(CHROMIUM), args=ARGS, headless=True)
-        refused = browser.new_page()
-        assert refused.goto(url.split("?")[0]).status == 401  # without the token
-        refused.close()
-        tab = browser.new_page()
+        context = browser.new_context()
+        tab = context.new_page()
         problems: list[str] = []
         tab.on("console", lambda m: problems.append(m.text) if m.type == "error" else None)
         tab.on("pageerror", lambda e: problems.append(str(e)))
@@ -251,4 +290,20 @@ def test_a_panel_with_a_token_serves_its_page_to_its_url_only(tmp_path: Path) ->
         tab.wait_for_function("document.querySelectorAll('#model option').length === 3")
         tab.wait_for_function("window.panelStats.frames > 0")  # the stream connected
         assert problems == [], problems
+        assert tab.url == base and token not in tab.evaluate("location.href + history.state")
+        assert tab.evaluate("sessionStorage.getItem('carfeel-token')") == token
+        assert context.cookies() == []  # nothing another port would receive
+        # The same browser, the same tab, at the other server: its page asks the panel (with
+        # credentials: "include"), and it is refused; the other server received no credential.
+        tab.goto(f"{other}?panel={base}")
+        tab.wait_for_function("document.title.startsWith('fetch')")
+        assert tab.evaluate("sessionStorage.getItem('carfeel-token')") is None
+        assert received and all(token not in request for request in received), received
+        # Back in the panel's origin the tab still has it; a new tab (no fragment) has not.
+        tab.goto(base)
+        tab.wait_for_function("window.panelStats.frames > 0")
+        fresh = context.new_page()
+        fresh.goto(base)
+        fresh.wait_for_function("document.querySelector('#start-msg').textContent !== ''")
+        assert "no credential" in (fresh.text_content("#start-msg") or "")
         browser.close()

@@ -7,6 +7,7 @@ import dataclasses
 import json
 import math
 import os
+import socket
 import subprocess
 import sys
 import textwrap
@@ -286,6 +287,46 @@ def test_a_script_without_a_main_guard_runs_on_single_threaded_workers(tmp_path)
     assert _same_rows(rows, json.loads(json.dumps(serial.rows)))
 
 
+def test_the_local_cluster_refuses_clients_without_its_credentials():
+    """--workers N starts its cluster with TLS and credentials made for the run: a client
+    without them (another local user's `Client(address).run(os.getuid)`, the review's attack)
+    cannot connect to the scheduler nor to a worker, in plain TCP, with TLS but no
+    certificate, or with another temporary certificate of its own."""
+    distributed = pytest.importorskip("dask.distributed")
+    import ssl
+
+    from distributed.security import Security
+
+    with runner.dask_client(1, None) as (client, _, where, _note):
+        assert where == "LocalCluster of 1 workers"
+        scheduler = client.scheduler.address
+        workers = list(client.scheduler_info()["workers"])
+        assert scheduler.startswith("tls://127.0.0.1:") and workers
+        assert all(w.startswith("tls://127.0.0.1:") for w in workers)
+        assert set(client.run(os.getpid)) == set(workers)  # the run's own client gets in
+        for address in (scheduler, *workers):
+            host, port = address.removeprefix("tls://").rsplit(":", 1)
+            # TLS without a client certificate: refused at the handshake (or closed unread).
+            context = ssl.create_default_context()
+            context.check_hostname = False
+            context.verify_mode = ssl.CERT_NONE
+            try:
+                with (
+                    socket.create_connection((host, int(port)), timeout=10) as raw,
+                    context.wrap_socket(raw) as tls,
+                ):
+                    tls.sendall(b"\x00" * 64)
+                    got = repr(tls.recv(1))
+            except (ssl.SSLError, OSError):
+                got = "refused"
+            assert got in ("refused", "b''"), (address, got)
+        for attempt in ({"address": scheduler.replace("tls://", "tcp://")},
+                        {"address": scheduler, "security": Security.temporary()}):  # fmt: skip
+            # Connecting is refused (a client cannot be made, so it runs nothing).
+            with pytest.raises((OSError, TimeoutError, distributed.comm.CommClosedError)):
+                distributed.Client(timeout="5s", **attempt)
+
+
 # ---------------------------------------------------------------------------- resume
 
 
@@ -334,7 +375,7 @@ def test_an_interrupted_sweep_resumes_without_redoing_finished_cases(tmp_path, m
 def test_a_part_file_cut_by_a_kill_keeps_the_rows_before_the_cut(tmp_path):
     sweep = spec.from_toml(SMALL)
     part = runner.PartFile(tmp_path / "r.part.jsonl", sweep)
-    part.open({})
+    part.open(keep=False)
     rows = tasks.run_task(tasks.Task(sweep, tuple(spec.cases(sweep)[:2])))
     part.append(rows)
     part.close()

@@ -90,8 +90,9 @@ def _handle(args: argparse.Namespace) -> int:
     with outputs:
         files = export_fmu(spec, args.fmi, staged)
     binary = next(name for name in files if name.startswith("binaries/"))
+    title = spec.title if spec.title.isprintable() else ascii(spec.title)  # a newline in a name
     print(
-        f"wrote {out}: FMI {args.fmi}.0 co-simulation FMU of {spec.title}, "
+        f"wrote {out}: FMI {args.fmi}.0 co-simulation FMU of {title}, "
         f"{sum(v.causality == 'parameter' for v in spec.variables)} parameters, "
         f"{sum(v.causality == 'input' for v in spec.variables)} inputs, "
         f"{sum(v.causality == 'output' for v in spec.variables)} outputs; binary {binary}"

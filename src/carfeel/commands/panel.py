@@ -5,14 +5,22 @@ from __future__ import annotations
 import argparse
 import ipaddress
 import os
+import re
 import secrets
 import socket
+import stat
 from pathlib import Path
 from typing import Any
 
 from carfeel.errors import InputError
 
 LOCAL = ("127.0.0.1", "localhost", "::1")
+TOKEN_ENV = "CARFEEL_PANEL_TOKEN"
+TOKEN = re.compile(r"[A-Za-z0-9._~-]{16,256}")
+"""A credential's characters: safe in a URL's fragment and in a WebSocket subprotocol."""
+MAX_TOKEN_FILE_BYTES = 4096
+MAX_CONNECTIONS = 64
+"""Connections uvicorn serves at once (pages, scripts, streams); more are answered 503."""
 
 
 def register(commands: Any) -> None:
@@ -28,12 +36,14 @@ def register(commands: Any) -> None:
         "the panel's end fade it out. Its JSON + WebSocket API is in the README.",
     )
     panel.add_argument("--host", default="127.0.0.1",
-                       help="address to listen on (default 127.0.0.1: this machine only; any "
-                       "other needs a token)")  # fmt: skip
+                       help="address to listen on (default 127.0.0.1: this machine only; the "
+                       "credential is needed on every address)")  # fmt: skip
     panel.add_argument("--port", type=int, default=8765, help="port (default 8765; 0: any free)")
-    panel.add_argument("--token", default=None,
-                       help="a secret every request must carry (generated and printed in the "
-                       "URL when the host is not local and none is given)")  # fmt: skip
+    panel.add_argument("--token-file", default=None, metavar="FILE",
+                       help="read the credential from FILE (only you may read it: chmod 600); "
+                       f"or set ${TOKEN_ENV}; default: a new one, printed in the URL's "
+                       "#token=... (16-256 letters, digits, '.', '_', '~', '-')")  # fmt: skip
+    panel.add_argument("--token", default=None, help=argparse.SUPPRESS)  # refused: ps shows it
     panel.add_argument("--dir", default="carfeel-panel", metavar="FOLDER",
                        help="where recordings and saved presets go (default ./carfeel-panel); "
                        "no file name given on the page leaves it")  # fmt: skip
@@ -45,8 +55,8 @@ def register(commands: Any) -> None:
     panel.set_defaults(handler=_handle)
 
 
-def check(args: argparse.Namespace) -> tuple[str | None, Path]:
-    """The token to require (None: none) and the folder; InputError for bad options."""
+def check(args: argparse.Namespace) -> tuple[str, Path]:
+    """The credential to require and the folder; InputError for bad options."""
     if not 0 <= args.port <= 65535:
         raise InputError(f"--port {args.port}: allowed 0 .. 65535")
     host = args.host
@@ -57,11 +67,7 @@ def check(args: argparse.Namespace) -> tuple[str | None, Path]:
             raise InputError(
                 f"--host {host!r}: give an IP address to listen on (127.0.0.1, 0.0.0.0, ...)"
             ) from None
-    token = args.token
-    if token is not None and (len(token) < 8 or not token.isprintable() or " " in token):
-        raise InputError("--token: at least 8 printable characters, no spaces")
-    if token is None and host not in LOCAL:
-        token = secrets.token_urlsafe(18)
+    token = token_of(args)
     cores = os.cpu_count() or 1
     if args.loop_cpu is not None:
         if not hasattr(os, "sched_setaffinity"):
@@ -76,12 +82,96 @@ def check(args: argparse.Namespace) -> tuple[str | None, Path]:
     return token, folder
 
 
+def token_of(args: argparse.Namespace) -> str:
+    """The panel's credential: from --token-file, else $CARFEEL_PANEL_TOKEN, else a new one.
+    Never from the command line, which every user of the machine can read (ps, /proc)."""
+    if args.token is not None:
+        raise InputError(
+            "--token puts the secret on the command line, where every user of this machine "
+            "reads it (ps, /proc/PID/cmdline): put it in a file only you can read (chmod 600) "
+            f"and give --token-file FILE, or set {TOKEN_ENV}; without either the panel makes "
+            "one and prints it in its URL"
+        )
+    if args.token_file is not None:
+        where, text = f"--token-file {args.token_file}", read_token_file(Path(args.token_file))
+    elif os.environ.get(TOKEN_ENV):
+        where, text = f"${TOKEN_ENV}", os.environ[TOKEN_ENV]
+    else:
+        return secrets.token_urlsafe(32)
+    if not TOKEN.fullmatch(text):
+        raise InputError(
+            f"{where}: the credential is 16 to 256 letters, digits, '.', '_', '~' or '-' "
+            f"(it has {len(text)} characters{'' if text.isascii() else ', not all ASCII'}); "
+            "python -c 'import secrets; print(secrets.token_urlsafe(32))' makes one"
+        )
+    return text
+
+
+def read_token_file(path: Path) -> str:
+    """A credential file's one line; InputError when another user could read it (POSIX: a
+    group or other permission bit, or another owner) or it is not a small regular file."""
+    try:
+        # O_NONBLOCK: a FIFO given as the file must not hang the start; it is refused below.
+        descriptor = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+        with os.fdopen(descriptor, "rb") as handle:
+            info = os.fstat(handle.fileno())
+            if not stat.S_ISREG(info.st_mode):
+                raise InputError(f"--token-file {path}: not a regular file")
+            if info.st_size > MAX_TOKEN_FILE_BYTES:
+                raise InputError(
+                    f"--token-file {path}: {info.st_size} bytes; a credential file holds one "
+                    f"line (at most {MAX_TOKEN_FILE_BYTES} bytes)"
+                )
+            if os.name == "posix":
+                if info.st_mode & 0o077:
+                    raise InputError(
+                        f"--token-file {path}: other users may read it (mode "
+                        f"{stat.S_IMODE(info.st_mode):03o}): chmod 600 {path}"
+                    )
+                if info.st_uid != os.getuid():
+                    raise InputError(f"--token-file {path}: it belongs to another user")
+            data = handle.read(MAX_TOKEN_FILE_BYTES + 1)
+    except FileNotFoundError:
+        raise InputError(f"--token-file {path}: no such file") from None
+    except OSError as exc:
+        raise InputError(f"--token-file {path}: cannot read it: {exc.strerror or exc}") from None
+    try:
+        return data.decode("ascii").strip()
+    except UnicodeDecodeError:
+        raise InputError(f"--token-file {path}: not ASCII text") from None
+
+
+def open_in_browser(url: str) -> None:
+    """Open `url` without putting its credential on a command line: the browser is given a
+    file (mode 0600 in a folder of mode 0700) that sends it on, removed a minute later."""
+    import json
+    import tempfile
+    import threading
+    import webbrowser
+
+    folder = Path(tempfile.mkdtemp(prefix="carfeel-panel-"))
+    page = folder / "open.html"
+    with os.fdopen(os.open(page, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600), "w") as f:
+        f.write(f"<!doctype html><meta charset=utf-8><title>carfeel panel</title>"
+                f"<script>location.replace({json.dumps(url)})</script>")  # fmt: skip
+
+    def remove() -> None:
+        import shutil
+
+        shutil.rmtree(folder, ignore_errors=True)
+
+    timer = threading.Timer(60.0, remove)
+    timer.daemon = True
+    timer.start()
+    webbrowser.open(page.as_uri())
+
+
 def _handle(args: argparse.Namespace) -> int:
     token, folder = check(args)
     try:
         import uvicorn
 
-        from carfeel.panel.server import PanelConfig, create_app
+        from carfeel.panel.server import MAX_WS_MESSAGE_BYTES, PanelConfig, create_app
     except ImportError as exc:
         raise InputError(
             f"carfeel panel needs the extra carfeel[panel] ({exc.name} is missing): "
@@ -91,24 +181,27 @@ def _handle(args: argparse.Namespace) -> int:
     folder.mkdir(exist_ok=True)
     hosts: tuple[str, ...] = ("127.0.0.1", "localhost", "[::1]")
     if args.host not in LOCAL:
-        hosts = ()  # reached by whatever name the network gives it; the token guards it
+        hosts = ()  # reached by whatever name the network gives it; the credential guards it
     app = create_app(PanelConfig(folder=folder, token=token, hosts=hosts, loop_cpu=args.loop_cpu))
-    config = uvicorn.Config(app, host=args.host, port=args.port, log_level="warning",
-                            timeout_graceful_shutdown=5, ws_ping_interval=None)  # fmt: skip
+    config = uvicorn.Config(
+        app, host=args.host, port=args.port, log_level="warning", timeout_graceful_shutdown=5,
+        ws_ping_interval=None, ws_max_size=MAX_WS_MESSAGE_BYTES,
+        limit_concurrency=MAX_CONNECTIONS,  # beyond: 503, not a server out of sockets
+    )  # fmt: skip
     server = uvicorn.Server(config)
     port = sock.getsockname()[1]
     url_host = "127.0.0.1" if args.host in ("0.0.0.0", "::") else args.host
     if ":" in url_host:
         url_host = f"[{url_host}]"
-    url = f"http://{url_host}:{port}/" + (f"?token={token}" if token else "")
+    # The fragment is never sent to a server: the page reads it, keeps it in the tab's
+    # sessionStorage and removes it from the address bar.
+    url = f"http://{url_host}:{port}/#token={token}"
 
     def announce() -> None:
         print(f"carfeel panel: {url}  (recordings and presets in {folder}/; Ctrl-C stops)",
               flush=True)  # fmt: skip
         if args.open:
-            import webbrowser
-
-            webbrowser.open(url)
+            open_in_browser(url)
 
     _serve(server, sock, announce)
     return 0

@@ -41,9 +41,9 @@ class SweepSummary:
             f"{run.count('failed')} failed; {run.simulated} simulated in {run.elapsed_s:.1f} s"
             + (f", {run.resumed} kept from the interrupted run" if run.resumed else ""),
         ]
-        invalid = [r for r in run.rows if r["status"] == "invalid"]
-        if invalid:
-            lines.append(f"  first refused: case {invalid[0]['case_id']}: {invalid[0]['problem']}")
+        invalid = run.tally.first_invalid
+        if invalid is not None:
+            lines.append(f"  first refused: case {invalid['case_id']}: {invalid['problem']}")
             if any(v.distribution == "normal" for v in spec.vary):
                 lines.append(
                     "  note: a normal distribution draws outside the preset's ranges; "
@@ -87,13 +87,19 @@ def run_sweep(
     part = runner.PartFile(runner.part_path(out), sweep)
     check_writable(part.path)
     try:
+        # The rows stream to the part file as tasks finish and are written from it, in order:
+        # memory does not grow with the number of cases.
         run = runner.run_cases(
-            sweep, part, workers=workers, scheduler=scheduler, restart=restart, progress=progress
-        )
+            sweep, part, workers=workers, scheduler=scheduler, restart=restart,
+            progress=progress, keep_rows=False,
+        )  # fmt: skip
         with outputs:
-            results.write(run.rows, sweep, staged_out, fmt, sidecar)
+            results.write_rows(part.rows_in_order(), sweep, staged_out, fmt, sidecar)
             if plot is not None:
-                columns, meta = results.columns_of(run.rows, sweep)
+                every = plots.every_for(sweep.n_cases)
+                columns, meta = results.columns_from(part.rows_in_order(every), sweep)
+                if every > 1:
+                    meta["carfeel_plotted"] = plots.sampled_note(every, sweep.n_cases)
                 plots.write(columns, meta, staged_plots, Path(sweep.label).stem)
     except BaseException:
         outputs.discard()
@@ -118,7 +124,7 @@ def plot_results(results_path: Path, folder: Path) -> tuple[Path, list[str]]:
     """The figures and page of a results file (Parquet or CSV) written by a sweep."""
     from carfeel.sweep import plots, results
 
-    columns, meta = results.read(results_path)
+    columns, meta = results.read(results_path, max_rows=plots.MAX_PLOTTED_ROWS)
     outputs = Outputs()
     import json
 

@@ -41,7 +41,7 @@ from pathlib import Path
 from typing import Any
 
 from carfeel import __version__
-from carfeel.errors import CarfeelError
+from carfeel.errors import CarfeelError, InputError
 from carfeel.io.force_profile import MAX_FORCE_N
 from carfeel.io.presets import RANGES, Preset, range_key, unit_of
 from carfeel.io.presets import STEERING_STEP_S as PHYSICAL_MAX_STEP_S
@@ -103,6 +103,41 @@ PLATFORM_FOLDER = {2: "linux64", 3: "x86_64-linux"}
 
 class ExportError(CarfeelError):
     """An FMU cannot be built here: a missing compiler or extra, an unsupported platform."""
+
+
+MAX_NAME_CHARS = 1000
+"""The longest preset name an FMU carries (in its model name, its description and a C string:
+a name is a label, and a longer one is refused before anything is written)."""
+
+
+def _refused_character(char: str) -> bool:
+    """What XML 1.0 cannot hold (C0 controls but tab, newline and return; U+FFFE, U+FFFF; lone
+    surrogates), and DEL and the C1 controls, which XML holds but a terminal that prints the
+    name may obey (0x9B starts an escape sequence)."""
+    code = ord(char)
+    if code < 0x20:
+        return char not in "\t\n\r"
+    return 0x7F <= code <= 0x9F or 0xD800 <= code <= 0xDFFF or code in (0xFFFE, 0xFFFF)
+
+
+def checked_name(name: str) -> str:
+    """A preset's name as an FMU may carry it; InputError naming the character or the limit.
+
+    The name is data wherever it goes: an attribute of modelDescription.xml (ElementTree
+    escapes it), escaped HTML in the documentation, an escaped C string literal (`c_string`)."""
+    if len(name) > MAX_NAME_CHARS:
+        raise InputError(
+            f"the preset's name is {len(name)} characters long; an FMU takes at most "
+            f"{MAX_NAME_CHARS}: shorten `name` in the preset file"
+        )
+    bad = next((c for c in name if _refused_character(c)), None)
+    if bad is not None:
+        raise InputError(
+            f"the preset's name holds the control character U+{ord(bad):04X} at position "
+            f"{name.index(bad)}, which an FMU's modelDescription.xml cannot carry (or a terminal "
+            "would obey): remove it from `name` in the preset file"
+        )
+    return name
 
 
 @dataclass(frozen=True, slots=True)
@@ -282,16 +317,15 @@ _FALLBACK_DOCS = {
 """Descriptions of the parameters whose dataclass field has no docstring of its own."""
 
 
-def _parameter(
-    table: str, path: str, value: float, doc: str, preset: str, c_member: str
-) -> Variable:
+def _parameter(table: str, path: str, value: float, doc: str, c_member: str) -> Variable:
     name = f"{table}.{path}"
     leaf = path.split(".")[-1]
     unit = _unit(leaf)
     key = range_key(name)
     low, high, low_in, high_in = RANGES.get(key, (-math.inf, math.inf, True, True))
     text = doc or f"{leaf.replace('_', ' ')}"
-    described = f"{text} [{unit or '-'}; preset {preset}, [{table}] {path}]"
+    # The preset's name is in the model's description, once: not in every variable's.
+    described = f"{text} [{unit or '-'}; the preset's [{table}] {path}]"
     return Variable(
         name, "parameter", "tunable", "real", c_member, described, float(value), unit,
         low, high, low_in, high_in,
@@ -301,7 +335,6 @@ def _parameter(
 def _table_parameters(
     table: str,
     params: Any,
-    preset: str,
     used: Sequence[str] | None = None,
     c_struct: str | None = None,
 ) -> Iterator[Variable]:
@@ -315,7 +348,7 @@ def _table_parameters(
             docs[owner] = _field_docs(owner)
         member = f"{c_struct or table}.{path}"
         doc = _FALLBACK_DOCS.get(f"{owner.__name__}.{field}") or docs[owner].get(field, "")
-        yield _parameter(table, path, value, doc, preset, member)
+        yield _parameter(table, path, value, doc, member)
 
 
 def _model_step(max_step_s: float, why: str) -> Variable:
@@ -330,6 +363,7 @@ def _model_step(max_step_s: float, why: str) -> Variable:
 def shift_spec(preset: Preset[ShiftParams], seed: int = 0) -> ModelSpec:
     """The shift FMU: the 1-DOF engagement of `preset`'s gearbox, driven by a knob force."""
     gearbox = preset.params.gearbox
+    name = checked_name(preset.name)
     real = "real"
     variables = [
         Variable("driver_force_N", "input", "continuous", real, "inputs.driver_force_N",
@@ -350,7 +384,7 @@ def shift_spec(preset: Preset[ShiftParams], seed: int = 0) -> ModelSpec:
                  "The outside spring's damping, N*s/m", 0.0, "N*s/m", 0.0, 1e5),
         Variable("wall_position_m", "input", "continuous", real, "inputs.wall_position_m",
                  "Where the outside spring is relaxed, m", 0.0, "m"),
-        *_table_parameters("gearbox", gearbox, preset.name),
+        *_table_parameters("gearbox", gearbox),
         Variable("seed", "parameter", "fixed", "integer", "seed",
                  "Seed of the tooth draws (SplitMix64): the relative tooth angle of each "
                  "engagement; one seed gives one result, as carfeel's --seed N for N >= 0, "
@@ -382,12 +416,12 @@ def shift_spec(preset: Preset[ShiftParams], seed: int = 0) -> ModelSpec:
     defaults += [("seed", signed_seed(seed)), ("model_step_s", MODEL_STEP_S)]
     stages = tuple((s.value, _STAGE_DOCS[s]) for s in Stage)
     return ModelSpec(
-        "shift", "carfeel_shift", f"carfeel shift ({preset.name})",
+        "shift", "carfeel_shift", f"carfeel shift ({name})",
         "One gear engagement of a manual gearshift along its slot (1 DOF): the blocker ring's "
         "synchronization, the chamfers and dog teeth, the end stop, detents and stick-slip "
         "friction, driven by the driver's knob force (carfeel's models/gearshift/engagement.py, "
         "ported to C). Axis: 0 = neutral, positive toward the gear.",
-        preset.name, "cf_model_shift.c", ("cf_engagement",), tuple(variables), tuple(defaults),
+        name, "cf_model_shift.c", ("cf_engagement",), tuple(variables), tuple(defaults),
         (("Stage", stages),),
     )  # fmt: skip
 
@@ -412,6 +446,7 @@ def steering_spec(preset: Preset[SteeringCar]) -> ModelSpec:
     """The steering FMU: the paper's torque law of `preset`'s car, Ay from the importer or the
     FMU's single-track car."""
     car = preset.params
+    name = checked_name(preset.name)
     real = "real"
     variables = [
         Variable("speed_m_s", "input", "continuous", real, "speed_m_s",
@@ -428,8 +463,8 @@ def steering_spec(preset: Preset[SteeringCar]) -> ModelSpec:
         Variable("steering_rate_rad_s", "input", "continuous", real, "steering_rate_rad_s",
                  "Steering wheel rate, rad/s, positive to the left (carfeel's "
                  "steering_rate_rad_s): the input of tau1, tau2 and tau3", 0.0, "rad/s"),
-        *_table_parameters("torque", car.torque, preset.name),
-        *_table_parameters("vehicle", car.vehicle, preset.name, _VEHICLE_USED),
+        *_table_parameters("torque", car.torque),
+        *_table_parameters("vehicle", car.vehicle, _VEHICLE_USED),
         Variable("ay_source", "parameter", "fixed", "AySource", "ay_source",
                  "Where tau0 takes Ay from: " + "; ".join(
                      f"{name} = {i}: {doc}" for i, (name, doc) in
@@ -466,12 +501,12 @@ def steering_spec(preset: Preset[SteeringCar]) -> ModelSpec:
     defaults += [("ay_source", 0), ("model_step_s", MODEL_STEP_S)]
     sources = tuple(zip(AY_SOURCES, _AY_DOCS, strict=True))
     return ModelSpec(
-        "steering", "carfeel_steering", f"carfeel steering ({preset.name})",
+        "steering", "carfeel_steering", f"carfeel steering ({name})",
         "The steering wheel torque of the PERCRO 2005 paper's law, tau = tau0 + tau1 + tau2 + "
         "tau3 (aligning, tire spin, friction, damping; carfeel's models/steering/torque.py, "
         "ported to C), with Ay from the importer or from a linear single-track car. Signs: "
         "angle, rate, Ay and torque positive to the left (counter-clockwise).",
-        preset.name, "cf_model_steering.c", ("cf_steering",), tuple(variables), tuple(defaults),
+        name, "cf_model_steering.c", ("cf_steering",), tuple(variables), tuple(defaults),
         (("AySource", sources),),
     )  # fmt: skip
 
@@ -539,9 +574,10 @@ def physical_steering_spec(preset: Preset[SteeringCar]) -> ModelSpec:
     """The steering FMU with the physical model (`models/steering/physical.py`) of `preset`'s
     car: its [vehicle], [tyres] and [steering_system] tables."""
     car = preset.params
+    name = checked_name(preset.name)
     if car.tyres is None or car.steering_system is None:
         raise ExportError(
-            f"preset {preset.name} has no [tyres] and [steering_system] tables, which the "
+            f"preset {name} has no [tyres] and [steering_system] tables, which the "
             "physical steering model needs (the shipped b-segment and d-segment have them); "
             "export the paper's law instead (--steering-model paper)"
         )
@@ -564,10 +600,10 @@ def physical_steering_spec(preset: Preset[SteeringCar]) -> ModelSpec:
                  "1: the rim's angle and rate are imposed, the output is the torque into the "
                  "column; 0: the rim is free under hand_torque_Nm (a release); the threshold is "
                  "0.5", 1.0, "", 0.0, 1.0),
-        *_table_parameters("vehicle", car.vehicle, preset.name, used, "params.vehicle"),
-        *_table_parameters("tyres", car.tyres, preset.name, None, "params.tyres"),
+        *_table_parameters("vehicle", car.vehicle, used, "params.vehicle"),
+        *_table_parameters("tyres", car.tyres, None, "params.tyres"),
         *_table_parameters(
-            "steering_system", car.steering_system, preset.name, None, "params.system"
+            "steering_system", car.steering_system, None, "params.system"
         ),
         _model_step(PHYSICAL_MAX_STEP_S, "the preset's checks size the steering system for "
                     "1 ms (semi-implicit Euler)"),
@@ -583,13 +619,13 @@ def physical_steering_spec(preset: Preset[SteeringCar]) -> ModelSpec:
     ]  # fmt: skip
     defaults.append(("model_step_s", MODEL_STEP_S))
     return ModelSpec(
-        "steering", "carfeel_steering_physical", f"carfeel physical steering ({preset.name})",
+        "steering", "carfeel_steering_physical", f"carfeel physical steering ({name})",
         "The steering wheel torque of carfeel's physical model: brush tyres on a nonlinear "
         "single-track car (load transfer, relaxation length) and an EPS steering system (rim, "
         "torsion bar, rack, assist, friction, jacking, dry-park wind-up, end stops); "
         "carfeel's models/steering/physical.py, ported to C. Signs: angle, rate, Ay and "
         "torque positive to the left (counter-clockwise).",
-        preset.name, "cf_model_physical.c", ("cf_steering", "cf_physical"), tuple(variables),
+        name, "cf_model_physical.c", ("cf_steering", "cf_physical"), tuple(variables),
         tuple(defaults), (),
     )  # fmt: skip
 
@@ -744,7 +780,15 @@ def model_description(spec: ModelSpec, fmi_version: int, token: str) -> str:
             ET.SubElement(initial, "Unknown", index=str(i + 1))
     ET.indent(root)
     text: str = ET.tostring(root, encoding="unicode", xml_declaration=False)
-    return '<?xml version="1.0" encoding="UTF-8"?>\n' + text + "\n"
+    document = '<?xml version="1.0" encoding="UTF-8"?>\n' + text + "\n"
+    try:  # a strict parser (expat) reads it back: an importer must be able to
+        ET.fromstring(document.encode("utf-8"))
+    except ET.ParseError as exc:  # pragma: no cover - checked_name keeps the text well-formed
+        raise ExportError(
+            f"the model description is not well-formed XML ({exc}): this is a bug in carfeel's "
+            "FMU export; please report it"
+        ) from None
+    return document
 
 
 def build_description(spec: ModelSpec) -> str:
@@ -778,7 +822,25 @@ def source_files(spec: ModelSpec, fmi_version: int) -> tuple[str, ...]:
     )  # fmt: skip
 
 
+_C_PLAIN = frozenset(
+    b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789 _.,:;+-=()[]{}"
+)
+"""Bytes a generated C string literal holds as they are; every other is an octal escape."""
+
+
+def c_string(text: str) -> str:
+    """`text` as a C99 string literal of its UTF-8 bytes: each byte outside `_C_PLAIN` as a
+    three-digit octal escape. So no quote, backslash, newline or comment marker can end the
+    literal, no `??/` trigraph (gcc's -std=c99 reads them) can escape its quote, and no escape
+    runs on into the next character (a hex escape would: "\\x41B" is one byte)."""
+    return (
+        '"' + "".join(chr(b) if b in _C_PLAIN else f"\\{b:03o}" for b in text.encode("utf-8")) + '"'
+    )
+
+
 def _c_number(value: float | int) -> str:
+    if isinstance(value, float) and math.isnan(value):
+        raise ExportError("a NaN parameter value reached the C source: this is a bug in carfeel")
     if isinstance(value, int):
         # -2^63 has no literal: 9223372036854775808 does not fit a long long.
         return "(-9223372036854775807LL - 1)" if value == -(2**63) else f"{value}LL"
@@ -790,16 +852,20 @@ def _c_number(value: float | int) -> str:
 def generated_c(spec: ModelSpec, token: str) -> str:
     """cf_generated.c: the table of variables and the preset's values."""
     header = spec.source_file.replace(".c", ".h")
+    # User text (the preset's name) is data here, never code: an escaped string literal only,
+    # never in a comment or a preprocessor line. Everything else is carfeel's own text.
     lines = [
-        f"/* Generated by carfeel {__version__} export fmu {spec.model} (preset {spec.preset}):",
-        " * the variables of modelDescription.xml (value references 1..n, in order) and the",
-        " * preset's values. Regenerate rather than edit. */",
+        f"/* Generated by carfeel export fmu {spec.model}: the variables of modelDescription.xml",
+        " * (value references 1..n, in order) and the preset's values (cf_preset names it).",
+        " * Regenerate rather than edit. */",
         "#include <math.h>",
         "#include <stddef.h>",
         "",
         f'#include "{header}"',
         "",
-        f'const char cf_token[] = "{token}";',
+        f"const char cf_token[] = {c_string(token)};",
+        f"const char cf_preset[] = {c_string(spec.preset)};",
+        f"const char cf_carfeel_version[] = {c_string(__version__)};",
         "const size_t cf_model_size = sizeof(struct cf_model);",
         "",
         "const cf_variable cf_variables[] = {",
@@ -815,7 +881,7 @@ def generated_c(spec: ModelSpec, token: str) -> str:
             f"    {{{_value_reference(index)}, {kind}, {causality[v.causality]}, "
             f"{variability[v.variability]}, offsetof(struct cf_model, {v.c_member}), "
             f"{_c_number(float(v.low))}, {_c_number(float(v.high))}, {int(v.low_inclusive)}, "
-            f'{int(v.high_inclusive)}, "{v.name}", "{v.unit}"}},'
+            f"{int(v.high_inclusive)}, {c_string(v.name)}, {c_string(v.unit)}}},"
         )
     lines += [
         "};",

@@ -1,8 +1,10 @@
 """The panel's server: the page, a JSON API and a WebSocket stream (Starlette; uvicorn serves it).
 
-The API (README, "The live panel"): every request carries the token when the panel has one
-(`Authorization: Bearer T`, or `?token=T`); POSTs take JSON (`Content-Type: application/json`,
-which a cross-site form cannot send); bad input is a 400 with {"error": message}.
+The API (README, "The live panel"): every request but the page's own files carries the panel's
+credential (`Authorization: Bearer T`; a WebSocket may offer the subprotocol `carfeel.token.T`
+instead), whatever the address the panel listens on; POSTs take JSON (`Content-Type:
+application/json`, which a cross-site form cannot send) of at most MAX_BODY_BYTES; bad input is a
+400 with {"error": message}, a body too large 413, a plot when too many wait 429.
 
     GET  /api/options                 models, modes, devices, presets, hands, tunables
     GET  /api/session                 the session: state, configuration, sizing, summary
@@ -30,10 +32,11 @@ import math
 import multiprocessing
 import os
 import re
-import threading
+import secrets
+import sys
 import time
 from collections import deque
-from collections.abc import AsyncIterator, Awaitable, Callable, MutableMapping
+from collections.abc import AsyncIterator, Awaitable, Callable, Mapping, MutableMapping
 from dataclasses import asdict, dataclass, field, is_dataclass
 from pathlib import Path
 from typing import Any
@@ -45,20 +48,29 @@ from starlette.routing import Mount, Route, WebSocketRoute
 from starlette.staticfiles import StaticFiles
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
-from carfeel.commands.common import finite
+from carfeel.commands.common import MAX_SEED, finite, shown
 from carfeel.errors import CarfeelError, InputError
-from carfeel.panel import ring, tuning
+from carfeel.panel import plotting, ring, tuning
 
 STATIC = Path(__file__).parent / "static"
 STREAM_HZ = 30.0
 MAX_FRAME_ROWS = 2000
 """A client that falls further behind than this (2 s at 1 kHz) skips to the newest rows."""
 STRING_COLUMNS = ("region", "gear", "event", "stage")
-NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,79}$")
+NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,79}")
+"""A file name of the panel's folder; always `fullmatch` (`$` matches before a final newline)."""
+MAX_BODY_BYTES = 64 * 1024
+"""The largest request body (a session's or a tuning's is under 2 kB); larger is refused with
+413 before it is read, a chunked one as soon as it runs past."""
+MAX_WS_MESSAGE_BYTES = 64 * 1024
+"""The largest message a WebSocket client may send (uvicorn closes the socket past it)."""
 START_TIMEOUT_S = 180.0
 """Spawn, imports and the sizing: seconds on a quiet machine, a minute on a loaded one."""
 STOP_TIMEOUT_S = 10.0
 KINDS = {"shift": "shift", "hpattern": "hpattern", "steering": "steering"}
+MAX_SIDECAR_BYTES = 1024 * 1024
+DETECT_EVERY_S = 5.0
+"""How long a look at the machine's devices holds (it opens each one)."""
 
 Scope = MutableMapping[str, Any]
 Receive = Callable[[], Awaitable[MutableMapping[str, Any]]]
@@ -70,7 +82,8 @@ ASGI = Callable[[Scope, Receive, Send], Awaitable[None]]
 class PanelConfig:
     folder: Path
     """Recordings go to folder/recordings, presets to folder/presets/KIND; nothing leaves it."""
-    token: str | None = None
+    token: str = field(default_factory=lambda: secrets.token_urlsafe(32))
+    """Every request but the page's own files carries it (`Guard`); a panel always has one."""
     hosts: tuple[str, ...] = ("127.0.0.1", "localhost", "[::1]")
     """Host headers accepted (a page elsewhere reaching 127.0.0.1 by DNS rebinding is refused)."""
     loop_cpu: int | None = None
@@ -78,12 +91,25 @@ class PanelConfig:
     stream_hz: float = STREAM_HZ
 
 
+def said(value: object) -> str:
+    """A request's value as an error message quotes it: its repr, shortened when long (a name
+    of 60 kB is not copied back into the answer)."""
+    if isinstance(value, str) and len(value) > 200:
+        value = value[:100] + value[-50:]  # the repr of 60 kB need not be built to shorten it
+    if isinstance(value, int) and not isinstance(value, bool) and value.bit_length() > 128:
+        return f"(a whole number of {value.bit_length()} bits)"
+    if isinstance(value, list | dict) and len(value) > 20:
+        return f"(a {type(value).__name__} of {len(value)} items)"
+    return shown(repr(value), 60)
+
+
 def safe_name(name: object, what: str) -> str:
     """A file name for the panel's folder: letters, digits, '.', '_', '-'; no way out of it."""
-    if not isinstance(name, str) or not NAME.match(name) or ".." in name:
+    if not isinstance(name, str) or not NAME.fullmatch(name) or ".." in name:
         raise InputError(
-            f"{what} name {name!r}: use 1-80 letters, digits, '.', '_' or '-' (starting with a "
-            "letter or digit; no '/' and no '..': files stay in the panel's folder)"
+            f"{what} name {said(name)}: use 1-80 letters, digits, '.', '_' or '-' (starting "
+            "with a letter or digit; no '/', no '..', no line break: files stay in the panel's "
+            "folder)"
         )
     return name
 
@@ -91,8 +117,50 @@ def safe_name(name: object, what: str) -> str:
 def inside(folder: Path, name: str) -> Path:
     path = (folder / name).resolve()
     if not path.is_relative_to(folder.resolve()):
-        raise InputError(f"{name!r} would leave the panel's folder {folder}")
+        raise InputError(f"{said(name)} would leave the panel's folder {folder}")
     return path
+
+
+VIRTUAL_CHANGES = re.compile(r"[A-Za-z_]+=[0-9.eE+-]+x?(,[A-Za-z_]+=[0-9.eE+-]+x?)*")
+"""`virtual:KIND:KEY=VALUE,...`'s changes to the true plant: names and numbers, nothing else."""
+MAX_TEXT_CHARS = 200
+"""The longest text field of a session's request (a device, a mode, a telemetry source)."""
+
+
+def number_of(key: str, value: object) -> float:
+    """A request's number as a float; InputError (not an OverflowError) for a whole number
+    beyond any float, a string or a boolean."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise InputError(f"{key} {said(value)}: expected a number")
+    try:
+        return float(value)
+    except OverflowError:
+        raise InputError(f"{key} {said(value)}: a number beyond {sys.float_info.max:.3g}") from None
+
+
+def replay_problem(path: Path) -> str | None:
+    """Why `path` is not a recording the replay device can play, in words that quote nothing
+    of the file (a file is data: its lines never reach an answer); None when it is one."""
+    from carfeel.realtime.devices.replay import JOYSTICK_COLUMNS, WHEEL_COLUMNS
+
+    if path.name.endswith(".part.csv"):
+        return f"{path.name} is still being recorded: replay it once it is stopped"
+    if not path.with_suffix(".json").is_file():
+        return f"{path.name} has no sidecar {path.with_suffix('.json').name} (written with it)"
+    with path.open("rb") as handle:
+        head = handle.read(64 * 1024)
+    first, newline, _ = head.partition(b"\n")
+    try:
+        names = first.decode("utf-8").strip().split(",")
+    except UnicodeDecodeError:
+        names = []
+    kinds = (JOYSTICK_COLUMNS, WHEEL_COLUMNS)
+    if not newline or names[:1] != ["time_s"] or not any(set(k) <= set(names) for k in kinds):
+        return (
+            f"{path.name} is not a carfeel recording: its first line must name time_s and "
+            f"{' and '.join(JOYSTICK_COLUMNS)} or {' and '.join(WHEEL_COLUMNS)}"
+        )
+    return None
 
 
 def jsonable(value: Any) -> Any:
@@ -298,7 +366,7 @@ class Session:
                 self.shm.unlink()
 
     def close(self) -> None:
-        if self.process is not None:
+        if self.process is not None and self.process.pid is not None:  # started
             self.process.join(timeout=STOP_TIMEOUT_S)
             if self.process.is_alive():  # pragma: no cover - a loop that ignores its stop
                 self.process.terminate()
@@ -383,7 +451,8 @@ class Panel:
         self.session: Session | None = None
         self.closing = asyncio.Event()
         self._pump: asyncio.Task[None] | None = None
-        self._plot_lock = threading.Lock()
+        self.plots = plotting.Plots(config.loop_cpu)
+        self._detected: tuple[float, list[str]] | None = None
         self._starting = False
         self._tuning = False
 
@@ -400,6 +469,7 @@ class Panel:
             self.closing.set()
             await asyncio.sleep(2.0 / self.config.stream_hz)  # the streams see it and end
             await self.shutdown()
+            await asyncio.to_thread(self.plots.close, True)
 
     async def shutdown(self) -> None:
         """Stop the session (its fade) and wait for the loop's process to end."""
@@ -444,7 +514,8 @@ class Panel:
             "devices": {
                 "joystick": [f"virtual:{k}" for k, v in PLANTS.items() if v[2] == "joystick"],
                 "wheel": [f"virtual:{k}" for k, v in PLANTS.items() if v[2] == "wheel"],
-                "real": ["evdev:/dev/input/eventN", "sdl:0"],
+                "real": self.detected_devices(),
+                "replays": self.replays(),
             },
             "hands": list(HANDS),
             "clocks": ["wall", "simulated"],
@@ -454,14 +525,70 @@ class Panel:
             "tunables": {
                 m: [t.as_dict() for t in tuning.tunables_for(m)] for m in (*MODELS, tuning.PHYSICAL)
             },
-            "token_required": self.config.token is not None,
         }
+
+    def detected_devices(self) -> list[str]:
+        """The force-feedback devices this machine has now, as `--device` names them: what a
+        request may name beside the virtual ones (looked up at most every DETECT_EVERY_S)."""
+        now = time.monotonic()
+        running = self.session is not None and self.session.running
+        # Looking opens every device: not while a session drives one (the list it started with
+        # stands until it ends).
+        stale = self._detected is None or now - self._detected[0] > DETECT_EVERY_S
+        if stale and not (running and self._detected is not None):
+            from carfeel.realtime.devices.listing import describe_backends
+
+            try:
+                backends = describe_backends()
+            except Exception:  # pragma: no cover - a backend that breaks offers nothing
+                backends = {"evdev": {"devices": []}, "sdl2": {"devices": []}}
+            found = [f"evdev:{d['path']}" for d in backends["evdev"]["devices"]
+                     if d.get("constant_force") and d.get("writable")]  # fmt: skip
+            found += [f"sdl:{d['index']}" for d in backends["sdl2"]["devices"]
+                      if d.get("constant_force")]  # fmt: skip
+            self._detected = (now, found)
+        assert self._detected is not None
+        return list(self._detected[1])
+
+    def replays(self) -> list[str]:
+        """replay:NAME of every finished recording in the panel's folder."""
+        files = sorted(self.recordings.glob("*.csv"))
+        done = [p for p in files if not p.name.endswith(".part.csv")]
+        return [f"replay:{p.stem}" for p in done if p.with_suffix(".json").is_file()]
+
+    def device_of(self, spec: str) -> str:
+        """The device a request names, if the panel may open it: a virtual one, one detected on
+        this machine, or replay:NAME of a recording in the panel's folder (as its path)."""
+        from carfeel.realtime.devices.virtual import PLANTS
+
+        virtual = ["virtual", *(f"virtual:{k}" for k in PLANTS)]
+        if spec in virtual:
+            return spec
+        kind, _, changes = spec.removeprefix("virtual:").partition(":")
+        if spec.startswith("virtual:") and kind in PLANTS and VIRTUAL_CHANGES.fullmatch(changes):
+            return spec  # a virtual plant unlike its catalogue's: numbers the session checks
+        if spec.startswith("replay:"):
+            name = spec[len("replay:") :]
+            path = self.recording_file(name if name.endswith(".csv") else f"{name}.csv")
+            problem = replay_problem(path)
+            if problem is not None:
+                raise InputError(f"device {said(spec)}: {problem}")
+            return f"replay:{path}"
+        detected = self.detected_devices()
+        if spec in detected:
+            return spec
+        raise InputError(
+            f"device {said(spec)}: the panel opens the virtual devices "
+            f"({', '.join(virtual[1:])}), the devices this machine has "
+            f"({', '.join(detected) or 'none detected: carfeel devices says why'}) and "
+            f"replay:NAME of a recording in {self.recordings}"
+        )
 
     def preset_spec(self, model: str, preset: object) -> str | None:
         if preset in (None, ""):
             return None
         if not isinstance(preset, str):
-            raise InputError(f"preset {preset!r}: expected a preset name")
+            raise InputError(f"preset {said(preset)}: expected a preset name")
         if preset.startswith("saved:"):
             name = safe_name(preset[6:], "preset")
             path = inside(self.presets / KINDS[model], f"{name}.toml")
@@ -472,8 +599,8 @@ class Panel:
 
         if preset not in available(model):
             raise InputError(
-                f"preset {preset!r}: the shipped {model} presets are {', '.join(available(model))}"
-                " (or saved:NAME for one saved from the panel)"
+                f"preset {said(preset)}: the shipped {model} presets are "
+                f"{', '.join(available(model))} (or saved:NAME for one saved from the panel)"
             )
         return preset
 
@@ -488,16 +615,16 @@ class Panel:
                    "road"}  # fmt: skip
         unknown = sorted(set(body) - allowed)
         if unknown:
-            raise InputError(f"unknown field {', '.join(unknown)}; a session takes "
-                             f"{', '.join(sorted(allowed))}")  # fmt: skip
+            raise InputError(f"unknown field {', '.join(said(k) for k in unknown[:5])}; a "
+                             f"session takes {', '.join(sorted(allowed))}")  # fmt: skip
         if body.get("force") is not True:
             raise InputError(
                 'starting a session turns the force on: say so with "force": true (the page\'s '
                 "Start button does)"
             )
         model = body.get("model", "hpattern")
-        if model not in MODELS:
-            raise InputError(f"model {model!r}: choose one of {', '.join(MODELS)}")
+        if not isinstance(model, str) or model not in MODELS:
+            raise InputError(f"model {said(model)}: choose one of {', '.join(MODELS)}")
         run: dict[str, Any] = {"model": model}
         texts = ("device", "mode", "hand", "clock", "telemetry", "synchronizer", "aligning",
                  "steering_model", "road")  # fmt: skip
@@ -506,22 +633,24 @@ class Panel:
             if value is None or value == "":
                 continue
             if not isinstance(value, str):
-                raise InputError(f"{key} {value!r}: expected a string")
+                raise InputError(f"{key} {said(value)}: expected a string")
+            if len(value) > MAX_TEXT_CHARS:
+                raise InputError(f"{key} {said(value)}: at most {MAX_TEXT_CHARS} characters")
             run[key] = value
+        if "device" in run:  # what a request may open: a whitelist, not a path
+            run["device"] = self.device_of(run["device"])
         for key in ("speed_kmh", "duration_s", "rate_hz", "device_delay_ms"):
             value = body.get(key)
             if value is None or value == "":
                 continue
-            if isinstance(value, bool) or not isinstance(value, int | float):
-                raise InputError(f"{key} {value!r}: expected a number")
-            run[key] = float(value)
+            run[key] = number_of(key, value)
         seed = body.get("seed", 0)
-        if isinstance(seed, bool) or not isinstance(seed, int):
-            raise InputError(f"seed {seed!r}: expected a whole number")
+        if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= MAX_SEED:
+            raise InputError(f"seed {said(seed)}: expected a whole number from 0 to 2^64 - 1")
         run["seed"] = seed
         if "calibrate" in body:
             if not isinstance(body["calibrate"], bool):
-                raise InputError(f"calibrate {body['calibrate']!r}: expected true or false")
+                raise InputError(f"calibrate {said(body['calibrate'])}: expected true or false")
             run["calibrate"] = body["calibrate"]
         if model == "steering":
             run.setdefault("mode", "impedance")
@@ -530,7 +659,7 @@ class Panel:
             if isinstance(sequence, list):
                 sequence = ",".join(str(s) for s in sequence)
             if not isinstance(sequence, str):
-                raise InputError(f"sequence {sequence!r}: expected gears such as N,1,2,N")
+                raise InputError(f"sequence {said(sequence)}: expected gears such as N,1,2,N")
             run["sequence"] = parse_sequence(sequence)
         run.setdefault("duration_s", 600.0)
         run["preset"] = self.preset_spec(model, body.get("preset"))
@@ -562,7 +691,11 @@ class Panel:
                 await asyncio.to_thread(old.close)
             session = Session(run, preset, physics)
             session.preset_name = name  # type: ignore[attr-defined]
-            await asyncio.to_thread(session.start, self.config.loop_cpu)
+            try:
+                await asyncio.to_thread(session.start, self.config.loop_cpu)
+            except BaseException:  # no process: its 4 MB segment goes now, not at the exit
+                session.close()
+                raise
             self.session = session
             deadline = time.monotonic() + START_TIMEOUT_S
             while session.state == "starting" and time.monotonic() < deadline:
@@ -638,8 +771,8 @@ class Panel:
     def save_preset(self, body: dict[str, Any]) -> dict[str, Any]:
         from carfeel.io import presets as io_presets
 
-        s = self.need_session()
         name = safe_name(body.get("name"), "preset")
+        s = self.need_session()
         model = s.model
         folder = self.presets / KINDS[model]
         target = inside(folder, f"{name}.toml")
@@ -706,9 +839,9 @@ class Panel:
         return inside(self.recordings, f"{stem}.csv")
 
     def record(self, body: dict[str, Any]) -> dict[str, Any]:
-        s = self.need_session()
         name = body.get("name") or time.strftime("panel-%Y%m%d-%H%M%S")
-        path = self.recording_path(name)
+        path = self.recording_path(name)  # the name is checked first, session or not
+        s = self.need_session()
         if path.exists() or path.with_suffix(".json").exists():
             raise InputError(f"recording {path.name} exists: choose another name")
         if s.recording is not None:
@@ -730,8 +863,9 @@ class Panel:
             partial = csv.name.endswith(".part.csv")
             sidecar = csv.with_suffix(".json")
             summary = None
-            if sidecar.is_file() and not partial:
-                with contextlib.suppress(ValueError, OSError):
+            # A sidecar is a page of JSON; one of megabytes is not read for a listing.
+            if sidecar.is_file() and not partial and sidecar.stat().st_size <= MAX_SIDECAR_BYTES:
+                with contextlib.suppress(ValueError, OSError, AttributeError):
                     summary = json.loads(sidecar.read_text(encoding="utf-8")).get("summary")
             stat = csv.stat()
             out.append({
@@ -743,23 +877,16 @@ class Panel:
     def recording_file(self, name: str) -> Path:
         safe_name(name, "recording file")
         if not name.endswith((".csv", ".json")):
-            raise InputError(f"{name!r}: a recording is NAME.csv with its NAME.json")
+            raise InputError(f"{said(name)}: a recording is NAME.csv with its NAME.json")
         path = inside(self.recordings, name)
         if not path.is_file():
-            raise InputError(f"no recording {name!r} in {self.recordings}")
+            raise InputError(f"no recording {said(name)} in {self.recordings}")
         return path
 
-    def plot(self, name: str) -> bytes:
-        import tempfile
-
-        from carfeel.io.plots import plot_recording
-        from carfeel.simulation.result import Result
-
+    async def plot(self, name: str) -> bytes:
+        """The recording's plot: drawn in the plots' own process (`plotting.Plots`)."""
         path = self.recording_file(f"{safe_name(name, 'recording')}.csv")
-        with self._plot_lock, tempfile.TemporaryDirectory() as tmp:
-            recording = Result.from_csv(path, drop_partial_last_line=True)
-            png = plot_recording(recording, Path(tmp) / "plot.png", path.stem)
-            return png.read_bytes()
+        return await self.plots.get(path)
 
 
 def _telemetry_formats() -> list[str]:
@@ -771,17 +898,38 @@ def _telemetry_formats() -> list[str]:
 
 
 # -- the ASGI layer ----------------------------------------------------------------------------
+def _no_constant(name: str) -> Any:
+    """NaN and Infinity are not JSON (RFC 8259), whatever Python's parser would take."""
+    raise ValueError(f"{name} is not a JSON number")
+
+
 def _error(status: int, message: str) -> JSONResponse:
     return JSONResponse({"error": message}, status_code=status)
 
 
-class Guard:
-    """Refuses what lacks the token, comes with a foreign Host, or (a WebSocket) a foreign
-    Origin: a page elsewhere in the user's browser must not reach a device. The page is opened
-    with ?token=T; the answer sets it as a SameSite=Strict cookie, so that the page's own
-    stylesheet, script and stream carry it (and no other site's requests do)."""
+PUBLIC = frozenset({"/", "/static/panel.js", "/static/panel.css"})
+"""What is served without the credential: the page and its script and style, the package's own
+files (the same bytes as in site-packages), which hold no data and no secret. The page reads the
+credential from its URL's fragment (`#token=T`, which a browser never sends to a server)."""
+SUBPROTOCOL = "carfeel"
+TOKEN_PROTOCOL = "carfeel.token."
+"""A browser cannot set headers on a WebSocket: the page offers the subprotocols `carfeel` and
+`carfeel.token.T`; the panel answers with `carfeel` (the token is never echoed)."""
 
-    COOKIE = "carfeel_token"
+
+def bearer(headers: Mapping[str, str]) -> str:
+    """The token of an `Authorization: Bearer T` header ('' without one)."""
+    given = headers.get("authorization", "")
+    return given[7:].strip() if given[:7].lower() == "bearer " else ""
+
+
+class Guard:
+    """Refuses what lacks the credential, comes with a foreign Host, a WebSocket from a foreign
+    Origin, and a body over MAX_BODY_BYTES (before it is read). The credential goes in the
+    `Authorization: Bearer T` header (a WebSocket: that header, or the subprotocol
+    `carfeel.token.T`); never in a cookie (cookies are not port-scoped: every other server on
+    127.0.0.1 would receive it) nor in a URL (address bar, history, logs, the Referer). Only
+    PUBLIC is served without it."""
 
     def __init__(self, app: ASGI, config: PanelConfig) -> None:
         self.app, self.config = app, config
@@ -791,64 +939,90 @@ class Guard:
             await self.app(scope, receive, send)
             return
         headers = {k.decode("latin-1").lower(): v.decode("latin-1") for k, v in scope["headers"]}
-        problem, from_query = self.problem(scope, headers)
+        problem = self.problem(scope, headers)
+        if problem is None and scope["type"] == "http":
+            problem = body_problem(headers)
+            if problem is not None:
+                await _error(413, problem)(scope, receive, send)
+                return
+            receive = _bounded(receive, MAX_BODY_BYTES)
         if problem is None:
-            if from_query and scope["type"] == "http" and self.config.token is not None:
-                send = self._with_cookie(send, self.config.token)
             await self.app(scope, receive, send)
             return
         if scope["type"] == "websocket":
             await receive()  # the connect message
             await send({"type": "websocket.close", "code": 1008, "reason": problem[:120]})
             return
-        response = _error(401 if problem.startswith("token") else 403, problem)
+        response = _error(401 if problem.startswith("credential") else 403, problem)
+        response.headers["WWW-Authenticate"] = 'Bearer realm="carfeel panel"'
         await response(scope, receive, send)
 
-    def _with_cookie(self, send: Send, token: str) -> Send:
-        cookie = f"{self.COOKIE}={token}; HttpOnly; SameSite=Strict; Path=/".encode()
-
-        async def sending(message: MutableMapping[str, Any]) -> None:
-            if message["type"] == "http.response.start":
-                message["headers"] = [*message.get("headers", []), (b"set-cookie", cookie)]
-            await send(message)
-
-        return sending
-
-    def problem(self, scope: Scope, headers: dict[str, str]) -> tuple[str | None, bool]:
-        """What is wrong with the request (None: nothing), and whether its token came in
-        the query string."""
+    def problem(self, scope: Scope, headers: dict[str, str]) -> str | None:
+        """What is wrong with the request (None: nothing)."""
         host = headers.get("host", "")
         name = host.rsplit(":", 1)[0] if not host.endswith("]") else host
         if self.config.hosts and name not in self.config.hosts and host not in self.config.hosts:
-            return f"host {host!r} is not this panel's", False
+            return f"host {shown(host)!r} is not this panel's"
         origin = headers.get("origin")
         if scope["type"] == "websocket" and origin and origin.split("://", 1)[-1] != host:
-            return f"origin {origin!r} is not this panel's page", False
-        token = self.config.token
-        if token is None:
-            return None, False
-        from http.cookies import SimpleCookie
-        from urllib.parse import parse_qs
+            return f"origin {shown(origin)!r} is not this panel's page"
+        if (
+            scope["type"] == "http"
+            and scope["path"] in PUBLIC
+            and scope["method"] in ("GET", "HEAD")
+        ):
+            return None
+        given = bearer(headers)
+        if not given and scope["type"] == "websocket":
+            offered = [p.strip() for p in headers.get("sec-websocket-protocol", "").split(",")]
+            given = next((p[len(TOKEN_PROTOCOL) :] for p in offered
+                          if p.startswith(TOKEN_PROTOCOL)), "")  # fmt: skip
+        if given and hmac.compare_digest(given.encode(), self.config.token.encode()):
+            return None
+        hint = (
+            "; a token in the URL is not taken (it stays in the address bar, the history and "
+            "logs): send the header"
+            if b"token=" in scope.get("query_string", b"") else ""
+        )  # fmt: skip
+        return (
+            "credential missing or wrong: send Authorization: Bearer TOKEN (the page takes it "
+            f"from the URL carfeel panel printed, http://...#token=...){hint}"
+        )
 
-        given = headers.get("authorization", "")
-        given = given[7:] if given.lower().startswith("bearer ") else ""
-        from_query = False
-        if not given:
-            query = parse_qs(scope.get("query_string", b"").decode("latin-1"))
-            if query.get("token"):
-                given, from_query = query["token"][0], True
-        if not given and "cookie" in headers:
-            cookies: SimpleCookie = SimpleCookie()
-            with contextlib.suppress(Exception):
-                cookies.load(headers["cookie"])
-            if self.COOKIE in cookies:
-                given = cookies[self.COOKIE].value
-        if not given or not hmac.compare_digest(given.encode(), token.encode()):
-            return (
-                "token missing or wrong: open the URL the panel printed (it has ?token=...)",
-                False,
-            )
-        return None, from_query
+
+def body_problem(headers: Mapping[str, str]) -> str | None:
+    """A declared body over MAX_BODY_BYTES, refused before a byte of it is read."""
+    length = headers.get("content-length")
+    if length is None:
+        return None
+    if not length.isascii() or not length.strip().isdigit() or len(length) > 20:
+        return f"Content-Length {shown(length)!r} is not a byte count"
+    if int(length) > MAX_BODY_BYTES:
+        return (f"the body is {int(length)} bytes; the panel takes at most {MAX_BODY_BYTES} "
+                "bytes in a request")  # fmt: skip
+    return None
+
+
+class BodyTooLarge(InputError):
+    """A chunked body ran past MAX_BODY_BYTES while it was read."""
+
+
+def _bounded(receive: Receive, limit: int) -> Receive:
+    """`receive` that stops a body (one without a Content-Length: chunked) past `limit` bytes."""
+    seen = 0
+
+    async def receiving() -> MutableMapping[str, Any]:
+        nonlocal seen
+        message = await receive()
+        if message["type"] == "http.request":
+            seen += len(message.get("body", b""))
+            if seen > limit:
+                raise BodyTooLarge(
+                    f"the body ran past {limit} bytes, the most the panel takes in a request"
+                )
+        return message
+
+    return receiving
 
 
 def create_app(config: PanelConfig) -> Starlette:
@@ -860,6 +1034,8 @@ def create_app(config: PanelConfig) -> Starlette:
         async def endpoint(request: Request) -> Response:
             try:
                 result = await handler(request)
+            except BodyTooLarge as exc:
+                return _error(413, str(exc))
             except CarfeelError as exc:
                 return _error(400, str(exc))
             except OSError as exc:
@@ -873,10 +1049,16 @@ def create_app(config: PanelConfig) -> Starlette:
     async def body_of(request: Request) -> dict[str, Any]:
         if request.headers.get("content-type", "").split(";")[0].strip() != "application/json":
             raise InputError("send JSON, with Content-Type: application/json")
+        data = await request.body()  # bounded by the Guard: MAX_BODY_BYTES at most
         try:
-            body = await request.json()
+            body = json.loads(data, parse_constant=_no_constant)
+        except RecursionError:
+            raise InputError(
+                f"the body nests deeper than JSON's parser goes ({len(data)} bytes): a request "
+                "is an object of plain values"
+            ) from None
         except ValueError as exc:
-            raise InputError(f"the body is not JSON: {exc}") from None
+            raise InputError(f"the body is not JSON: {shown(str(exc), 120)}") from None
         if not isinstance(body, dict):
             raise InputError("the body is a JSON object")
         return body
@@ -923,8 +1105,12 @@ def create_app(config: PanelConfig) -> Starlette:
         return FileResponse(path, filename=path.name)
 
     async def plot(request: Request) -> Any:
-        data = await asyncio.to_thread(panel.plot, request.path_params["name"])
-        return Response(data, media_type="image/png")
+        try:
+            data = await panel.plot(request.path_params["name"])
+        except plotting.Busy as exc:
+            return JSONResponse({"error": str(exc)}, status_code=429,
+                                headers={"Retry-After": str(plotting.RETRY_AFTER_S)})  # fmt: skip
+        return Response(data, media_type="image/png", headers={"Cache-Control": "no-store"})
 
     async def stream(websocket: WebSocket) -> None:
         await Stream(panel, websocket).run()
@@ -973,7 +1159,8 @@ class Stream:
     closed: asyncio.Event = field(default_factory=asyncio.Event)
 
     async def run(self) -> None:
-        await self.websocket.accept()
+        offered = self.websocket.scope.get("subprotocols") or []
+        await self.websocket.accept(subprotocol=SUBPROTOCOL if SUBPROTOCOL in offered else None)
         receiver = asyncio.create_task(self._receive())
         try:
             while not self.closed.is_set() and not self.panel.closing.is_set():
@@ -1007,7 +1194,7 @@ class Stream:
     def _subscribe(self, text: str) -> None:
         try:
             request = json.loads(text)
-        except ValueError:
+        except (ValueError, RecursionError):
             return
         if isinstance(request, dict):
             columns = request.get("columns")

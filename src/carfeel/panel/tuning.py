@@ -180,11 +180,17 @@ def values_of(model: str, preset: Any) -> dict[str, float]:
 def checked_value(path: str, value: object) -> float:
     """A tuned value as a float within its preset range, or InputError naming the range."""
     tunable = BY_PATH[path]
+    allowed = describe_range(range_key(path))
     if isinstance(value, bool) or not isinstance(value, int | float):
+        raise InputError(f"{path} = {_said(value)}: expected a number, {allowed}")
+    try:
+        number = float(value)
+    except OverflowError:  # a whole number of 401 digits: beyond any float, not a crash
         raise InputError(
-            f"{path} = {value!r}: expected a number, {describe_range(range_key(path))}"
-        )
-    number = float(value)
+            f"{path} = a whole number of {int(int(value).bit_length() * math.log10(2)) + 1} digits "
+            f"{tunable.unit} is out of "
+            f"range: allowed {allowed}"
+        ) from None
     low, high, low_in, high_in = tunable.bounds
     inside = (
         math.isfinite(number)
@@ -193,10 +199,15 @@ def checked_value(path: str, value: object) -> float:
     )
     if not inside:
         raise InputError(
-            f"{path} = {value!r} {tunable.unit} is out of range: allowed "
-            f"{describe_range(range_key(path))}"
+            f"{path} = {_said(value)} {tunable.unit} is out of range: allowed {allowed}"
         )
     return number
+
+
+def _said(value: object) -> str:
+    """A value as a refusal quotes it: at most 60 characters of its repr."""
+    text = repr(value) if not isinstance(value, str) or len(value) < 100 else repr(value[:60])
+    return text if len(text) <= 60 else f"{text[:48]}...{text[-9:]}"
 
 
 @dataclass(frozen=True, slots=True)
@@ -240,12 +251,14 @@ def propose(session: Session, values: Mapping[str, object]) -> Proposal:
     allowed = {t.path for t in tunables_for(model)}
     if not values:
         raise InputError("a tuning names at least one parameter: {path: value}")
+    if len(values) > len(TUNABLES):
+        raise InputError(f"a tuning names {len(values)} parameters; there are {len(TUNABLES)}")
     problems = []
     checked: dict[str, float] = {}
     for path, value in values.items():
         if path not in allowed:
             problems.append(
-                f"{path}: not a tunable parameter of --model {model}; it has "
+                f"{_said(path)}: not a tunable parameter of --model {model}; it has "
                 f"{', '.join(sorted(allowed))}"
             )
             continue

@@ -7,9 +7,10 @@ gets them in a JSON sidecar (NAME.json), as `carfeel simulate` writes its runs.
 from __future__ import annotations
 
 import csv
+import itertools
 import json
 import math
-from collections.abc import Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -64,12 +65,23 @@ def metadata(spec: SweepSpec) -> dict[str, str]:
     }
 
 
+WRITE_BATCH = 65_536
+"""Rows per Parquet row group written: memory stays this many rows whatever the sweep's size."""
+
+
 def write(
     rows: Sequence[Row], spec: SweepSpec, path: Path, fmt: str, sidecar: Path | None = None
 ) -> None:
     """Write the rows (sorted by case) to `path` as `fmt` (.parquet or .csv; a CSV's metadata
     goes to `sidecar`, default beside it with the suffix .json)."""
-    rows = sorted(rows, key=lambda r: int(r["case_id"]))
+    write_rows(sorted(rows, key=lambda r: int(r["case_id"])), spec, path, fmt, sidecar)
+
+
+def write_rows(
+    rows: Iterable[Row], spec: SweepSpec, path: Path, fmt: str, sidecar: Path | None = None
+) -> None:
+    """`write` of rows that come in case order, as they come: a batch of WRITE_BATCH at most
+    in memory (Parquet row groups), a row at a time for a CSV."""
     types = column_types(spec)
     names = list(types)
     meta = metadata(spec)
@@ -77,24 +89,42 @@ def write(
         pa = pyarrow()
         arrow = {"int": pa.int64(), "float": pa.float64(), "bool": pa.bool_(), "str": pa.string()}
         schema = pa.schema([(n, arrow[types[n]]) for n in names], metadata=meta)
-        columns = {n: [_typed(r.get(n), types[n]) for r in rows] for n in names}
-        table = pa.Table.from_pydict(columns, schema=schema)
-        pa.parquet.write_table(table, path)
+        with pa.parquet.ParquetWriter(path, schema) as writer:
+            for batch in _batches(rows, WRITE_BATCH):
+                columns = {n: [_typed(r.get(n), types[n]) for r in batch] for n in names}
+                writer.write_table(pa.Table.from_pydict(columns, schema=schema))
         return
     with path.open("w", newline="", encoding="utf-8") as handle:
-        writer = csv.writer(handle)
-        writer.writerow(names)
+        out = csv.writer(handle)
+        out.writerow(names)
         for r in rows:
-            writer.writerow([_cell(r.get(n), types[n]) for n in names])
+            out.writerow([_cell(r.get(n), types[n]) for n in names])
     sidecar = sidecar if sidecar is not None else path.with_suffix(".json")
     sidecar.write_text(json.dumps({**meta, "columns": types}, indent=2) + "\n", encoding="utf-8")
 
 
+def _batches(rows: Iterable[Row], size: int) -> Iterator[list[Row]]:
+    """Lists of `size` rows (the last shorter): itertools.batched, which Python 3.11 lacks."""
+    iterator = iter(rows)
+    while batch := list(itertools.islice(iterator, size)):
+        yield batch
+
+
 def columns_of(rows: Sequence[Row], spec: SweepSpec) -> tuple[dict[str, list[Any]], dict[str, str]]:
     """(columns, metadata) of rows in memory, as `read` gives them from a file."""
-    ordered = sorted(rows, key=lambda r: int(r["case_id"]))
+    return columns_from(sorted(rows, key=lambda r: int(r["case_id"])), spec)
+
+
+def columns_from(
+    rows: Iterable[Row], spec: SweepSpec
+) -> tuple[dict[str, list[Any]], dict[str, str]]:
+    """(columns, metadata) of rows that come in order (a part file's, or a sample of them)."""
     types = column_types(spec)
-    return {n: [_typed(r.get(n), types[n]) for r in ordered] for n in types}, metadata(spec)
+    columns: dict[str, list[Any]] = {n: [] for n in types}
+    for r in rows:
+        for n, kind in types.items():
+            columns[n].append(_typed(r.get(n), kind))
+    return columns, metadata(spec)
 
 
 def _typed(value: Any, kind: str) -> Any:
@@ -119,40 +149,79 @@ def _cell(value: Any, kind: str) -> str:
     return str(value)
 
 
-def read(path: Path) -> tuple[dict[str, list[Any]], dict[str, str]]:
-    """(columns by name, metadata) of a sweep's results file, Parquet or CSV."""
+MAX_SIDECAR_BYTES = 16 * 1024 * 1024
+"""A CSV's sidecar holds the spec and the metrics' descriptions: kilobytes."""
+
+
+def read(path: Path, max_rows: int | None = None) -> tuple[dict[str, list[Any]], dict[str, str]]:
+    """(columns by name, metadata) of a sweep's results file, Parquet or CSV; with `max_rows`,
+    every k-th row only (k the least that keeps at most that many; the metadata's
+    `carfeel_plotted` says so), read a row group or a line at a time."""
     if not path.is_file():
         raise InputError(f"results file {path} not found; give the --out of a `carfeel sweep`")
+    columns: dict[str, list[Any]]
     if path.suffix.lower() == ".parquet":
         pa = pyarrow()
         try:
-            table = pa.parquet.read_table(path)
+            table = pa.parquet.ParquetFile(path)
+            meta = {k.decode(): v.decode() for k, v in (table.schema_arrow.metadata or {}).items()}
+            total = table.metadata.num_rows
+            every = _every(total, max_rows)
+            columns = {name: [] for name in table.schema_arrow.names}
+            seen = 0
+            for batch in table.iter_batches(batch_size=WRITE_BATCH):
+                first = (-seen) % every  # the batch's first row whose index is a multiple
+                picked = batch.slice(first).take(list(range(0, batch.num_rows - first, every)))
+                for name in columns:
+                    columns[name].extend(picked.column(name).to_pylist())
+                seen += batch.num_rows
         except (OSError, ValueError, pa.ArrowException) as exc:
             raise InputError(f"{path} is not a readable Parquet file: {exc}") from None
-        meta = {k.decode(): v.decode() for k, v in (table.schema.metadata or {}).items()}
-        columns = {name: table.column(name).to_pylist() for name in table.column_names}
     elif path.suffix.lower() == ".csv":
         sidecar = path.with_suffix(".json")
         try:
+            if sidecar.stat().st_size > MAX_SIDECAR_BYTES:
+                raise InputError(f"{sidecar}: over {MAX_SIDECAR_BYTES} bytes, not a sweep's")
             info = json.loads(sidecar.read_text(encoding="utf-8"))
         except (OSError, ValueError) as exc:
             raise InputError(
                 f"{path}: its sidecar {sidecar} (written with it) cannot be read: {exc}"
             ) from None
+        if not isinstance(info, dict):
+            raise InputError(f"{path}: its sidecar {sidecar} is not a sweep's metadata")
         types = info.pop("columns", {})
         meta = {k: str(v) for k, v in info.items()}
+        try:
+            total = int(meta.get("carfeel_cases", "0"))
+        except ValueError:
+            total = 0
+        every = _every(total, max_rows)
         with path.open(newline="", encoding="utf-8") as handle:
             reader = csv.reader(handle)
             header = next(reader, [])
             columns = {n: [] for n in header}
-            for line in reader:
+            for k, line in enumerate(reader):
+                if k % every:
+                    continue
+                if len(line) != len(header):
+                    raise InputError(
+                        f"{path}: line {k + 2} has {len(line)} fields, the header {len(header)}"
+                    )
                 for name, text in zip(header, line, strict=True):
                     columns[name].append(_parse(text, types.get(name, "str")))
     else:
         raise InputError(f"{path}: expected a .parquet or .csv file written by `carfeel sweep`")
     if "carfeel_spec" not in meta:
         raise InputError(f"{path} has no sweep metadata: was it written by `carfeel sweep`?")
+    if every > 1:
+        meta["carfeel_plotted"] = (
+            f"drawn from every {every}th of the {total} cases (at most {max_rows} are plotted)"
+        )
     return columns, meta
+
+
+def _every(total: int, max_rows: int | None) -> int:
+    return 1 if max_rows is None or total <= max_rows else math.ceil(total / max_rows)
 
 
 def _parse(text: str, kind: str) -> Any:

@@ -18,6 +18,7 @@ importing the caller's `__main__` again, so a script that calls `run_sweep` need
 from __future__ import annotations
 
 import contextlib
+import itertools
 import json
 import math
 import os
@@ -25,13 +26,15 @@ import sys
 import time
 import types
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
+import numpy as np
+
 from carfeel.errors import InputError
 from carfeel.sweep import tasks
-from carfeel.sweep.spec import Case, SpecError, SweepSpec, cases
+from carfeel.sweep.spec import Case, SpecError, SweepSpec, iter_cases
 from carfeel.sweep.tasks import Row, Task
 
 PART_VERSION = 1
@@ -50,48 +53,74 @@ def part_path(out: Path) -> Path:
 
 
 class PartFile:
-    """The finished rows of a sweep that has not finished yet (see the module)."""
+    """The finished rows of a sweep that has not finished yet (see the module). Read a line at
+    a time: a sweep of 10^7 cases never holds its rows (the results are written from here)."""
 
     def __init__(self, path: Path, spec: SweepSpec) -> None:
         self.path = path
         self.spec = spec
         self._handle: TextIO | None = None
 
-    def load(self, restart: bool = False) -> dict[int, Row]:
-        """The rows finished by an earlier run of this spec; {} if there is none."""
-        if not self.path.exists():
-            return {}
+    def _lines(self, restart: bool) -> Iterator[list[Row]] | None:
+        """The row chunks of an earlier run of this spec (a line cut by a kill ends them);
+        None when there is no part file of this spec to resume (or `restart`)."""
+        if restart or not self.path.exists():  # --restart discards whatever is there
+            return None
         try:
-            lines = self.path.read_text(encoding="utf-8").splitlines()
-            header = json.loads(lines[0]) if lines else {}
+            handle = self.path.open(encoding="utf-8")
+            header = json.loads(handle.readline() or "{}")
         except (OSError, UnicodeDecodeError, ValueError) as exc:
-            if restart:
-                return {}
             raise InputError(
                 f"{self.path} (an interrupted sweep's rows) cannot be read: {exc}; "
                 "delete it or pass --restart"
             ) from None
-        if header.get("spec_hash") != self.spec.hash:
-            if restart:
-                return {}
+        if not isinstance(header, dict) or header.get("spec_hash") != self.spec.hash:
+            handle.close()
             raise SpecError(
                 f"{self.path} holds the finished cases of another sweep spec (or of another "
                 f"carfeel version or preset): run the same spec again to resume it, or pass "
                 "--restart to discard those rows and start anew"
             )
-        rows: dict[int, Row] = {}
-        for line in lines[1:]:
-            try:
-                chunk = json.loads(line)
-            except ValueError:
-                break  # a line cut short by a kill: the rows after it were never written
-            for row in chunk["rows"]:
-                rows[int(row["case_id"])] = row
-        return rows
 
-    def open(self, rows: dict[int, Row]) -> None:
-        """Start the file anew with the rows kept (a clean copy: no cut line stays)."""
+        def chunks() -> Iterator[list[Row]]:
+            with handle:
+                for line in handle:
+                    try:
+                        chunk = json.loads(line)
+                    except ValueError:
+                        return  # a line cut short by a kill: the rows after it were never written
+                    yield list(chunk["rows"])
+
+        return chunks()
+
+    def load(self, restart: bool = False) -> dict[int, Row]:
+        """The rows finished by an earlier run of this spec, in memory ({} if none): for small
+        sweeps and tests; the runner uses `scan`."""
+        lines = self._lines(restart)
+        return {int(r["case_id"]): r for chunk in lines or () for r in chunk}
+
+    def scan(self, restart: bool = False) -> tuple[np.ndarray, Tally]:
+        """Which cases an earlier run of this spec finished (a bitmap, one byte per case) and
+        their tally, read a line at a time."""
+        done = np.zeros(self.spec.n_cases, dtype=bool)
+        tally = Tally()
+        for chunk in self._lines(restart) or ():
+            ids = [int(r["case_id"]) for r in chunk]
+            if any(not 0 <= i < self.spec.n_cases for i in ids) or done[ids].any():
+                raise InputError(
+                    f"{self.path} holds a case twice or one the spec does not have: delete it "
+                    "or pass --restart"
+                )
+            done[ids] = True
+            tally.add(chunk)
+        return done, tally
+
+    def open(self, keep: bool = True) -> None:
+        """Start the file anew with the finished rows kept (`keep`), copied a line at a time:
+        no cut line stays, and each line holds one run of consecutive cases (what
+        `rows_in_order` needs)."""
         staged = self.path.with_name(f".{self.path.name}.tmp")
+        old = self._lines(restart=False) if keep else None
         with staged.open("w", encoding="utf-8") as handle:
             header = {
                 "carfeel_sweep_part": PART_VERSION,
@@ -100,8 +129,9 @@ class PartFile:
                 "cases": self.spec.n_cases,
             }
             handle.write(json.dumps(header) + "\n")
-            if rows:
-                handle.write(json.dumps({"rows": list(rows.values())}) + "\n")
+            for chunk in old or ():
+                for run in _consecutive(chunk):
+                    handle.write(json.dumps({"rows": run}) + "\n")
         os.replace(staged, self.path)
         self._handle = self.path.open("a", encoding="utf-8")
 
@@ -120,6 +150,68 @@ class PartFile:
         self.close()
         with contextlib.suppress(FileNotFoundError):
             self.path.unlink()
+
+    def rows_in_order(self, every: int = 1) -> Iterator[Row]:
+        """Every row, by case, read from the file (two passes: where each line starts, then
+        the lines in order); `every`: only each case_id divisible by it. Each line is a run of
+        consecutive cases, so the lines' order is the rows'. InputError if a case is missing."""
+        starts: list[tuple[int, int]] = []
+        with self.path.open("rb") as handle:
+            handle.readline()
+            while True:
+                offset = handle.tell()
+                line = handle.readline()
+                if not line:
+                    break
+                try:
+                    first = json.loads(line)["rows"][0]["case_id"]
+                except (ValueError, KeyError, IndexError):
+                    break  # cut by a kill
+                starts.append((int(first), offset))
+            starts.sort()
+            expected = 0
+            for _, offset in starts:
+                handle.seek(offset)
+                for row in json.loads(handle.readline())["rows"]:
+                    if int(row["case_id"]) != expected:
+                        raise InputError(
+                            f"{self.path}: case {expected} is missing (found "
+                            f"{row['case_id']}): run the sweep again to finish it"
+                        )
+                    expected += 1
+                    if row["case_id"] % every == 0:
+                        yield row
+        if expected != self.spec.n_cases:
+            raise InputError(f"{self.path}: {expected} of {self.spec.n_cases} cases are done")
+
+
+def _consecutive(rows: Sequence[Row]) -> Iterator[list[Row]]:
+    """`rows` sorted by case and cut into runs of consecutive cases."""
+    run: list[Row] = []
+    for row in sorted(rows, key=lambda r: int(r["case_id"])):
+        if run and int(row["case_id"]) != int(run[-1]["case_id"]) + 1:
+            yield run
+            run = []
+        run.append(row)
+    if run:
+        yield run
+
+
+@dataclass
+class Tally:
+    """Rows counted by status as they come (the summary's figures without the rows)."""
+
+    counts: dict[str, int] = field(default_factory=dict)
+    first_invalid: Row | None = None
+
+    def add(self, rows: Sequence[Row]) -> None:
+        for row in rows:
+            status = str(row["status"])
+            self.counts[status] = self.counts.get(status, 0) + 1
+            if status == "invalid" and (
+                self.first_invalid is None or row["case_id"] < self.first_invalid["case_id"]
+            ):
+                self.first_invalid = row
 
 
 class Progress:
@@ -161,9 +253,33 @@ def tasks_of(spec: SweepSpec, todo: Sequence[Case], workers: int = 1) -> list[Ta
     return [Task(spec, tuple(todo[i : i + size])) for i in range(0, len(todo), size)]
 
 
+def iter_tasks(spec: SweepSpec, done: np.ndarray, workers: int = 1) -> Iterator[Task]:
+    """The cases not `done`, in tasks made as they are asked for: `cases_per_task` (fewer, so
+    that every worker gets some), each a run of consecutive cases (a task ends where a finished
+    case lies between), so that the part file's lines keep the cases' order."""
+    size = spec.cases_per_task
+    left = int(spec.n_cases - done.sum())
+    if workers > 1 and left:
+        size = min(size, math.ceil(left / workers))
+    batch: list[Case] = []
+    for case in iter_cases(spec):
+        if done[case.case_id]:
+            if batch:
+                yield Task(spec, tuple(batch))
+                batch = []
+            continue
+        batch.append(case)
+        if len(batch) == size:
+            yield Task(spec, tuple(batch))
+            batch = []
+    if batch:
+        yield Task(spec, tuple(batch))
+
+
 @dataclass(frozen=True)
 class SweepRun:
-    """What a sweep did: its rows (every case, sorted) and how it got them."""
+    """What a sweep did: its rows (every case, sorted; empty when they were streamed to the
+    part file instead), their tally, and how it got them."""
 
     spec: SweepSpec
     rows: list[Row]
@@ -173,9 +289,10 @@ class SweepRun:
     where: str
     elapsed_s: float
     notes: tuple[str, ...] = ()
+    tally: Tally = field(default_factory=Tally)
 
     def count(self, status: str) -> int:
-        return sum(1 for r in self.rows if r["status"] == status)
+        return self.tally.counts.get(status, 0)
 
 
 def run_cases(
@@ -187,15 +304,23 @@ def run_cases(
     restart: bool = False,
     progress: TextIO | None = None,
     execute: Callable[[Task], list[Row]] | None = None,
+    keep_rows: bool = True,
 ) -> SweepRun:
     """Every case of `spec`, the finished ones from `part` (if given) and the rest simulated,
     serially or on Dask; the part file is kept up to date as tasks finish. `execute` runs one
-    task (default `tasks.run_task`)."""
+    task (default `tasks.run_task`). With `keep_rows` False (and a part file) no row is held:
+    they are on disk, read back by `PartFile.rows_in_order`; memory stays the same whatever
+    the number of cases."""
+    if not keep_rows and part is None:
+        raise ValueError("rows not kept need a part file to go to")
     execute = execute if execute is not None else tasks.run_task
     started = time.monotonic()
-    done = part.load(restart) if part is not None else {}
-    todo = [c for c in cases(spec) if c.case_id not in done]
-    rows = dict(done)
+    if part is not None:
+        done, tally = part.scan(restart)
+    else:
+        done, tally = np.zeros(spec.n_cases, dtype=bool), Tally()
+    resumed = int(done.sum())
+    rows = part.load(restart) if part is not None and keep_rows else {}
     notes: list[str] = []
     with contextlib.ExitStack() as stack:
         client, n_workers, where = None, 1, "serial"
@@ -204,51 +329,61 @@ def run_cases(
             if note:
                 notes.append(note)
         if part is not None:
-            part.open(done)
+            part.open(keep=resumed > 0)
             stack.callback(part.close)
-        bar = Progress(spec.n_cases, len(done), progress)
+        bar = Progress(spec.n_cases, resumed, progress)
         stack.callback(bar.close)
 
         def finished(chunk: list[Row]) -> None:
-            for row in chunk:
-                rows[int(row["case_id"])] = row
+            if keep_rows:
+                for row in chunk:
+                    rows[int(row["case_id"])] = row
+            tally.add(chunk)
             if part is not None:
                 part.append(chunk)
             bar.update(len(chunk))
 
+        todo = iter_tasks(spec, done, n_workers)
         if client is None:
-            for task in tasks_of(spec, todo):
+            for task in todo:
                 finished(execute(task))
         else:
-            _on_dask(client, tasks_of(spec, todo, n_workers), finished, execute)
+            _on_dask(client, todo, finished, execute, in_flight=2 * max(n_workers, 2))
     ordered = [rows[i] for i in sorted(rows)]
     return SweepRun(
-        spec, ordered, len(done), len(todo), where, time.monotonic() - started, tuple(notes)
-    )
+        spec, ordered, resumed, spec.n_cases - resumed, where, time.monotonic() - started,
+        tuple(notes), tally,
+    )  # fmt: skip
 
 
 def _on_dask(
     client: Any,
-    tasks: Sequence[Task],
+    tasks: Iterator[Task],
     finished: Callable[[list[Row]], None],
     execute: Callable[[Task], list[Row]],
+    in_flight: int,
 ) -> None:
+    """The tasks on the cluster, at most `in_flight` submitted at a time (a new one as each
+    finishes): the tasks of a large sweep are made as they go, never held all at once."""
     as_completed: Any = dask_modules().as_completed
 
-    futures = [
-        client.submit(
-            execute,
-            task,
-            key=f"carfeel-sweep-{task.spec.hash[:12]}-{task.cases[0].case_id}",
-            pure=False,
-        )
-        for task in tasks
-    ]
+    def submit(task: Task) -> Any:
+        key = f"carfeel-sweep-{task.spec.hash[:12]}-{task.cases[0].case_id}"
+        return client.submit(execute, task, key=key, pure=False)
+
+    running = {submit(task) for task in itertools.islice(tasks, in_flight)}
+    queue = as_completed(list(running))
     try:
-        for future in as_completed(futures):
+        for future in queue:
+            running.discard(future)
             finished(future.result())
+            following = next(tasks, None)
+            if following is not None:
+                new = submit(following)
+                running.add(new)
+                queue.add(new)
     finally:
-        client.cancel(futures)
+        client.cancel(list(running))
 
 
 def dask_modules() -> Any:
@@ -276,6 +411,20 @@ def _main_not_reimported() -> Iterator[None]:
             sys.modules["__main__"] = main
 
 
+def temporary_security() -> Any:
+    """Dask's TLS credentials made for one run (a self-signed certificate in memory), which
+    need the `cryptography` package (in the extra carfeel[batch])."""
+    from distributed.security import Security
+
+    try:
+        return Security.temporary()  # type: ignore[no-untyped-call]
+    except ImportError:
+        raise InputError(
+            "--workers starts its Dask cluster with TLS, whose temporary credentials need the "
+            "cryptography package: pip install 'carfeel[batch]'"
+        ) from None
+
+
 @contextlib.contextmanager
 def dask_client(workers: int | None, scheduler: str | None) -> Iterator[tuple[Any, int, str, str]]:
     """(client, number of workers, a description, a note) for a LocalCluster of `workers`
@@ -288,17 +437,23 @@ def dask_client(workers: int | None, scheduler: str | None) -> Iterator[tuple[An
     if scheduler is None:
         assert workers is not None
         env = dict.fromkeys(THREAD_VARIABLES, "1")
+        security = temporary_security()
         with _main_not_reimported():
+            # TLS with credentials made for this run (held in memory, handed to the workers
+            # through their pipes): no other process, another local user's included, can
+            # connect to the scheduler or the workers and have them run its code.
             cluster = distributed.LocalCluster(
                 n_workers=workers,
                 threads_per_worker=1,
                 processes=True,
+                host="127.0.0.1",
                 dashboard_address=None,
                 silence_logs=logging.ERROR,
                 env=env,
+                security=security,
             )
         try:
-            client = distributed.Client(cluster)
+            client = distributed.Client(cluster, security=security)
             try:
                 yield client, workers, f"LocalCluster of {workers} workers", ""
             finally:
@@ -317,13 +472,19 @@ def dask_client(workers: int | None, scheduler: str | None) -> Iterator[tuple[An
         info = client.scheduler_info()
         threads = [w.get("nthreads", 1) for w in info.get("workers", {}).values()]
         note = ""
-        if any(t > 1 for t in threads):
+        if not scheduler.startswith("tls://"):
             note = (
+                f"the cluster at {scheduler} is neither encrypted nor authenticated: whoever "
+                "reaches it can run code on its workers and, through the results carfeel "
+                "unpickles, in this process; use TLS (README, 'On Dask')"
+            )
+        if any(t > 1 for t in threads):
+            note = (note + "; " if note else "") + (
                 f"the cluster's workers run {max(threads)} threads each: the simulations hold "
                 "the GIL, so start workers with `dask worker ADDRESS --nthreads 1`"
             )
         if not threads:
-            note = "the cluster has no worker yet: the tasks wait for one"
+            note = (note + "; " if note else "") + "the cluster has no worker yet: the tasks wait"
         yield client, max(len(threads), 1), f"the cluster at {scheduler}", note
     finally:
         client.close()

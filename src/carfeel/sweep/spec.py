@@ -40,7 +40,7 @@ import math
 import re
 import tomllib
 import typing
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from functools import cache, lru_cache
 from pathlib import Path
@@ -145,6 +145,9 @@ MAX_STEP_S = {"shift": 2e-3, "hpattern": 1e-3, "steering": 1e-3}
 DEFAULT_CASES_PER_TASK = {"batch": 4096, "shift": 200, "hpattern": 8, "steering": 8}
 """About seconds of work per task on one core."""
 MAX_CASES = 10_000_000
+"""The most cases a sweep may ask for (seeds included), checked before any is made."""
+MAX_SPEC_BYTES = 1024 * 1024
+"""The largest spec file read (a spec is a page of TOML; its grids' values are in it)."""
 
 
 class SpecError(InputError):
@@ -205,7 +208,8 @@ class SweepSpec:
     preset_text: str
     engagement_text: str
     """hpattern: the text of the shift preset its slots engage with ('' otherwise)."""
-    seeds: tuple[int, ...]
+    seeds: Sequence[int]
+    """A range (`seeds = n`: never a tuple of n ints) or the spec's list as a tuple."""
     samples: int
     sampling: str
     sampling_seed: int
@@ -263,6 +267,12 @@ def gears_of(sequence: str | Sequence[str]) -> tuple[str, ...]:
 def load(path: Path) -> SweepSpec:
     """Read and validate a spec file; SpecError names every problem and its fix."""
     try:
+        size = path.stat().st_size
+        if size > MAX_SPEC_BYTES:
+            raise SpecError(
+                f"sweep spec {path} is {size} bytes; a spec is at most {MAX_SPEC_BYTES} bytes "
+                "(a page of TOML: give long grids as distributions)"
+            )
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise SpecError(f"sweep spec {path} not found; give the path of a .toml file") from None
@@ -316,14 +326,19 @@ def from_toml(text: str, label: str = "<spec>", folder: Path | None = None) -> S
     samples = data.get("samples", 0 if not has_draws else None)
     if has_draws and (isinstance(samples, bool) or not isinstance(samples, int) or samples < 1):
         problems.append(
-            f"samples = {samples!r}: a parameter has a distribution; give the number of draws, "
+            f"samples = {_said(samples)}: a parameter has a distribution; give the number of "
+            "draws, "
             "a whole number >= 1 (e.g. samples = 200)"
         )
         samples = 1
     elif not has_draws and samples not in (0, None):
         problems.append(
-            f"samples = {samples!r}: no parameter has a distribution (grids only); drop samples"
+            f"samples = {_said(samples)}: no parameter has a distribution (grids only); drop "
+            "samples"
         )
+    if isinstance(samples, int) and samples > MAX_CASES:
+        problems.append(f"samples = {samples:.3g}: at most {MAX_CASES:.0e} cases in a sweep")
+        samples = 1
     samples = max(int(samples or 1), 1)
     sampling = data.get("sampling", "random")
     if sampling not in ("random", "latin"):
@@ -561,7 +576,9 @@ def _root_type(model: str) -> type[Any]:
     return {"shift": ShiftParams, "steering": SteeringCar, "hpattern": HPatternCase}[model]
 
 
-_SEGMENT = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)(?:\[(\d+)\])?$")
+_SEGMENT = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)(?:\[([0-9]{1,6})\])?")
+"""One segment of a key path: a field name, or a list's field with its index (`gears[2]`).
+Always `fullmatch`: `$` would match before a trailing newline."""
 
 
 def field_type(model: str, base: Any, path: str) -> tuple[Any, Any]:
@@ -579,7 +596,7 @@ def field_type(model: str, base: Any, path: str) -> tuple[Any, Any]:
     value = base
     walked: list[str] = []
     for part in path.split("."):
-        match = _SEGMENT.match(part)
+        match = _SEGMENT.fullmatch(part)
         if match is None:
             raise KeyError(f"{part!r} is not a field name")
         name, index = match.group(1), match.group(2)
@@ -707,9 +724,15 @@ def _check_vary(model: str, base: Any, v: Vary, problems: list[str]) -> None:
                 problems.append(f"[vary] {v.path}: {name} is {what} of the draws: {problem}")
 
 
-def _seeds(value: Any, problems: list[str]) -> tuple[int, ...]:
+def _seeds(value: Any, problems: list[str]) -> Sequence[int]:
+    if isinstance(value, int) and not isinstance(value, bool) and value > MAX_CASES:
+        problems.append(
+            f"seeds = {value:.3g}: at most {MAX_CASES:.0e} cases in a sweep, seeds included; "
+            "fewer seeds"
+        )
+        return range(1)
     if isinstance(value, int) and not isinstance(value, bool) and value >= 1:
-        return tuple(range(value))
+        return range(value)  # not a tuple: 10^8 seeds were 4 GB before they were counted
     if (
         isinstance(value, list)
         and value
@@ -718,10 +741,18 @@ def _seeds(value: Any, problems: list[str]) -> tuple[int, ...]:
     ):
         return tuple(value)
     problems.append(
-        f"seeds = {value!r}: expected how many seeds (a whole number >= 1: seeds 0..n-1) or a "
-        "list of distinct whole numbers"
+        f"seeds = {_said(value)}: expected how many seeds (a whole number >= 1: seeds 0..n-1) "
+        "or a list of distinct whole numbers"
     )
     return (0,)
+
+
+def _said(value: Any) -> str:
+    """A spec's value as a message quotes it: at most 60 characters of it."""
+    text = repr(value) if not isinstance(value, list | str) or len(value) < 50 else (
+        f"a {type(value).__name__} of {len(value)} items"
+    )  # fmt: skip
+    return text if len(text) <= 60 else f"{text[:48]}...{text[-9:]}"
 
 
 def _run(model: str, table: Any, problems: list[str]) -> list[tuple[str, Any]]:
@@ -883,39 +914,77 @@ def _vary(table: Any, problems: list[str]) -> list[Vary]:
     return out
 
 
-def parameter_sets(spec: SweepSpec) -> list[dict[str, Value]]:
-    """Every parameter set, in order: the grid's product (spec order, the last key fastest)
-    times the draws (the same `samples` draws at every grid point)."""
-    grid = [v for v in spec.vary if v.values]
-    draws = [v for v in spec.vary if v.distribution]
-    drawn: dict[str, np.ndarray] = {}
-    if draws:
+DRAW_BLOCK = 65_536
+"""Parameter sets drawn at a time: a sweep's draws are made as its cases are, block by block."""
+
+
+class Draws:
+    """The draws of a spec's distributions, by sample index, made a block at a time: the same
+    values as drawing all `samples` at once from numpy's PCG64 (plain: `rng.random((n, k))`;
+    Latin: one permutation of n strata per parameter, then the uniforms), without holding them.
+    A Latin hypercube keeps its strata (4 bytes per sample and parameter: 120 MB for 10^7
+    samples of 3 parameters); plain draws keep nothing but the generator's state."""
+
+    def __init__(self, spec: SweepSpec) -> None:
+        self.vary = [v for v in spec.vary if v.distribution]
+        self.samples = spec.samples
         rng = np.random.default_rng(spec.sampling_seed)
-        if spec.sampling == "latin":  # one draw in each of `samples` equal strata, per parameter
-            strata = np.column_stack([rng.permutation(spec.samples) for _ in draws])
-            u = (strata + rng.random((spec.samples, len(draws)))) / spec.samples
-        else:
-            u = rng.random((spec.samples, len(draws)))
-        for j, v in enumerate(draws):
-            drawn[v.path] = v.sample(u[:, j])
-    sets = []
+        self.strata: np.ndarray | None = None
+        if self.vary and spec.sampling == "latin":  # one draw in each of `samples` strata
+            self.strata = np.empty((spec.samples, len(self.vary)), dtype=np.int32)
+            for j in range(len(self.vary)):
+                self.strata[:, j] = rng.permutation(spec.samples)
+        self.state: dict[str, Any] = dict(rng.bit_generator.state)
+        """Where the uniforms start (after the permutations): each block advances from it."""
+
+    def block(self, start: int, stop: int) -> dict[str, np.ndarray]:
+        """Each varied path's draws of samples start..stop-1."""
+        if not self.vary:
+            return {}
+        bits = np.random.PCG64()
+        bits.state = typing.cast(Any, self.state)
+        bits.advance(start * len(self.vary))  # one 64-bit output per uniform double
+        u = np.random.Generator(bits).random((stop - start, len(self.vary)))
+        if self.strata is not None:
+            u = (self.strata[start:stop] + u) / self.samples
+        return {v.path: v.sample(u[:, j]) for j, v in enumerate(self.vary)}
+
+
+def iter_parameter_sets(spec: SweepSpec) -> Iterator[dict[str, Value]]:
+    """Every parameter set, in order, made as it is asked for: the grid's product (spec order,
+    the last key fastest) times the draws (the same `samples` draws at every grid point)."""
+    grid = [v for v in spec.vary if v.values]
+    draws = Draws(spec)
     for point in itertools.product(*(v.values for v in grid)):
-        for s in range(spec.samples):
-            values: dict[str, Value] = dict(zip((v.path for v in grid), point, strict=True))
-            for v in draws:
-                values[v.path] = float(drawn[v.path][s])
-            sets.append({v.path: values[v.path] for v in spec.vary})
-    return sets
+        fixed: dict[str, Value] = dict(zip((v.path for v in grid), point, strict=True))
+        for start in range(0, spec.samples, DRAW_BLOCK):
+            stop = min(start + DRAW_BLOCK, spec.samples)
+            drawn = draws.block(start, stop)
+            for s in range(stop - start):
+                values = fixed | {path: float(column[s]) for path, column in drawn.items()}
+                yield {v.path: values[v.path] for v in spec.vary}
+
+
+def parameter_sets(spec: SweepSpec) -> list[dict[str, Value]]:
+    """Every parameter set as a list (small sweeps, tests); `iter_parameter_sets` makes them
+    one at a time."""
+    return list(iter_parameter_sets(spec))
+
+
+def iter_cases(spec: SweepSpec) -> Iterator[Case]:
+    """Every case of the sweep (parameter set x seed), numbered from 0, made as it is asked
+    for (a sweep of 10^7 cases never holds them)."""
+    case_id = 0
+    for index, values in enumerate(iter_parameter_sets(spec)):
+        items = tuple(values.items())
+        for seed in spec.seeds:
+            yield Case(case_id, index, seed, items)
+            case_id += 1
 
 
 def cases(spec: SweepSpec) -> list[Case]:
-    """Every case of the sweep (parameter set x seed), numbered from 0."""
-    out: list[Case] = []
-    for index, values in enumerate(parameter_sets(spec)):
-        items = tuple(values.items())
-        for seed in spec.seeds:
-            out.append(Case(len(out), index, seed, items))
-    return out
+    """Every case as a list (small sweeps, tests)."""
+    return list(iter_cases(spec))
 
 
 def apply(base: Any, values: Mapping[str, Value]) -> Any:
@@ -927,7 +996,7 @@ def apply(base: Any, values: Mapping[str, Value]) -> Any:
 
 
 def _replace(obj: Any, parts: list[str], value: Value) -> Any:
-    match = _SEGMENT.match(parts[0])
+    match = _SEGMENT.fullmatch(parts[0])
     assert match is not None  # checked by field_type
     name, index = match.group(1), match.group(2)
     current = getattr(obj, name)

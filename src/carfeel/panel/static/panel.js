@@ -2,7 +2,18 @@
 // Plain canvas, no library, no build step.
 "use strict";
 
-const TOKEN = new URLSearchParams(location.search).get("token");
+// The credential comes in the URL's fragment (#token=T: a browser never sends a fragment to a
+// server), is kept in this tab's sessionStorage (this origin's only: another server on
+// 127.0.0.1 has another port, so another origin) and leaves the address bar and the history at
+// once. Every request sends it in a header; never in a URL, never in a cookie.
+const TOKEN = (() => {
+  const given = new URLSearchParams(location.hash.slice(1)).get("token");
+  if (given) {
+    sessionStorage.setItem("carfeel-token", given);
+    history.replaceState(null, "", location.pathname + location.search);
+  }
+  return sessionStorage.getItem("carfeel-token");
+})();
 const KEEP = 8000;          // rows kept (8 s at 1 kHz)
 const WINDOW_S = 4.0;       // time plots show the last 4 s
 const TRAIL_S = 2.5;        // the knob's path on the H-pattern
@@ -31,21 +42,37 @@ let socket = null;
 window.panelStats = { frames: 0, rows: 0, lost: 0 };   // what this page received (benchmarks)
 
 // -- the API ------------------------------------------------------------------------------------
-function withToken(url) {
-  if (!TOKEN) return url;
-  return url + (url.includes("?") ? "&" : "?") + "token=" + encodeURIComponent(TOKEN);
+const NO_TOKEN = "no credential: open the URL carfeel panel printed (http://...#token=...)";
+function authorized(init) {
+  if (!TOKEN) throw new Error(NO_TOKEN);
+  return { ...init, headers: { ...(init.headers || {}), Authorization: "Bearer " + TOKEN } };
+}
+async function failure(response) {
+  const data = await response.json().catch(() => ({ error: response.statusText }));
+  return new Error(data.error || response.statusText);
 }
 async function api(method, path, body) {
   const init = { method, headers: {} };
-  if (TOKEN) init.headers["Authorization"] = "Bearer " + TOKEN;
   if (body !== undefined) {
     init.headers["Content-Type"] = "application/json";
     init.body = JSON.stringify(body);
   }
-  const response = await fetch(path, init);
-  const data = await response.json().catch(() => ({ error: "the panel sent no JSON" }));
-  if (!response.ok) throw new Error(data.error || response.statusText);
-  return data;
+  const response = await fetch(path, authorized(init));
+  if (!response.ok) throw await failure(response);
+  return response.json();
+}
+async function download(path, name) {   // fetched with the header: no link carries the token
+  try {
+    const response = await fetch(path, authorized({}));
+    if (!response.ok) throw await failure(response);
+    const url = URL.createObjectURL(await response.blob());
+    const a = document.createElement("a");
+    a.href = url; a.download = name;
+    document.body.appendChild(a); a.click(); a.remove();
+    setTimeout(() => URL.revokeObjectURL(url), 60000);
+  } catch (e) {
+    say("rec-msg", e.message, true);
+  }
 }
 function say(id, text, bad) {
   const el = document.getElementById(id);
@@ -71,7 +98,8 @@ function modelChanged() {
   fill($("preset"), presets);
   $("preset").value = options.default_presets[model];
   const kind = model === "steering" ? "wheel" : "joystick";
-  fill($("device"), [...options.devices[kind], "other..."]);
+  // What the panel may open: the virtual devices, the ones detected here, the recordings.
+  fill($("device"), [...options.devices[kind], ...options.devices.real, ...options.devices.replays]);
   fill($("mode"), model === "steering" ? ["impedance"] : options.modes, true);
   if (model !== "steering") $("mode").value = "impedance";
   $("sequence-row").classList.toggle("hidden", model !== "hpattern");
@@ -95,8 +123,7 @@ async function loadOptions() {
 }
 function startBody() {
   const model = $("model").value;
-  let device = $("device").value;
-  if (device === "other...") device = $("device-custom").value.trim();
+  const device = $("device").value;
   const body = {
     model, preset: $("preset").value, device, mode: $("mode").value, hand: $("hand").value,
     clock: $("clock").value, speed_kmh: Number($("speed").value),
@@ -185,9 +212,8 @@ async function listRecordings() {
         const stem = rec.name.replace(/\.csv$/, "");
         for (const ext of ["csv", "json"]) {
           const a = document.createElement("a");
-          a.href = withToken("api/recordings/" + stem + "." + ext);
-          a.textContent = ext; a.download = stem + "." + ext;
-          a.className = "dl-" + ext;
+          a.href = "#"; a.textContent = ext; a.className = "dl-" + ext;
+          a.onclick = (event) => { event.preventDefault(); download("api/recordings/" + stem + "." + ext, stem + "." + ext); };
           li.appendChild(a);
         }
         const b = document.createElement("button");
@@ -203,9 +229,14 @@ async function listRecordings() {
 }
 async function showPlot(stem) {
   $("plot-title").textContent = stem + ".csv (the recording's Fig. 10 and 11)";
-  const headers = TOKEN ? { Authorization: "Bearer " + TOKEN } : {};
-  const response = await fetch("api/recordings/" + stem + "/plot.png", { headers });
-  if (!response.ok) { say("rec-msg", (await response.json()).error, true); return; }
+  let response;
+  try {
+    response = await fetch("api/recordings/" + stem + "/plot.png", authorized({}));
+    if (!response.ok) throw await failure(response);
+  } catch (e) {
+    say("rec-msg", e.message, true);
+    return;
+  }
   $("plot-img").src = URL.createObjectURL(await response.blob());
   $("plot-modal").classList.remove("hidden");
 }
@@ -236,7 +267,10 @@ async function loadTunables() {
       box.appendChild(label);
     }
   } catch (e) {
-    box.innerHTML = '<p class="hint">' + e.message + "</p>";
+    box.innerHTML = "";
+    const hint = document.createElement("p");
+    hint.className = "hint"; hint.textContent = e.message;   // text, never markup
+    box.appendChild(hint);
   }
 }
 function updateButtons() {
@@ -341,7 +375,10 @@ function trackEngagement(c, n) {
 function connect() {
   const url = new URL("api/stream", location.href);
   url.protocol = location.protocol === "https:" ? "wss:" : "ws:";
-  socket = new WebSocket(withToken(url.toString()));
+  if (!TOKEN) return;
+  // A WebSocket cannot carry a header from a page: the credential is offered as a subprotocol,
+  // and the panel answers "carfeel".
+  socket = new WebSocket(url.toString(), ["carfeel", "carfeel.token." + TOKEN]);
   socket.onmessage = (m) => {
     const msg = JSON.parse(m.data);
     window.panelStats.frames += 1;
@@ -715,7 +752,6 @@ function stageLegend() {
 stageLegend();
 $("model").onchange = modelChanged;
 $("steering-model").onchange = steeringModelChanged;
-$("device").onchange = () => $("device-custom-row").classList.toggle("hidden", $("device").value !== "other...");
 $("start").onclick = start;
 $("stop").onclick = stop;
 $("apply").onclick = apply;
