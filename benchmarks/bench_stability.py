@@ -12,8 +12,20 @@
    log-decrement damping ratio of each pair of swings.
 3. The stability matrix (`carfeel.realtime.matrix`): per cell, the command's peak-to-peak over
    the last second as a share of the force limit, or the reason the loop refused the cell.
+4. Device identification (issue 23): per device class, on its catalogue plant and on true
+   plants unlike it, the identification's (simulated) duration, its largest force and what it
+   found beside the truth; the start-up check of a stored profile; the CPU time of the fit
+   beside the time of the loop's own 1,000 ticks on the same device.
+5. The passivity controller's share of a nominal run (each model on each plant, the device
+   identified, hands off and shifting).
+6. The mismatch matrix (issue 23): model x plant x true plant x hand, with the device
+   identified (every cell stable or refused) and with identification off (sized for the
+   declared set: no oscillation over a tenth of the limit lasts more than 0.2 s before the
+   fade); and the review's cases with the sizing trusting the told plant, where only the guard
+   stands between the user and the limit cycle: how long it oscillated before the fade.
 Asserts nothing; the numbers go in notes, not tests.
     python benchmarks/bench_stability.py [--ticks 20000] [--no-matrix] [--no-release]
+        [--no-identify] [--no-mismatch] [--workers 2]
 """
 
 from __future__ import annotations
@@ -221,6 +233,7 @@ def releases() -> None:
 
     def keep(*args: object, **kwargs: object) -> object:
         device = original(*args, **kwargs)  # type: ignore[arg-type]
+        device.keep_log = True  # type: ignore[attr-defined]  # a session's keeps none
         made.append(device)
         return device
 
@@ -290,18 +303,165 @@ def offline(speed_kmh: float, angle_deg: float) -> Any:
     return np.degrees(angles)
 
 
+def identification() -> None:
+    """The identification per class, on its catalogue plant and on three plants unlike it."""
+    from carfeel.realtime import identify, profiles
+    from carfeel.realtime.clock import SimulatedClock
+    from carfeel.realtime.loop import LoopConfig, run_loop
+
+    print("device identification (simulated time; the fit's CPU time beside 1,000 ticks of "
+          "the loop on the same device)")  # fmt: skip
+    trues = {"catalogue": {}, "mass 0.5x, delay 6 ms": {"mass": (0.5, True),
+             "delay_ms": (6.0, False)}, "damping 0.3x, friction 3x": {"damping": (0.3, True),
+             "friction": (3.0, True)}, "reports 250 Hz": {"report_hz": (250.0, False)}}  # fmt: skip
+    for kind in ("joystick", "shifter", "wheel", "dd-wheel"):
+        for label, changes in trues.items():
+            device = virtual_device(kind, true=changes)
+            info = device.info
+            limits = SafetyLimits(info.max_force, max(info.max_force / 0.05, 200 * info.max_force))
+            start = time.perf_counter()
+            with device:
+                found = identify.identify(device, SimulatedClock(), 1000.0, 0, limits)
+            cpu = time.perf_counter() - start
+            reference = _loop_seconds(device, LoopConfig, run_loop)
+            plant = device.plant
+            a = found.axes[0]
+            print(
+                f"  {kind:9s} {label:26s} {found.duration_s:4.1f} s, peak "
+                f"{found.peak_force / found.max_force:4.0%} of the limit; inertia "
+                f"{a.mass / plant.mass - 1:+6.1%}, damping {a.damping / plant.damping - 1:+6.1%}, "
+                f"friction {a.friction / plant.coulomb - 1:+6.1%}, round trip "
+                f"{a.round_trip_s * 1e3:5.2f} ms (+-{a.round_trip_sigma_s * 1e3:.2f}), reports "
+                f"{a.report_hz:5.0f}; CPU {cpu:5.2f} s (1,000 loop ticks {reference:5.2f} s)"
+            )
+        device = virtual_device(kind)
+        info = device.info
+        limits = SafetyLimits(info.max_force, max(info.max_force / 0.05, 200 * info.max_force))
+        with device:
+            found = identify.identify(device, SimulatedClock(), 1000.0, 0, limits)
+        stored = profiles.new_profile(info, found)
+        again = virtual_device(kind, seed=3)
+        clock = SimulatedClock()
+        with again:
+            check = profiles.check(again, clock, 1000.0, 0, limits, stored)
+        print(f"  {kind:9s} its profile's check at a later start: {clock.now_ns() / 1e9:.2f} s, "
+              f"{check.reason or 'holds'} (shift {check.shift_s * 1e3:.2f} ms, gain "
+              f"{check.gain:.3f})")  # fmt: skip
+
+
+def _loop_seconds(device: Any, config: Any, run_loop: Any) -> float:
+    """CPU time of 1,000 ticks of the loop rendering a spring on the device (the reference)."""
+    from carfeel.realtime.clock import SimulatedClock
+
+    class Spring:
+        axes = device.info.axes
+        columns: tuple[str, ...] = ()
+        gears: tuple[str, ...] = ()
+        substeps = 1
+        effect = 0.0
+
+        def tick(self, sample: Any, dt_s: float) -> Any:
+            return tuple(-10.0 * x for x in sample.positions), ()
+
+    fresh = virtual_device(device.info.name.split()[-1])
+    info = fresh.info
+    start = time.perf_counter()
+    with fresh:
+        run_loop(Spring(), fresh, SimulatedClock(), config(1000.0, 1.0, calibrate=False),
+                 SafetyLimits(info.max_force, 200 * info.max_force))  # fmt: skip
+    return time.perf_counter() - start
+
+
+def passivity_share() -> None:
+    from carfeel.realtime.session import RealtimeRun, run_realtime
+
+    print("the passivity controller's share of a nominal run (6 s, the device identified)")
+    for model, plant in (("shift", "joystick"), ("shift", "shifter"), ("hpattern", "joystick"),
+                         ("hpattern", "shifter"), ("steering", "wheel"),
+                         ("steering", "dd-wheel")):  # fmt: skip
+        for hand in ("none", "script"):
+            result = run_realtime(RealtimeRun(
+                model=model, device=f"virtual:{plant}", hand=hand, clock="simulated",
+                sequence=("N", "1", "2", "N"), duration_s=6.0,
+                speed_kmh=100.0 if model == "steering" else 30.0))  # fmt: skip
+            s = result.summary
+            print(
+                f"  {model:8s} {plant:9s} {hand:6s}: acted {s.passivity_acted_s:.3f} s of "
+                f"{s.periods / 1000:.1f} s ({s.passivity_acted_s / (s.periods / 1000):.1%})"
+            )
+
+
+def mismatch(workers: int) -> None:
+    """The mismatch matrix with identification on and off, and the review's cases trusted."""
+    from unittest import mock
+
+    from carfeel.realtime import knowledge
+
+    for identify in ("auto", "off"):
+        start = time.perf_counter()
+        cells = matrix.mismatch_matrix(identify, workers=workers)
+        took = time.perf_counter() - start
+
+        def verdict(c: matrix.MismatchCell, identify: str = identify) -> bool:
+            return c.stable if identify == "auto" else c.guarded
+
+        print(f"mismatch matrix, identification {identify} ({len(cells)} cells, {took:.0f} s "
+              f"on {workers} workers): {sum(verdict(c) for c in cells)} pass, "
+              f"{sum(c.refused is not None for c in cells)} refused, "
+              f"{sum(bool(c.faults) for c in cells)} faulted")  # fmt: skip
+        for c in cells:
+            label = f"  {c.model:8s} {c.plant:9s} {c.true:14s} {c.hand:8s}"
+            if c.refused is not None:
+                print(f"{label} refused: {c.refused[:100]}")
+            elif c.faults:
+                print(f"{label} faulted after oscillating {c.oscillating_s:.3f} s: "
+                      f"{c.faults[0][:80]}")  # fmt: skip
+            else:
+                print(f"{label} {100 * c.ripple_fraction:6.2f} % over the last second"
+                      f"{'  AT THE LIMIT' if c.at_limit else ''}"
+                      f"{'' if verdict(c) else '  FAILS'}")  # fmt: skip
+    print("the review's cases with the sizing trusting the told plant (the guard alone)")
+    review = [("shift", "joystick", "delay 4x", "none"), ("shift", "joystick", "delay 3x", "none"),
+              ("steering", "dd-wheel", "mass 0.6x", "release"),
+              ("steering", "dd-wheel", "mass 0.4x", "release"),
+              ("shift", "shifter", "delay 2x", "none"),
+              ("steering", "dd-wheel", "delay 2x", "release")]  # fmt: skip
+    with mock.patch.object(knowledge, "declared_set", lambda info: info):
+        cells = matrix.mismatch_matrix("off", workers=1, cells=review)
+    for c in cells:
+        label = f"  {c.model:8s} {c.plant:9s} {c.true:14s} {c.hand:8s}"
+        if c.faults:
+            print(f"{label} faded after oscillating {c.oscillating_s:.3f} s over a tenth of the "
+                  f"limit: {c.faults[0][:70]}")  # fmt: skip
+        else:
+            print(f"{label} no fault; {100 * c.ripple_fraction:.2f} % over the last second")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--ticks", type=int, default=20_000)
     parser.add_argument("--no-matrix", action="store_true")
     parser.add_argument("--no-release", action="store_true")
+    parser.add_argument("--no-identify", action="store_true")
+    parser.add_argument("--no-mismatch", action="store_true")
+    parser.add_argument("--workers", type=int, default=2)
     args = parser.parse_args()
+    import os
+    import tempfile
+
+    # Device profiles of the benchmark's own (a user's stay untouched).
+    os.environ["CARFEEL_CONFIG_DIR"] = tempfile.mkdtemp(prefix="carfeel-bench-")
     print(f"CPython {platform.python_version()} on {platform.machine()}")
     costs(args.ticks)
+    if not args.no_identify:
+        identification()
+        passivity_share()
     if not args.no_release:
         releases()
     if not args.no_matrix:
         table()
+    if not args.no_mismatch:
+        mismatch(args.workers)
 
 
 if __name__ == "__main__":

@@ -415,6 +415,8 @@ class Session:
                              "fade_s": limits.fade_s, "stall_s": limits.stall_s,
                              "ramp_s": limits.ramp_s}  # fmt: skip
             out["sizing"] = asdict(ready["sizing"])
+            # How the device is known: identified hands off, its profile checked, or declared.
+            out["knowledge"] = ready["metadata"].get("device_knowledge")
             out["scaling"] = asdict(ready["scaling"])
             out["rate_hz"] = ready["rate_hz"]
             out["loop_process"] = {"pid": ready["pid"], "priority": ready["priority"]}

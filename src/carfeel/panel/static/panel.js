@@ -138,8 +138,17 @@ function startBody() {
   }
   return body;
 }
+function knowledgeText(k, dev) {
+  // How the run knows its device: measured hands off, a stored profile checked, or declared.
+  if (!k) return "–";
+  const how = {identified: `identified in ${fmt(k.duration_s, 2)} s`, profile: `profile checked in ${fmt(k.duration_s, 2)} s`,
+               declared: "as declared (not measured)", recorded: "as recorded"}[k.how] || k.how;
+  const wheel = dev && dev.kind === "wheel";
+  const range = (r, f) => r ? ` (${fmt(f(r[0]))}..${fmt(f(r[1]))})` : "";
+  return `${how}: inertia ${fmt(k.mass)} ${wheel ? "kg·m²" : "kg"}${range(k.mass_range, (v) => v)}, damping ${fmt(k.damping)}, round trip ${fmt(1e3 * k.round_trip_s)} ms${range(k.delay_range_s, (v) => 1e3 * v)}`;
+}
 async function start() {
-  say("start-msg", "starting the loop's process...");
+  say("start-msg", "starting the loop's process: hands off the device while it is measured (a few seconds)...");
   $("start").disabled = true;
   try {
     const s = await api("POST", "api/session", startBody());
@@ -710,6 +719,7 @@ function drawFigures() {
     ["device", dev ? dev.name : "–"],
     ["force / travel", dev ? `${fmt(dev.max_force)} ${unit}, ±${fmt(dev.kind === "wheel" ? dev.travel * 180 / Math.PI : dev.travel * 1e3)} ${dev.kind === "wheel" ? "deg" : "mm"}` : "–"],
     ["round-trip delay, reports", dev ? `${fmt(dev.delay_ms)} ms, ${fmt(dev.report_hz)} Hz` : "–"],
+    ["device known", knowledgeText(session.knowledge, dev), session.knowledge && session.knowledge.how === "declared" ? "warn" : ""],
     ["sized stiffness, ζ hands off", sz ? `${fmt(sz.stiffness)} ${unit}/${dev && dev.kind === "wheel" ? "rad" : "m"}, ${fmt(sz.zeta, 2)}` : "–"],
     ["force scale", session.scaling ? fmt(session.scaling.force_scale) : "–"],
     ...(session.coupling ? [["physical model's coupling", `${fmt(session.coupling.stiffness)} ${unit}/rad (${(100 * session.coupling.share).toFixed(0)} % of the budget), ζ ${fmt(session.coupling.zeta, 2)}, up to ${fmt(session.coupling.top_speed_kmh)} km/h`]] : []),
