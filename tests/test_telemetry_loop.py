@@ -408,14 +408,16 @@ class ConstantSource(VehicleSource):
 def test_the_games_clutch_reaches_the_synchronizer(monkeypatch: pytest.MonkeyPatch) -> None:
     """The physics synchronizer with the game's clutch: pressed, the cone only meets the input
     shaft and both gears go in; released with the engine at 6000 rpm, the clutch holds the input
-    shaft to the engine, the cone cannot match the speeds and the lever balks (no gear)."""
+    shaft to the engine, the cone cannot match the speeds and the lever balks (no gear). (At
+    18 km/h: at 29-43 km/h first gear's synchronization outlasts the script's push on the
+    coupling the identified joystick holds; issue 30 takes up the ring's feel on a device.)"""
     from carfeel.telemetry.state import VehicleState
 
     monkeypatch.setattr(source, "VehicleSource", ConstantSource)
     gears = {}
     for pedal, rpm in ((1.0, 2000.0), (0.0, 6000.0)):
         ConstantSource.state = VehicleState(
-            speed_m_s=12.0, lateral_accel_m_s2=0.0, engine_speed_rpm=rpm, gear=1,
+            speed_m_s=5.0, lateral_accel_m_s2=0.0, engine_speed_rpm=rpm, gear=1,
             clutch_pedal=pedal,
         )  # fmt: skip
         run = RealtimeRun(model="hpattern", clock="simulated", telemetry="carfeel:127.0.0.1:0",

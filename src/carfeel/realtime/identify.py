@@ -62,7 +62,7 @@ CHIRP_HZ = (4.0, 40.0)
 SERVO_HZ = 2.0
 """The centring servo's natural frequency on the first guess of the inertia: far below any
 coupling, so it is stable whatever the delay and the inertia turn out to be."""
-SWEEP_SPEEDS = (0.3, 1.0)
+SWEEP_SPEEDS = (0.1, 0.3, 1.0)
 """The sweeps' steady speeds, shares of the fastest (which covers half the window one way)."""
 SWEEP_STEADY_S = 0.12
 SWEEP_RAMP_S = 0.02
@@ -730,7 +730,9 @@ def _refuse_a_hand(info: DeviceInfo, axis: int, estimate: AxisEstimate, rest: An
 
     name = f"axis {axis} of {info.name}"
     spread = float(np.ptp(rest)) if rest.size else 0.0
-    still = max(50.0 * max(info.resolution, 1e-12), 1e-3 * info.travel, 10.0 * info.noise)
+    # A free device at rest reads its noise and a quantum or two: a hand's tremor and drift
+    # move it further.
+    still = max(6.0 * max(info.resolution, 1e-12), 1e-4 * info.travel, 8.0 * info.noise)
     if spread > still:
         raise IdentificationError(
             f"{name} moved {spread:.3g} while no force was on it: a hand is on the device. "

@@ -63,7 +63,9 @@ class VehicleSource:
             self.events.append(f"bad packets from t = {t_s:.3f} s")
         self._bad_seen = receiver.bad
         step = dt / self.fade_s if self.fade_s > 0 else 1.0
-        self.weight = min(1.0, self.weight + step) if healthy else max(0.0, self.weight - step)
+        weight = self.weight + step if healthy else self.weight - step
+        # Whole at the ends: sums of steps fall a rounding short of 1 (or 0) for a tick.
+        self.weight = 1.0 if weight > 1.0 - 1e-9 else 0.0 if weight < 1e-9 else weight
         return self.state, self.weight
 
     def close(self) -> None:

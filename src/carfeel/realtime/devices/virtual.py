@@ -215,6 +215,9 @@ class VirtualDevice:
         self.nan_at_s = nan_at_s
         self._rng = random.Random(seed)
         self._time = 0.0
+        self._steps = 0
+        """Sub-steps integrated: the time is counted in them (a sum of 0.1 ms steps drifts by
+        roundings, and a report at a tick's edge then came a tick late)."""
         self._x = [0.0] * axes
         self._v = [0.0] * axes
         self._queue: deque[tuple[float, tuple[float, ...]]] = deque()
@@ -271,9 +274,12 @@ class VirtualDevice:
                 # next (a reading between reports repeats it).
                 self._reports.append((now, self._sample()))
                 self._next_report += report_period
-                while len(self._reports) > 1 and self._reports[1][0] + p.delay_s <= now:
+                while (
+                    len(self._reports) > 1
+                    and self._reports[1][0] + p.delay_s <= now - 0.5 * SUBSTEP_S
+                ):
                     self._reports.popleft()
-            while self._queue and self._queue[0][0] + p.delay_s <= now:
+            while self._queue and self._queue[0][0] + p.delay_s <= now + 0.5 * SUBSTEP_S:
                 sent, forces = self._queue.popleft()
                 self._applied, self._applied_at = forces, sent + p.delay_s
             motor = self.motor_forces
@@ -297,7 +303,8 @@ class VirtualDevice:
                 v = 0.0 if abs(v) <= grip else v - math.copysign(grip, v)
                 self._v[i] = v
                 self._x[i] = x + SUBSTEP_S * v
-            self._time = now + SUBSTEP_S
+            self._steps += 1
+            self._time = self._steps * SUBSTEP_S
         if self._time + 0.5 * SUBSTEP_S >= self._next_report:
             # A report due now is taken now: a reading with no delay sees the sensor as it is
             # (else every reading would be a tick older than the delay says).
@@ -321,7 +328,7 @@ class VirtualDevice:
         p = self.plant
         seen = self._reports[0][1]
         for when, positions in self._reports:  # the newest report old enough to have arrived
-            if when + p.delay_s > time_s + 1e-9:
+            if when + p.delay_s > time_s + 0.5 * SUBSTEP_S:
                 break
             seen = positions
         readings = list(seen)
