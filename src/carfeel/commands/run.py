@@ -29,9 +29,14 @@ def register(commands: Any) -> None:
         "displayed) or impedance with a virtual coupling (the device's motion drives the model, "
         "the coupling force is rendered). Forces are limited in size and slew; a stall, a lost "
         "device or a bad reading fades the force to zero. Ctrl-C stops cleanly, force first.",
-        epilog="devices: virtual (a 10 N joystick, or a 4 Nm wheel for --model steering, held by "
-        "a simulated hand that drives the model's own script), evdev:/dev/input/eventN, "
-        "sdl:INDEX, replay:RECORDING.csv. `carfeel devices` lists what is attached.",
+        epilog="devices: virtual[:KIND] (KIND joystick: the paper's 10 N one, the default; "
+        "shifter: an active 30 N H-shifter; wheel: a 4 Nm belt wheel, the default for --model "
+        "steering; dd-wheel: a 15 Nm direct-drive wheel; held by a simulated hand that drives "
+        "the model's own script), virtual:KIND:KEY=VALUE,... (the true plant unlike what it "
+        "tells: mass, damping, friction, delay_ms, report_hz, report_phase, grip, grip_damping; "
+        "a value ending in x is a factor: virtual:dd-wheel:mass=0.5x,delay_ms=6), "
+        "evdev:/dev/input/eventN, sdl:INDEX, replay:RECORDING.csv. `carfeel devices` lists "
+        "what is attached; `carfeel calibrate` measures one.",
     )
     run.add_argument("--model", choices=("shift", "hpattern", "steering"), default="hpattern",
                      help="what to render: one engagement (shift), the H-pattern (default), "
