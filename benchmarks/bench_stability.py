@@ -425,7 +425,9 @@ def mismatch(workers: int) -> None:
               ("steering", "dd-wheel", "mass 0.6x", "release"),
               ("steering", "dd-wheel", "mass 0.4x", "release"),
               ("shift", "shifter", "delay 2x", "none"),
-              ("steering", "dd-wheel", "delay 2x", "release")]  # fmt: skip
+              ("steering", "dd-wheel", "delay 2x", "release"),
+              ("steering", "dd-wheel", "delay 3x", "release"),
+              ("hpattern", "shifter", "delay 3x", "script")]  # fmt: skip
     with mock.patch.object(knowledge, "declared_set", lambda info: info):
         cells = matrix.mismatch_matrix("off", workers=1, cells=review)
     for c in cells:

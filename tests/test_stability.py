@@ -522,15 +522,17 @@ def test_the_mismatch_matrix_with_identification_off():
 REVIEW = [("shift", "joystick", "delay 4x", "none"), ("shift", "joystick", "delay 3x", "none"),
           ("steering", "dd-wheel", "mass 0.6x", "release"),
           ("steering", "dd-wheel", "mass 0.4x", "release"),
-          ("shift", "shifter", "delay 2x", "none")]  # fmt: skip
+          ("shift", "shifter", "delay 2x", "none"), ("steering", "dd-wheel", "delay 2x", "release"),
+          ("hpattern", "shifter", "delay 3x", "script")]  # fmt: skip
 
 
 def test_the_guard_alone_ends_the_review_s_limit_cycles_within_0_2_s(monkeypatch, capsys):
     """With the sizing made to trust the told plant exactly (as before issue 23: only the guard
     stands between the user and the limit cycle), the review's cases (the joystick held axis at
     4x and 3x its delay, the direct-drive wheel at 0.6x and 0.4x its inertia, the shifter at 2x
-    its delay) each fade within 0.2 s of oscillating over a tenth of the limit, and the run
-    exits 3 (the review's joystick ran 7 s at 8 Hz, +-10 N, and exited 0)."""
+    its delay, both wheels' at 2x, the H-pattern on the shifter at 3x with the hand shifting)
+    each fade within 0.2 s of oscillating over a tenth of the limit (measured 0.03-0.13 s), and
+    the run exits 3 (the review's joystick ran 7 s at 8 Hz, +-10 N, and exited 0)."""
     from carfeel.realtime import knowledge
 
     monkeypatch.setattr(knowledge, "declared_set", lambda info: info)

@@ -229,20 +229,17 @@ def true_spec(plant: str, true: str) -> str:
     return f"virtual:{plant}:{change}"
 
 
-def oscillation_envelope(commands: np.ndarray, rate_hz: float, window_s: float = 0.1) -> Any:
-    """Per sample, the largest 2-100 Hz amplitude (half the peak to peak over a window) over
-    the axes: zero-phase filtered offline, independent of the loop's guard."""
-    from numpy.lib.stride_tricks import sliding_window_view
-    from scipy.signal import butter, sosfiltfilt
+def oscillation_envelope(commands: np.ndarray, rate_hz: float) -> Any:
+    """Per sample, the largest 2-100 Hz amplitude over the axes: the Hilbert envelope of the
+    zero-phase band-passed command, offline and independent of the loop's guard (no window to
+    lead or lag a growing swing)."""
+    from scipy.signal import butter, hilbert, sosfiltfilt
 
     sos = butter(2, [2.0, min(100.0, 0.45 * rate_hz)], "bandpass", fs=rate_hz, output="sos")
-    width = max(3, round(window_s * rate_hz))
     envelope = np.zeros(commands.shape[0])
     for column in commands.T:
         band = sosfiltfilt(sos, np.nan_to_num(column))
-        padded = np.pad(band, (width // 2, width - width // 2), mode="edge")
-        view = sliding_window_view(padded, width + 1)[: len(band)]
-        envelope = np.maximum(envelope, 0.5 * (view.max(axis=1) - view.min(axis=1)))
+        envelope = np.maximum(envelope, np.abs(hilbert(band)))
     return envelope
 
 
