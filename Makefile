@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 OUT ?= carfeel-demo
 
-.PHONY: demo test lint bench mutate clean chromium
+.PHONY: demo test check lint bench mutate clean chromium
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -16,7 +16,7 @@ $(VENV)/.installed: pyproject.toml | $(BIN)/python
 	touch $@
 
 $(VENV)/.installed-test: pyproject.toml | $(BIN)/python
-	$(BIN)/python -m pip install --quiet -e '.[test,logs,batch,fmu,panel]'
+	$(BIN)/python -m pip install --quiet -e '.[test,dev,logs,batch,fmu,panel]'
 	touch $(VENV)/.installed $@
 
 demo: $(VENV)/.installed
@@ -39,6 +39,12 @@ chromium:
 test: lint chromium
 	command -v cc >/dev/null || (apt-get update && apt-get install -y gcc)  # FMU export's compiler
 	$(BIN)/python -m pytest
+
+# The fast tier, before each commit: lint, types and every test not marked slow (the matrices'
+# many simulated runs, the browser); `make test` (and CI) runs them all.
+check: lint
+	command -v cc >/dev/null || (apt-get update && apt-get install -y gcc)
+	$(BIN)/python -m pytest -m "not slow" -q
 
 bench: $(VENV)/.installed-test
 	$(BIN)/python benchmarks/bench_engagement_step.py

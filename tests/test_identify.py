@@ -67,6 +67,7 @@ def random_changes(rng: random.Random) -> dict[str, tuple[float, bool]]:
     }
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", KINDS)
 def test_random_true_plants_are_identified_within_the_stated_tolerances(kind):
     """20 seeded true plants per device class (inertia 0.4-2.5x, damping 0.3-3x and friction

@@ -113,6 +113,7 @@ RELEASES = [(plant, speed, 30.0) for plant in ("wheel", "dd-wheel")
 ]  # fmt: skip
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("plant", "speed_kmh", "angle_deg"), RELEASES)
 def test_a_released_physical_wheel_returns_and_settles(plant, speed_kmh, angle_deg, monkeypatch):
     """Let go at highway speed with 4 ms each way: the wheel returns toward the centre (more
@@ -128,6 +129,7 @@ def test_a_released_physical_wheel_returns_and_settles(plant, speed_kmh, angle_d
     assert result.summary.time_at_limit_s == 0.0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("plant", ["wheel", "dd-wheel"])
 def test_from_90_deg_at_150_kmh_the_car_slides_and_recovers_offline_as_on_the_device(
     plant, monkeypatch

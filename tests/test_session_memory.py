@@ -33,6 +33,7 @@ def peak_kb(model: str, device: str, seconds: float, tmp_path) -> int:
     return int(json.loads(out.stdout.strip().splitlines()[-1])["peak_kb"])
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not os.path.exists("/proc/self/status"), reason="VmHWM is Linux's")
 @pytest.mark.parametrize(("model", "device"), [("steering", "virtual:wheel"),
                                                ("hpattern", "virtual:shifter")])  # fmt: skip

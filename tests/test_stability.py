@@ -133,6 +133,7 @@ CELLS = [
 GEARBOX = ("shift", "hpattern")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("model", "mode", "plant", "delay", "hand"), CELLS)
 def test_the_stability_matrix(model, mode, plant, delay, hand):
     """Every model on every plant it fits (`physical`: the physical steering model behind its
@@ -258,6 +259,7 @@ def run_released(plant: str, speed_kmh: float, monkeypatch=None, flip: bool = Fa
     return result, angle
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("plant", ["wheel", "dd-wheel"])
 @pytest.mark.parametrize("speed_kmh", [60.0, 100.0, 120.0, 150.0])
 def test_a_released_wheel_returns_and_settles(plant, speed_kmh, monkeypatch):
@@ -325,6 +327,7 @@ NOMINAL = [("shift", "joystick"), ("shift", "shifter"), ("hpattern", "joystick")
            ("hpattern", "shifter"), ("steering", "wheel"), ("steering", "dd-wheel")]  # fmt: skip
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("model", "plant"), NOMINAL)
 @pytest.mark.parametrize("hand", ["none", "script"])
 def test_the_passivity_controller_leaves_a_sized_rendering_alone(model, plant, hand):
@@ -379,6 +382,7 @@ def test_time_at_the_limit_and_the_sizing_are_in_the_summary(tmp_path):
     assert rec["command_0"][-1] == 0.0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("model", "plant"),
     [("hpattern", "joystick"), ("hpattern", "shifter"), ("steering", "wheel"),
@@ -483,6 +487,7 @@ def test_the_guard_leaves_a_ringing_that_dies_down_and_a_push_alone():
 # ------------------------------------------------------------------ what carfeel is not told
 
 
+@pytest.mark.slow
 def test_the_mismatch_matrix_with_the_device_identified():
     """Every model on every plant it fits, each true plant unlike the catalogue's (inertia 0.4x,
     0.6x, 2x; damping 0.1x; delay 2x, 3x, 4x; reports at 250 Hz; a stiff grip of 3.5 kN/m),
@@ -507,6 +512,7 @@ def test_the_mismatch_matrix_with_the_device_identified():
     assert ("shift", "shifter", "delay 2x", "none") in rendered
 
 
+@pytest.mark.slow
 def test_the_mismatch_matrix_with_identification_off():
     """The same cells sized for the declared set around the catalogue's plant (inertia
     x0.5..2, damping x0.3..1, delay x1..2): refused where no rendering holds over it, and
@@ -526,6 +532,7 @@ REVIEW = [("shift", "joystick", "delay 4x", "none"), ("shift", "joystick", "dela
           ("hpattern", "shifter", "delay 3x", "script")]  # fmt: skip
 
 
+@pytest.mark.slow
 def test_the_guard_alone_ends_the_review_s_limit_cycles_within_0_2_s(monkeypatch, capsys):
     """With the sizing made to trust the told plant exactly (as before issue 23: only the guard
     stands between the user and the limit cycle), the review's cases (the joystick held axis at
