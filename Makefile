@@ -38,12 +38,14 @@ chromium:
 
 test: lint chromium
 	command -v cc >/dev/null || (apt-get update && apt-get install -y gcc)  # FMU export's compiler
+	command -v cmake >/dev/null || (apt-get update && apt-get install -y cmake)  # FMPy's build
 	$(BIN)/python -m pytest
 
 # The fast tier, before each commit: lint, types and every test not marked slow (the matrices'
 # many simulated runs, the browser); `make test` (and CI) runs them all.
 check: lint
 	command -v cc >/dev/null || (apt-get update && apt-get install -y gcc)
+	command -v cmake >/dev/null || (apt-get update && apt-get install -y cmake)
 	$(BIN)/python -m pytest -m "not slow" -q
 
 bench: $(VENV)/.installed-test

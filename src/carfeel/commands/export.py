@@ -60,6 +60,10 @@ def register(commands: Any) -> None:
     fmu.add_argument("--seed", type=seed_arg, default=None,
                      help="shift: the seed parameter's start value (default 0)")  # fmt: skip
     fmu.add_argument("--out", required=True, metavar="NAME.fmu", help="the FMU file to write")
+    fmu.add_argument("--build", choices=("auto", "gcc", "cmake"), default="auto",
+                     help="how the binary is built: gcc (Linux x86-64), cmake (FMPy's CMake "
+                     "build: Windows, macOS, Linux), auto (default: gcc where it applies, else "
+                     "cmake)")  # fmt: skip
     fmu.set_defaults(handler=_handle)
 
 
@@ -88,7 +92,7 @@ def _handle(args: argparse.Namespace) -> int:
     outputs = Outputs()
     staged = outputs.add(out, ".fmu")  # checked before anything is built
     with outputs:
-        files = export_fmu(spec, args.fmi, staged)
+        files = export_fmu(spec, args.fmi, staged, args.build)
     binary = next(name for name in files if name.startswith("binaries/"))
     title = spec.title if spec.title.isprintable() else ascii(spec.title)  # a newline in a name
     print(

@@ -964,15 +964,53 @@ def compile_library(compiler: str, folder: Path, sources: Sequence[str], library
                           f"{done.stderr.strip()}")  # fmt: skip
 
 
-def export_fmu(spec: ModelSpec, fmi_version: int, out: Path) -> list[str]:
-    """Build the FMU of `spec` into the file `out` (written in one piece: a zip archive).
+BUILDERS = ("auto", "gcc", "cmake")
+"""How the FMU's binary is built: gcc (the C compiler called directly: Linux x86-64), cmake
+(FMPy's CMake build of the FMU's own sources/: Windows with Visual Studio or MinGW, macOS,
+Linux), auto (gcc where it applies, else cmake)."""
+
+
+def choose_builder(builder: str) -> str:
+    """The builder to use here (see BUILDERS); ExportError naming what to install."""
+    if builder not in BUILDERS:
+        raise ExportError(f"--build {builder!r}: choose one of {', '.join(BUILDERS)}")
+    system, machine = platform.system(), platform.machine().lower()
+    linux64 = system == "Linux" and machine in ("x86_64", "amd64")
+    if builder == "auto":
+        has_cc = any(shutil.which(n) for n in (os.environ.get("CC") or "", "cc", "gcc") if n)
+        if linux64 and not has_cc and shutil.which("cmake") is None:
+            find_compiler()  # names the compiler to install (the fast path here)
+        builder = "gcc" if linux64 and has_cc else "cmake"
+    if builder == "cmake" and shutil.which("cmake") is None:
+        raise ExportError(
+            "FMPy's CMake build needs cmake on the PATH (pip install cmake, or the system's "
+            "package), and a C compiler it finds (Visual Studio's Build Tools on Windows, "
+            "Xcode's command line tools on macOS, gcc on Linux)"
+        )
+    return builder
+
+
+def cmake_flags() -> str:
+    """The compiler flags that keep the C port's arithmetic Python's (no contraction into fused
+    multiply-adds, no fast math, libm's functions as called), for CMake's C compiler."""
+    if platform.system() == "Windows":
+        return "/fp:strict"
+    return " ".join(f for f in CFLAGS if f.startswith("-f"))
+
+
+def export_fmu(spec: ModelSpec, fmi_version: int, out: Path, builder: str = "auto") -> list[str]:
+    """Build the FMU of `spec` into the file `out` (written in one piece: a zip archive), its
+    binary by `builder` (BUILDERS).
 
     Returns the files it holds. Raises ExportError when the platform, the compiler or FMPy's
     headers are missing, before anything is written."""
     if fmi_version not in FMI_VERSIONS:
         raise ExportError(f"FMI version {fmi_version}: choose 2 or 3")
-    check_platform()
-    compiler = find_compiler()
+    builder = choose_builder(builder)
+    compiler = ""
+    if builder == "gcc":
+        check_platform()
+        compiler = find_compiler()
     headers = fmi_header_dir()
     token = token_of(spec, fmi_version)
     ours = c_source_dir()
@@ -989,18 +1027,54 @@ def export_fmu(spec: ModelSpec, fmi_version: int, out: Path) -> list[str]:
                 shutil.copyfile(ours / name, sources / name)
         if fmi_version == 3:
             (sources / "buildDescription.xml").write_text(build_description(spec), "utf-8")
-        binaries = root / "binaries" / PLATFORM_FOLDER[fmi_version]
-        binaries.mkdir(parents=True)
-        c_files = [n for n in source_files(spec, fmi_version) if n.endswith(".c")]
-        compile_library(compiler, sources, c_files, binaries / f"{spec.identifier}.so")
         (root / "modelDescription.xml").write_text(
             model_description(spec, fmi_version, token), encoding="utf-8"
         )
+        if builder == "gcc":
+            binaries = root / "binaries" / PLATFORM_FOLDER[fmi_version]
+            binaries.mkdir(parents=True)
+            c_files = [n for n in source_files(spec, fmi_version) if n.endswith(".c")]
+            compile_library(compiler, sources, c_files, binaries / f"{spec.identifier}.so")
+        else:
+            cmake_build(root)
         documentation = root / "documentation"
         documentation.mkdir()
         main_page = "index.html" if fmi_version == 3 else "_main.html"  # each standard's name
         (documentation / main_page).write_text(_documentation(spec, fmi_version), "utf-8")
         return _zip(root, out)
+
+
+def cmake_build(root: Path) -> None:
+    """FMPy's CMake build of the staged FMU folder `root` (its sources/ and model description)
+    into its binaries/ folder for this platform."""
+    try:
+        import fmpy.build
+    except ImportError:
+        raise ExportError(
+            "FMPy's CMake build is missing: pip install 'carfeel[fmu]' (FMPy 0.3.20 or newer)"
+        ) from None
+    cmake = shutil.which("cmake") or "cmake"
+    project = (Path(fmpy.build.__file__).parent / "c-code").as_posix()
+    with tempfile.TemporaryDirectory(prefix="carfeel-cmake-") as build:
+        # FMPy's settings (sources, target folder per platform, the model's identifier), and
+        # CMake run here with its output kept: shown only when it fails.
+        fmpy.build.create_cmake_settings(
+            root, build, cmake_options={"CMAKE_C_FLAGS:STRING": cmake_flags()}
+        )
+        for command in (
+            [cmake, "-S", project, "-B", build],
+            [cmake, "--build", build, "--target", "install", "--config", "Release"],
+        ):
+            done = subprocess.run(command, capture_output=True, text=True, check=False)
+            if done.returncode != 0:
+                raise ExportError(
+                    f"FMPy's CMake build of the FMU failed ({' '.join(command)}):\n"
+                    f"{(done.stdout + done.stderr).strip()[-3000:]}\nA C compiler CMake finds "
+                    "is needed (Visual Studio's Build Tools on Windows, Xcode's command line "
+                    "tools on macOS, gcc on Linux)"
+                )
+    if not any((root / "binaries").rglob("*.*")):
+        raise ExportError("FMPy's CMake build produced no binary: this is a bug, please report it")
 
 
 def _zip(root: Path, out: Path) -> list[str]:
