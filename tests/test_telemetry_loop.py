@@ -23,10 +23,13 @@ from carfeel.realtime.session import RealtimeRun, run_realtime
 from carfeel.telemetry import gearout, replay, source
 from carfeel.telemetry.gearout import GearDriver, RecordingGearOutput
 from carfeel.telemetry.source import FADE_S, STALE_AFTER_S, VehicleSource
-from tests.conftest import SHARED
+from tests.datafiles import data_file
 
-FORZA_CAPTURE = SHARED / "data" / "telemetry" / "forza-motorsport-2023-dash.raw"
-needs_capture = pytest.mark.skipif(not FORZA_CAPTURE.is_file(), reason="no shared capture")
+
+def forza_capture() -> Path:
+    return data_file("telemetry", "forza-motorsport-2023-dash.raw")
+
+
 PACKET_S = 1.0 / 60.0
 STOP_S, RESTART_S = 1.5, 2.2
 
@@ -37,7 +40,7 @@ class FeedingSource(VehicleSource):
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
-        self.packets = replay.datagrams(FORZA_CAPTURE, 331)[300:]
+        self.packets = replay.datagrams(forza_capture(), 331)[300:]
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.next_s = 0.0
         self.index = 0
@@ -92,7 +95,6 @@ LATE_S = STALE_AFTER_S + FADE_S + PACKET_S + 0.003
 the last packet (up to one packet period before STOP_S), plus the loop's ticks of rounding."""
 
 
-@needs_capture
 def test_replayed_telemetry_drives_the_steering_torque(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -119,7 +121,6 @@ def test_replayed_telemetry_drives_the_steering_torque(
     assert not result.summary.faults
 
 
-@needs_capture
 def test_replayed_telemetry_drives_the_hpattern_synchronizer(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -340,13 +341,12 @@ def test_cli_bad_sources_exit_2_before_anything(
                      "--to", "127.0.0.1:5300"]) == 2  # fmt: skip
 
 
-@needs_capture
 def test_cli_listen_and_replay(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
         probe.bind(("127.0.0.1", 0))
         port = probe.getsockname()[1]
     small = tmp_path / "forza.raw"
-    small.write_bytes(FORZA_CAPTURE.read_bytes()[: 331 * 30])
+    small.write_bytes(forza_capture().read_bytes()[: 331 * 30])
     record = tmp_path / "state.csv"
     codes: list[int] = []
     listener = threading.Thread(target=lambda: codes.append(cli.main(
