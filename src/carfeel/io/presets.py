@@ -258,8 +258,9 @@ def available(kind: str) -> list[str]:
     return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
 
 
-MAX_TOML_BYTES = 1024 * 1024
-"""The largest preset (or map) file read: the shipped ones are under 8 kB."""
+MAX_TOML_BYTES = 256 * 1024
+"""The largest preset (or map) file read: the shipped ones are under 8 kB; 256 kB of the
+worst TOML (keys alone) parses in about 0.3 s."""
 MAX_TOML_NESTING = 16
 """Arrays and inline tables nested deeper than this are refused before parsing (a preset
 nests 3 deep; 100k deep made tomllib overflow Python's stack)."""
@@ -985,9 +986,13 @@ def to_toml(
 
     document: dict[str, Any] = {"name": name, "source": source.strip("\n")}
     document.update(extra or {})
+    texts = [v for v in document.values() if isinstance(v, str)]
     for key, value in tables.items():
         document[key] = _toml_table(value)
-    return tomli_w.dumps(document, multiline_strings=True)
+    # Multi-line strings read best, but a TOML reader turns their CR LF into LF: a text with a
+    # CR is written on one line, its newlines escaped, so that it comes back as it was.
+    multiline = not any("\r" in t for t in texts)
+    return tomli_w.dumps(document, multiline_strings=multiline)
 
 
 def _toml_value(value: Any) -> Any:
