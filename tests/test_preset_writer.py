@@ -30,7 +30,7 @@ from carfeel.io.presets import (
 PIECES = ('"', "'", "\\", "\n", "\r", "\t", '"""', "'''", "#", "[", "]", "=", "\x00", "\x1f",
           "\x7f", "\u2028", "é", "C:\\logs\\", "${x}", "%s")  # fmt: skip
 HOSTILE = st.lists(
-    st.one_of(st.sampled_from(PIECES), st.text(st.characters(exclude_categories=("Cs",)),
+    st.one_of(st.sampled_from(PIECES), st.text(st.characters(codec="utf-8"),
                                                   max_size=4)),
     max_size=20,
 ).map("".join)  # fmt: skip
