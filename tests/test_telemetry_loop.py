@@ -424,3 +424,27 @@ def test_the_games_clutch_reaches_the_synchronizer(monkeypatch: pytest.MonkeyPat
         assert not result.summary.faults
         gears[pedal] = result.summary.gears
     assert gears == {1.0: ["1", "2"], 0.0: []}
+
+
+def test_options_that_would_do_nothing_are_refused(capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 26 point 7, as a new user tries them: each exits 2 with the reason."""
+    cases = [
+        (["run", "--model", "hpattern", "--gear-output", "uinput", "--clock", "simulated"],
+         "needs --telemetry"),
+        (["run", "--model", "hpattern", "--gear-output", "vjoy", "--clock", "simulated"],
+         "needs --telemetry"),
+        (["run", "--rate-hz", "20000", "--clock", "simulated"], "above, a tick is shorter"),
+        (["run", "--rate-hz", "100", "--clock", "simulated"], "below, the rendering"),
+        (["run", "--accept-from", "127.0.0.1", "--clock", "simulated"], "give --telemetry"),
+        (["run", "--model", "steering", "--clock", "simulated", "--telemetry",
+          "forza:0.0.0.0:0"], "--accept-from ADDR"),
+    ]  # fmt: skip
+    for args, reason in cases:
+        assert cli.main(args) == 2, args
+        err = capsys.readouterr().err
+        assert reason in err and "Traceback" not in err, (args, err)
+    from carfeel.realtime.session import _check
+
+    with pytest.raises(InputError) as too_fast:
+        _check(RealtimeRun(rate_hz=20_000.0))
+    assert "below" not in str(too_fast.value)  # it said "below" for a rate above the range
