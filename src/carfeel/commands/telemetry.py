@@ -20,7 +20,9 @@ def register(commands: Any) -> None:
         help="receive a game's telemetry (listen) or send a capture as the game would (replay)",
         description="SOURCE is FORMAT:HOST:PORT (or FORMAT:PORT on 127.0.0.1) with FORMAT one "
         "of codemasters, f1, assetto, forza, outgauge, outsim, beamng, carfeel. For assetto, "
-        "HOST:PORT is the game's (port 9996); for the others, where to listen.",
+        "HOST:PORT is the game's (port 9996); for the others, where to listen. Packets are "
+        "taken from the game's host only (127.0.0.1 on loopback); beyond loopback name it with "
+        "--accept-from ADDR (or ,from=ADDR after the source).",
     )
     actions = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
     listen = actions.add_parser("listen", help="print what arrives; record the vehicle state")
