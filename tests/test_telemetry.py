@@ -3,6 +3,7 @@ layouts, the receiver on real loopback sockets (garbage, NaN, flood), and the st
 
 from __future__ import annotations
 
+import ipaddress
 import itertools
 import math
 import socket
@@ -10,12 +11,13 @@ import struct
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 
 from carfeel.errors import InputError
 from carfeel.telemetry import formats, replay
-from carfeel.telemetry.formats import FORMATS, G, encode_carfeel
+from carfeel.telemetry.formats import FORMATS, FORZA_MAX_ORDINAL, G, encode_carfeel
 from carfeel.telemetry.receiver import MAX_PER_POLL, Receiver, Source
 from carfeel.telemetry.source import FADE_S, STALE_AFTER_S, VehicleSource
 from carfeel.telemetry.state import BAD, NEUTRAL, REVERSE, VehicleState, plausible
@@ -461,3 +463,326 @@ def test_outsim_pack2_against_lfs_insim(options: int) -> None:
         assert (s.throttle, s.brake, s.clutch_pedal) == pytest.approx((0.6, 0.1, 0.9))
     with pytest.raises(InputError, match="OSMain"):
         Source.parse("outsim@10:127.0.0.1:0")
+
+
+# --- each plausibility check on its own: one field past the game's range is bad ---------------
+
+
+def _with(packet: bytes, offset: int, layout: str, value: float) -> bytes:
+    data = bytearray(packet)
+    struct.pack_into(layout, data, offset, value)
+    return bytes(data)
+
+
+def _outgauge() -> bytes:
+    return struct.pack("<I4sHBB7f2I3f16s16s", 1000, b"XRT", 0, 3, 0, 20.0, 5000.0,
+                       *([0.5] * 5), 0, 0, 0.5, 0.0, 0.2, b"", b"")  # fmt: skip
+
+
+def _outsim() -> bytes:
+    return struct.pack("<I3f3f3f3f3i", 1000, 0.0, 0.0, 0.2, 0.7, 0.0, 0.0, 1.0, 2.0, 0.0,
+                       -10.0, 14.0, 0.0, 0, 0, 0)  # fmt: skip
+
+
+def _beamng() -> bytes:
+    values = [0.0] * 21
+    values[3:6] = [12.0, 16.0, 0.0]
+    values[9:12] = [0.0, 0.0, 1.0]
+    values[17] = 0.3
+    return struct.pack("<4s21f", b"BNG1", *values)
+
+
+def _codemasters() -> bytes:
+    f = [0.0] * 66
+    f[0], f[7], f[29], f[33], f[37], f[63], f[65] = 12.5, 25.0, 0.8, 3.0, 650.0, 800.0, 6.0
+    return struct.pack("<66f", *f)
+
+
+def _forza_sled() -> bytes:
+    """The first real packet's sled, its velocity set to (10, 0, 0) (no dash to agree with)."""
+    p = _packets(forza_capture(), 331)[0][:232]
+    return _with(_with(_with(p, 32, "<f", 10.0), 36, "<f", 0.0), 40, "<f", 0.0)
+
+
+def _assetto() -> bytes:
+    return _packets(ac_capture(), 328)[0]
+
+
+def _forza() -> bytes:
+    return _packets(forza_capture(), 331)[0]
+
+
+CHECKS: list[tuple[str, str, Any, int, str, Any, Any]] = [
+    # format, what, packet, offset, layout, a value past the range, the bound itself (good)
+    ("forza", "IsRaceOn", _forza, 0, "<i", 2, 1),
+    ("forza", "a rumble flag", _forza, 124, "<i", 2, 1),
+    ("forza", "car ordinal", _forza, 212, "<i", FORZA_MAX_ORDINAL + 1, FORZA_MAX_ORDINAL),
+    ("forza", "car ordinal 0", _forza, 212, "<i", 0, 1),
+    ("forza", "car class", _forza, 216, "<i", 16, 15),
+    ("forza", "car class < 0", _forza, 216, "<i", -1, 0),
+    ("forza", "performance index", _forza, 220, "<i", 1101, 1100),
+    ("forza", "performance index < 0", _forza, 220, "<i", -1, 0),
+    ("forza", "drivetrain", _forza, 224, "<i", 3, 2),
+    ("forza", "drivetrain < 0", _forza, 224, "<i", -1, 0),
+    ("forza", "cylinders", _forza, 228, "<i", 17, 16),
+    ("forza", "cylinders < 0", _forza, 228, "<i", -1, 0),
+    ("forza", "EngineMaxRpm", _forza, 8, "<f", 30_001.0, 30_000.0),
+    ("forza", "EngineMaxRpm < 0", _forza, 8, "<f", -1.0, 0.0),
+    ("forza", "EngineIdleRpm", _forza, 12, "<f", 30_001.0, 30_000.0),
+    ("forza", "EngineIdleRpm < 0", _forza, 12, "<f", -1.0, 0.0),
+    ("forza", "fuel", _forza, 232 + 44, "<f", 1.01, 1.0),
+    ("forza", "fuel < 0", _forza, 232 + 44, "<f", -0.01, 0.0),
+    ("forza", "gear", _forza, 232 + 75, "<B", 12, 11),
+    ("forza", "velocity NaN", _forza_sled, 36, "<f", math.nan, 0.0),
+    ("forza", "velocity x", _forza_sled, 32, "<f", 150.5, 149.5),
+    ("assetto", "identifier", _assetto, 0, "<c", b"b", b"a"),
+    ("assetto", "size", _assetto, 4, "<i", 327, 328),
+    ("assetto", "a flag byte", _assetto, 22, "<B", 2, 1),
+    ("assetto", "lap time < 0", _assetto, 40, "<i", -1, 0),
+    ("assetto", "last lap < 0", _assetto, 44, "<i", -1, 0),
+    ("assetto", "best lap < 0", _assetto, 48, "<i", -1, 0),
+    ("assetto", "lap count < 0", _assetto, 52, "<i", -1, 0),
+    ("assetto", "gear", _assetto, 76, "<i", 12, 11),
+    ("assetto", "gear < 0", _assetto, 76, "<i", -1, 0),
+    ("codemasters", "gear", _codemasters, 4 * 33, "<f", 10.5, 10.0),
+    ("codemasters", "gear < -1", _codemasters, 4 * 33, "<f", -2.0, -1.0),
+    ("codemasters", "gear count", _codemasters, 4 * 65, "<f", 13.0, 12.0),
+    ("codemasters", "gear count not whole", _codemasters, 4 * 65, "<f", 5.5, 0.0),
+    ("codemasters", "engine rate", _codemasters, 4 * 37, "<f", 3001.0, 3000.0),
+    ("codemasters", "engine rate < 0", _codemasters, 4 * 37, "<f", -1.0, 0.0),
+    ("codemasters", "max rpm", _codemasters, 4 * 63, "<f", 3001.0, 3000.0),
+    ("codemasters", "max rpm < 0", _codemasters, 4 * 63, "<f", -1.0, 0.0),
+    ("codemasters", "time", _codemasters, 0, "<f", 1.5e9, -9.9e8),
+    ("codemasters", "steer", _codemasters, 4 * 30, "<f", 1.02, -1.0),
+    ("outgauge", "car name", _outgauge, 4, "<4s", b"X\x01T\x00", b"beam"),
+    ("outgauge", "car name after its end", _outgauge, 4, "<4s", b"X\x00T\x00", b"X\x00\x00\x00"),
+    ("outgauge", "car name > 0x7e", _outgauge, 4, "<4s", b"X\x7f\x00\x00", b"X~ \x00"),
+    ("outgauge", "gear", _outgauge, 10, "<B", 13, 12),
+    ("outgauge", "fuel", _outgauge, 28, "<f", 1.01, 1.0),
+    ("outgauge", "fuel < 0", _outgauge, 28, "<f", -0.01, 0.0),
+    ("outsim", "roll rate", _outsim, 4, "<f", 50.5, -50.0),  # the yaw rate: plausible, 20
+    ("outsim", "heading", _outsim, 16, "<f", 6.5, -6.3),
+    ("outsim", "roll", _outsim, 24, "<f", -6.5, 6.3),
+    ("outsim", "acceleration", _outsim, 36, "<f", 500.5, -500.0),
+    ("outsim", "velocity", _outsim, 48, "<f", 150.5, -100.0),
+    ("beamng", "up vector short", _beamng, 48, "<f", 0.94, 0.96),
+    ("beamng", "up vector long", _beamng, 48, "<f", 1.06, 1.04),
+    ("beamng", "up vector huge", _beamng, 40, "<f", 3.0, 0.0),
+    ("beamng", "velocity", _beamng, 24, "<f", 150.5, 50.0),
+    ("beamng", "acceleration", _beamng, 36, "<f", -500.5, -499.0),
+    ("beamng", "an angle", _beamng, 60, "<f", 6.5, -6.3),
+    ("beamng", "a rate", _beamng, 64, "<f", 50.5, -50.0),
+    ("beamng", "position", _beamng, 4, "<f", 1.1e7, -9.9e6),
+    ("beamng", "an angular acceleration", _beamng, 84, "<f", math.inf, 9.9e6),
+]
+
+
+@pytest.mark.parametrize(
+    ("name", "what", "base", "offset", "layout", "bad", "good"), CHECKS, ids=[c[1] for c in CHECKS]
+)
+def test_each_check_alone_makes_a_packet_bad(
+    name: str, what: str, base: Any, offset: int, layout: str, bad: Any, good: Any
+) -> None:
+    """A good packet with one field set past the game's range is bad; at the range's bound it
+    is still good (so a check neither missing nor off by one passes)."""
+    fmt, packet = FORMATS[name], base()
+    assert plausible(formats.decode_datagram(fmt, packet, VehicleState()) or BAD), "the base"
+    assert formats.decode_datagram(fmt, _with(packet, offset, layout, bad), VehicleState()) is BAD
+    state = formats.decode_datagram(fmt, _with(packet, offset, layout, good), VehicleState())
+    assert state is not None and plausible(state), what
+
+
+def test_assetto_speed_fields_must_agree() -> None:
+    """km/h against m/s x 3.6 and mph against km/h / 1.609 (1 % and 0.5 km/h of slack): one of
+    the three off by 5 % is bad, each alone."""
+    p = _assetto()
+    kmh, mph, ms = struct.unpack_from("<3f", p, 8)
+    fmt = FORMATS["assetto"]
+    for values in ((kmh * 1.05, kmh * 1.05 / 1.609344, ms), (kmh, mph * 1.05, ms),
+                   (kmh, mph, ms * 1.05)):  # fmt: skip
+        data = bytearray(p)
+        struct.pack_into("<3f", data, 8, *values)
+        assert formats.decode_datagram(fmt, bytes(data), VehicleState()) is BAD, values
+    data = bytearray(p)
+    struct.pack_into("<3f", data, 8, kmh * 1.005, mph * 1.005, ms)  # within the slack
+    assert plausible(formats.decode_datagram(fmt, bytes(data), VehicleState()) or BAD)
+
+
+def test_forza_dash_speed_must_agree_with_the_velocity() -> None:
+    p = _forza()
+    speed = formats.forza_velocity_speed(p)
+    fmt = FORMATS["forza"]
+    assert formats.decode_datagram(fmt, _with(p, 244, "<f", speed + 1.0 + 0.06 * speed),
+                                   VehicleState()) is BAD  # fmt: skip
+    good = formats.decode_datagram(fmt, _with(p, 244, "<f", speed + 0.9), VehicleState())
+    assert good is not None and plausible(good) and good.speed_m_s == pytest.approx(speed + 0.9)
+
+
+@pytest.mark.parametrize(
+    ("offset", "layout", "bad", "good", "what"),
+    [
+        (0, "<H", 2031, 2030, "packet format"),
+        (0, "<H", 2016, 2023, "packet format, too early"),
+        (6, "<B", 16, 15, "packet id"),
+        (27, "<B", 22, 21, "player index"),
+        (28, "<B", 22, 255, "second player"),
+        (15, "<f", -0.5, 0.0, "session time"),
+        (15, "<f", 1.5e9, 9.9e8, "session time, large"),
+    ],
+)
+def test_f1_header_checks(offset: int, layout: str, bad: float, good: float, what: str) -> None:
+    packet = _f1_motion()
+    assert formats.decode_f1(_with(packet, offset, layout, bad), VehicleState()) is BAD, what
+    state = formats.decode_f1(_with(packet, offset, layout, good), VehicleState())
+    if what == "packet id":  # id 15 is another packet type: ignored, not bad
+        assert state is None
+    else:
+        assert state is not None and plausible(state), what
+
+
+@pytest.mark.parametrize(
+    ("packet", "offset", "layout", "bad", "good", "what"),
+    [
+        ("motion", 233 + 4, "<h", 0, UNIT, "forward direction not a unit vector"),
+        ("motion", 239, "<h", 0, UNIT, "right direction not a unit vector"),
+        ("motion", 209, "<f", 1.5e5, -9.9e4, "position"),
+        ("motion", 229, "<f", 150.5, 40.0, "velocity"),
+        ("motion", 257, "<f", 6.5, -6.3, "yaw"),
+        ("telemetry", 223, "<B", 101, 100, "clutch"),
+        ("telemetry", 224, "<b", 9, 8, "gear"),
+        ("telemetry", 224, "<b", -2, -1, "gear < -1"),
+        ("telemetry", 227, "<B", 2, 1, "DRS"),
+        ("telemetry", 228, "<B", 101, 100, "rev lights"),
+        ("telemetry", 215, "<f", 1.02, -1.0, "steer"),
+    ],
+)
+def test_f1_car_checks(
+    packet: str, offset: int, layout: str, bad: float, good: float, what: str
+) -> None:
+    base = _f1_motion() if packet == "motion" else _f1_telemetry()
+    last = VehicleState(speed_m_s=10.0)
+    assert formats.decode_f1(_with(base, offset, layout, bad), last) is BAD, what
+    state = formats.decode_f1(_with(base, offset, layout, good), last)
+    assert state is not None and plausible(state), what
+
+
+def test_f1_speed_from_telemetry_without_motion_and_the_sizes() -> None:
+    """Without a motion packet first, the speed is the telemetry's km/h; a motion id at the
+    telemetry's size (or the reverse) is bad; an F1 packet of any other size is ignored."""
+    s = formats.decode_f1(_f1_telemetry(), VehicleState())
+    assert s is not None and s.speed_m_s == pytest.approx(180 / 3.6)
+    motion, telemetry = _f1_motion(), _f1_telemetry()
+    assert formats.decode_f1(motion[:6] + b"\x06" + motion[7:], VehicleState()) is BAD
+    assert formats.decode_f1(telemetry[:6] + b"\x00" + telemetry[7:], VehicleState()) is BAD
+    assert formats.decode_f1(motion + bytes(10), VehicleState()) is None
+    assert formats.decode_datagram(FORMATS["f1"], motion + bytes(10), VehicleState()) is None
+
+
+@pytest.mark.parametrize("options", [0x1FF, 0x3D])
+def test_outsim_pack2_checks(options: int) -> None:
+    """OutSimPack2's own fields: the LFST header, inputs' steer and handbrake, the gear, and its
+    Time as the packet's time stamp."""
+    packets = pytest.importorskip("lfs_insim.packets")
+    vector = packets.Vector
+    main = packets.OutSimMain(AngVel=vector(X=0.0, Y=0.0, Z=0.1), Heading=0.2,
+                              Accel=vector(X=1.0, Y=0.0, Z=0.0),
+                              Vel=vector(X=0.0, Y=20.0, Z=0.0))  # fmt: skip
+    kwargs: dict[str, object] = {"OSOpts": options, "OSMain": main, "Time": 4321,
+                                 "OSInputs": packets.OutSimInputs(Throttle=0.5, Brake=0.0,
+                                                                  InputSteer=0.2, Clutch=0.0,
+                                                                  Handbrake=0.0),
+                                 "Gear": 3, "EngineAngVel": 300.0,
+                                 "MaxTorqueAtVel": 200.0}  # fmt: skip
+    if options & 2:
+        kwargs["ID"] = 1
+    if options & 64:
+        kwargs.update(CurrentLapDist=10.0, IndexedDistance=11.0)
+    if options & 128:
+        kwargs["OSWheels"] = [packets.OutSimWheel() for _ in range(4)]
+    if options & 256:
+        kwargs["SteerTorque"] = 2.0
+    data = packets.OutSimPack2(**kwargs).pack()
+    fmt = Source.parse(f"outsim@{options:x}:127.0.0.1:0").format
+    state = fmt.decode(data, VehicleState())
+    assert state is not None and plausible(state) and state.time_s == 4.321
+    inputs = 4 * (bool(options & 1) + bool(options & 2) + bool(options & 4)) + 60
+    drive = inputs + 20
+    for offset, layout, bad in ((inputs + 8, "<f", 1.02), (inputs + 16, "<f", 1.02),
+                                (drive, "<B", 13), (inputs - 60, "<f", math.inf)):  # fmt: skip
+        assert fmt.decode(_with(data, offset, layout, bad), VehicleState()) is BAD
+    if options & 1:
+        assert fmt.decode(b"LFSX" + data[4:], VehicleState()) is BAD
+
+
+# --- sources: whom they accept, where they bind ------------------------------------------------
+
+
+def test_sources_accept_the_games_host_by_default_and_what_they_are_told() -> None:
+    net = ipaddress.IPv4Network
+    local = Source.parse("forza:127.0.0.1:5300")
+    assert (local.bind_host, local.accept) == ("127.0.0.1", (net("127.0.0.1/32"),))
+    assert Source.parse("forza:5300").host == "127.0.0.1"  # FORMAT:PORT is on loopback
+    assert Source.parse("forza").port == 5300  # the format's port
+    named = Source.parse("forza:localhost:5300")
+    assert named.bind_host == "127.0.0.1"  # looked up once, here
+    assert Source.parse("forza:127.0.0.1:0,from=any").accept is None
+    assert Source.parse("forza:127.0.0.1:0", accept_from="10.1.2.3/8").accept == (
+        net("10.0.0.0/8"),
+    )
+    assert Source.parse("forza:127.0.0.1:0,from=10.0.0.1", accept_from="any").accept is None
+    assert Source.parse("forza:0.0.0.0:0,from=localhost").accept == (net("127.0.0.1/32"),)
+    wild = Source.parse("forza:0.0.0.0:0,from=192.168.1.20")
+    assert wild.describe_accept() == "192.168.1.20" and wild.bind_host == "0.0.0.0"
+    assert Source.parse("forza:0.0.0.0:0,from=192.168.1.0/24").describe_accept() == (
+        "192.168.1.0/24"
+    )
+    assert Source.parse("forza:0.0.0.0:0,from=any").describe_accept() == "any address"
+    for text, match in (
+        ("forza:0.0.0.0:0", "every interface"),
+        ("forza:0.0.0.0:0,from=", "one option"),
+        ("forza:0.0.0.0:0,from=300.1.1.0/24", "not an IPv4 network"),
+        ("forza:no-such-host.invalid:0", "unknown host"),
+        ("forza:127.0.0.1:0,from=no-such-host.invalid", "unknown --accept-from host"),
+        ("forza:127.0.0.1:70000", "not a number 0..65535"),
+        ("assetto:127.0.0.1:0", "the game's port"),
+    ):
+        with pytest.raises(InputError, match=match):
+            Source.parse(text)
+
+
+def test_assetto_binds_the_interface_that_reaches_the_game() -> None:
+    """Loopback for a game on this machine; for one elsewhere the interface the system routes
+    to it by (never 127.0.0.1, and no longer 0.0.0.0 unless nothing routes there), accepting
+    the game's address only; refused where the network is not allowed (the local panel)."""
+    local = Source.parse("assetto:127.0.0.1:9996")
+    assert local.bind_host == "127.0.0.1"
+    assert local.accept == (ipaddress.IPv4Network("127.0.0.1/32"),)
+    remote = Source.parse("assetto:192.0.2.7:9996")  # TEST-NET-1: routed, never answered
+    assert remote.bind_host != "127.0.0.1"
+    assert remote.accept == (ipaddress.IPv4Network("192.0.2.7/32"),)
+    with pytest.raises(InputError, match="started for this machine only"):
+        Source.parse("assetto:192.0.2.7:9996", network=False)
+    assert Source.parse("assetto:127.0.0.1:9996", network=False).bind_host == "127.0.0.1"
+
+
+def test_the_receiver_accepts_by_network_and_remembers() -> None:
+    source = Source.parse("carfeel:127.0.0.1:0,from=10.0.0.0/8")
+    with Receiver(source) as receiver:
+        assert receiver.accepts("10.200.1.2") and not receiver.accepts("11.0.0.1")
+        assert not receiver.accepts("not-an-address")
+        assert receiver.accepts("10.200.1.2")  # the memo's answer is the same
+        for _ in range(3):
+            receiver._foreign("11.0.0.1")
+        for k in range(20):
+            receiver._foreign(f"12.0.0.{k}")
+        assert receiver.foreign == 23 and len(receiver.foreign_from) == 8
+        assert receiver.foreign_from["11.0.0.1"] == 3
+        text = receiver.counts()
+        assert "23 from addresses not accepted" in text and "11.0.0.1 (3)" in text
+        assert ", ...;" in text and "accepted: 10.0.0.0/8" in text
+
+
+def test_gear_names() -> None:
+    from carfeel.telemetry.state import gear_name
+
+    assert [gear_name(g) for g in (-1, 0, 1, 6)] == ["R", "N", "1", "6"]
