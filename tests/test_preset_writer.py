@@ -169,8 +169,10 @@ def test_a_file_too_large_or_not_a_file_is_not_read(tmp_path: Path) -> None:
         load_steering(str(big))
     with pytest.raises(PresetError, match="not a regular file"):
         load_steering(str(tmp_path))
-    with pytest.raises(PresetError, match="not a regular file"):
-        presets.read_limited(Path("/dev/zero"), "preset file")
+    zero = Path("/dev/zero")  # endless: read whole, it would never return (POSIX only)
+    if zero.exists():
+        with pytest.raises(PresetError, match="not a regular file"):
+            presets.read_limited(zero, "preset file")
 
 
 def test_many_problems_are_listed_within_a_bound() -> None:

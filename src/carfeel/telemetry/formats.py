@@ -44,8 +44,12 @@ VELOCITY_BOUND_M_S = 150.0
 
 
 def _within(bound: float, *values: float) -> bool:
-    """Every value finite and within +-bound (NaN and infinities fail)."""
-    return all(-bound <= v <= bound for v in values)
+    """Every value finite and within +-bound (NaN and infinities fail). A plain loop: half the
+    cost of all() over a generator, per packet."""
+    for v in values:  # noqa: SIM110 - all() over a generator costs twice this, a packet
+        if not -bound <= v <= bound:
+            return False
+    return True
 
 
 @dataclass(frozen=True, slots=True)
@@ -208,7 +212,7 @@ def decode_assetto(data: Any, last: VehicleState) -> VehicleState | None:
     if (
         ident != b"a"
         or size != 328
-        or any(f > 1 for f in flags)
+        or max(flags) > 1
         or not abs(kmh - 3.6 * speed) <= 0.5 + 0.01 * abs(kmh)
         or not abs(mph * 1.609344 - kmh) <= 0.5 + 0.01 * abs(kmh)
         or min(lap_ms, last_ms, best_ms, laps) < 0
@@ -254,7 +258,7 @@ def decode_forza(data: Any, last: VehicleState) -> VehicleState | None:
     # electric car, 16 at most) are the game's small numbers; the engine's speeds are rpm.
     if (
         race_on != 1
-        or any(r not in (0, 1) for r in _FORZA_RUMBLE.unpack_from(data, 116))
+        or not 0 <= min(rumble := _FORZA_RUMBLE.unpack_from(data, 116)) <= max(rumble) <= 1
         or not 0 < ordinal <= FORZA_MAX_ORDINAL
         or not 0 <= car_class <= 15
         or not 0 <= performance <= 1100
@@ -302,9 +306,10 @@ _OUTGAUGE = struct.Struct("<I4s2xBxff8xf16x3f")
 def _car_name(raw: bytes) -> str | None:
     """A car's short name: printable ASCII, then NUL padding; None if it is not one."""
     name = raw.split(b"\x00", 1)[0]
-    if raw[len(name) :].strip(b"\x00") or not all(0x20 <= b < 0x7F for b in name):
+    if raw[len(name) :].strip(b"\x00") or not name.isascii():
         return None
-    return name.decode("ascii")
+    text = name.decode("ascii")
+    return text if text.isprintable() else None
 
 
 def decode_outgauge(data: Any, last: VehicleState) -> VehicleState | None:
