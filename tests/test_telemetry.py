@@ -786,3 +786,65 @@ def test_gear_names() -> None:
     from carfeel.telemetry.state import gear_name
 
     assert [gear_name(g) for g in (-1, 0, 1, 6)] == ["R", "N", "1", "6"]
+
+
+def test_outgauge_fields_and_gears() -> None:
+    """Gear 0 R, 1 N, 2 first; Time in ms is the packet's stamp; the car's name stops at its
+    first NUL; no Ay (NaN, the steering fades), nothing derived."""
+    base = _outgauge()
+    for raw, gear in ((0, REVERSE), (1, NEUTRAL), (2, 1), (7, 6)):
+        s = formats.decode_outgauge(_with(base, 10, "<B", raw), VehicleState())
+        assert s is not None and s.gear == gear
+    s = formats.decode_outgauge(_with(base, 4, "<4s", b"XR\x00\x00"), VehicleState())
+    assert s is not None and s.car == "XR" and s.time_s == 1.0
+    assert math.isnan(s.lateral_accel_m_s2) and not s.lateral_derived and s.cylinders == 0
+    assert (s.throttle, s.brake, s.clutch_pedal) == pytest.approx((0.5, 0.0, 0.2))
+
+
+def test_outsim_pack2_reads_every_part_where_the_options_put_it() -> None:
+    """A pose where heading, pitch and roll differ, and every input differs: each value comes
+    from its own field (a slice off by one, or the pitch for the heading, gives another)."""
+    packets = pytest.importorskip("lfs_insim.packets")
+    vector = packets.Vector
+    heading = 0.9
+    left = (-math.cos(heading), -math.sin(heading))
+    main = packets.OutSimMain(
+        AngVel=vector(X=0.05, Y=-0.04, Z=0.3), Heading=heading, Pitch=0.1, Roll=-0.2,
+        Accel=vector(X=3.0 * left[0], Y=3.0 * left[1], Z=9.0),
+        Vel=vector(X=-20.0 * math.sin(heading), Y=20.0 * math.cos(heading), Z=0.5),
+    )  # fmt: skip
+    inputs = packets.OutSimInputs(Throttle=0.7, Brake=0.2, InputSteer=-0.3, Clutch=0.4,
+                                  Handbrake=0.1)  # fmt: skip
+    data = packets.OutSimPack2(OSOpts=0x3D, OSMain=main, Time=2500, OSInputs=inputs, Gear=0,
+                               EngineAngVel=400.0, MaxTorqueAtVel=100.0).pack()  # fmt: skip
+    fmt = Source.parse("outsim@3d:127.0.0.1:0").format
+    s = fmt.decode(data, VehicleState())
+    assert s is not None and plausible(s) and s.lateral_derived
+    assert s.lateral_accel_m_s2 == pytest.approx(3.0, rel=1e-5)  # float32
+    assert s.speed_m_s == pytest.approx(math.hypot(20.0, 0.5), rel=1e-6)
+    assert s.yaw_rate_rad_s == pytest.approx(0.3, rel=1e-6)
+    assert (s.throttle, s.brake, s.clutch_pedal) == pytest.approx((0.7, 0.2, 0.4), rel=1e-6)
+    assert s.gear == REVERSE and s.time_s == 2.5 and s.car == "" and s.cylinders == 0
+    assert s.engine_speed_rpm == pytest.approx(400.0 * 30 / math.pi, rel=1e-6)
+    assert fmt.name == "outsim@3d" and fmt.default_port == 4123 and "3d" in fmt.describe
+    neutral = fmt.decode(_with(data, 4 + 4 + 60 + 20, "<B", 1), VehicleState())
+    assert neutral is not None and neutral.gear == NEUTRAL
+    with pytest.raises(InputError, match="OSMain"):
+        Source.parse("outsim@208:127.0.0.1:0")  # a bit above 0x100 (no such part)
+    assert Source.parse("outsim@1ff:127.0.0.1:0").format.sizes == frozenset({280})
+
+
+def test_beamng_up_vector_any_direction() -> None:
+    """The up vector's length, whatever its direction: (0.6, 0, 0.8) is a unit vector, (0.6,
+    0.6, 0.8) is not."""
+    base = _beamng()
+    tilted = _with(_with(base, 40, "<f", 0.6), 48, "<f", 0.8)
+    s = formats.decode_beamng(tilted, VehicleState())
+    assert s is not None and plausible(s)
+    assert formats.decode_beamng(_with(tilted, 44, "<f", 0.6), VehicleState()) is BAD
+    assert formats.decode_beamng(_with(base, 40, "<f", 0.6), VehicleState()) is BAD  # 1.17
+
+
+def test_a_source_on_an_address_this_machine_lacks_says_so() -> None:
+    with pytest.raises(InputError, match="no interface of this machine has that address"):
+        Receiver(Source.parse("forza:192.0.2.1:0,from=any"))

@@ -243,7 +243,9 @@ def test_uinput_backend_against_a_recorded_fake(monkeypatch: pytest.MonkeyPatch)
     out.close()
     events, kwargs = calls[0][1]
     assert events == {1: [0x120, 0x121, 0x122]}
-    assert kwargs["name"] == "carfeel H-shifter"
+    # A stable name and ids (pid.codes' 0x1209 and 0xCAFE), so that games keep the bindings.
+    assert kwargs == {"name": "carfeel H-shifter", "vendor": 0x1209, "product": 0xCAFE,
+                      "version": 1}  # fmt: skip
     assert calls[1:] == [
         ("write", (1, 0x120, 1)), ("syn", ()),
         ("write", (1, 0x120, 0)), ("write", (1, 0x122, 1)), ("syn", ()),
@@ -380,6 +382,22 @@ def test_car_presets_mapping(tmp_path: Path) -> None:
     mapping.write_text('[cars."445"]\nhpattern = 5\n')
     with pytest.raises(InputError, match="cars"):
         preset_for_car(mapping, receiver, "hpattern")
+    mapping.write_text('[cars."445"]\nhpattern = "5r"\n')
+    late = types.SimpleNamespace(latest=VehicleState(), polls=0)
+
+    def poll() -> int:  # the car's first packet comes on the third poll
+        late.polls += 1
+        if late.polls == 3:
+            late.latest = VehicleState(car="445")
+        return 1
+
+    late.poll = poll
+    assert preset_for_car(mapping, late, "hpattern") == "5r"  # waited for it
+    assert late.polls == 3
+    mapping.write_text("# no cars\n")
+    assert preset_for_car(mapping, receiver, "hpattern") is None
+    with pytest.raises(InputError, match="no such file"):
+        preset_for_car(tmp_path / "missing.toml", receiver, "hpattern")
 
 
 class ConstantSource(VehicleSource):
