@@ -468,7 +468,7 @@ def test_outsim_pack2_against_lfs_insim(options: int) -> None:
 # --- each plausibility check on its own: one field past the game's range is bad ---------------
 
 
-def _with(packet: bytes, offset: int, layout: str, value: float) -> bytes:
+def _with(packet: bytes, offset: int, layout: str, value: float | bytes) -> bytes:
     data = bytearray(packet)
     struct.pack_into(layout, data, offset, value)
     return bytes(data)
