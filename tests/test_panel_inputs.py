@@ -78,3 +78,57 @@ def test_a_network_panel_listens_beyond_loopback_for_whom_it_names(tmp_path: Pat
     assert network.run_of(_body(source))["telemetry"] == source
     with pytest.raises(InputError, match="--accept-from"):
         network.run_of(_body("forza:0.0.0.0:5301"))  # whom to take from, still required
+
+
+FINITE_JSON = st.recursive(
+    st.none() | st.booleans() | st.integers(-(10**300), 10**300) | st.floats()
+    | st.text(max_size=8),
+    lambda inner: st.lists(inner, max_size=3) | st.dictionaries(st.text(max_size=4), inner,
+                                                                  max_size=3),
+    max_leaves=6,
+)  # fmt: skip
+"""JSON values; integers within a float's range (a longer one: the xfail below)."""
+
+
+def _tuning_session(model: str) -> Any:
+    from carfeel.io.presets import load_hpattern, load_shift
+    from carfeel.panel import tuning
+
+    preset = load_shift().params if model == "shift" else load_hpattern()
+    return tuning.Session(model, preset, None, {})
+
+
+@pytest.mark.parametrize("model", ["shift", "hpattern"])
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(data=st.data())
+def test_any_tuning_is_a_proposal_or_an_input_error(model: str, data: st.DataObject) -> None:
+    """A tuning's values (the panel's POST /api/tune, its WebSocket's JSON) of any shape: a
+    proposal, or an InputError naming what is wrong."""
+    from carfeel.panel import tuning
+
+    session = _tuning_session(model)
+    now = tuning.values_of(model, session.preset)
+    paths = sorted(now)
+    keys = data.draw(st.lists(st.sampled_from(paths) | st.text(max_size=10), max_size=4))
+    values: dict[str, Any] = {}
+    for k in keys:  # near today's value, where a change is often accepted; anything else
+        near = data.draw(st.floats(0.8, 1.2)) * now.get(k, 1.0)
+        values[k] = data.draw(FINITE_JSON | st.just(near))
+    try:
+        proposal = tuning.propose(session, values)
+    except CarfeelError:
+        return
+    assert set(proposal.changes) == set(values)
+    assert all(proposal.changes[k][1] == pytest.approx(v) for k, v in values.items())
+
+
+@pytest.mark.xfail(raises=OverflowError, strict=True,
+                   reason="panel/tuning.py's checked_value takes float() of any integer: a "
+                   "401-digit one raises OverflowError (HTTP 500; issue 24 point 6, the panel's "
+                   "owner fixes it: an InputError naming the range)")  # fmt: skip
+def test_a_401_digit_tuning_integer_is_an_input_error() -> None:
+    from carfeel.panel import tuning
+
+    path = sorted(t.path for t in tuning.tunables_for("shift"))[0]
+    with pytest.raises(InputError, match="out of range"):
+        tuning.propose(_tuning_session("shift"), {path: 10**400})
