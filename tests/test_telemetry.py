@@ -323,6 +323,8 @@ def test_carfeel_format_round_trip_and_version() -> None:
     assert s is not None
     assert s[:9] == pytest.approx(tuple(state[:9]), rel=1e-6)  # float32
     assert s.time_s == 1.5  # the sender's time (f64)
+    packet = encode_carfeel(state, 2**32 + 5, 1.5)
+    assert struct.unpack_from("<HI", packet, 6) == (0, 5)  # flags 0; the sequence wraps
     wrong = bytearray(encode_carfeel(state))
     wrong[4] = 2  # version 2: ours, but not this version: ignored, not misread
     assert formats.decode_carfeel(bytes(wrong), VehicleState()) is None
@@ -461,6 +463,11 @@ def test_outsim_pack2_against_lfs_insim(options: int) -> None:
         assert s.engine_speed_rpm == pytest.approx(500.0 * 30 / math.pi, rel=1e-6)
     if options & 16:
         assert (s.throttle, s.brake, s.clutch_pedal) == pytest.approx((0.6, 0.1, 0.9))
+    else:  # no OSO_INPUTS: no pedals (NaN, the model's own then)
+        assert math.isnan(s.throttle) and math.isnan(s.brake) and math.isnan(s.clutch_pedal)
+    if not options & 32:  # no OSO_DRIVE: neutral, no engine
+        assert s.gear == NEUTRAL and math.isnan(s.engine_speed_rpm)
+    assert (s.time_s == 0.123) if options & 4 else math.isnan(s.time_s)
     with pytest.raises(InputError, match="OSMain"):
         Source.parse("outsim@10:127.0.0.1:0")
 
@@ -707,9 +714,16 @@ def test_outsim_pack2_checks(options: int) -> None:
     assert state is not None and plausible(state) and state.time_s == 4.321
     inputs = 4 * (bool(options & 1) + bool(options & 2) + bool(options & 4)) + 60
     drive = inputs + 20
-    for offset, layout, bad in ((inputs + 8, "<f", 1.02), (inputs + 16, "<f", 1.02),
-                                (drive, "<B", 13), (inputs - 60, "<f", math.inf)):  # fmt: skip
-        assert fmt.decode(_with(data, offset, layout, bad), VehicleState()) is BAD
+    for offset, layout, bad in ((inputs + 8, "<f", 1.02), (inputs + 8, "<f", -1.5),
+                                (inputs + 16, "<f", 1.02), (inputs + 16, "<f", -0.5),
+                                (drive, "<B", 13), (inputs - 60, "<f", math.inf),
+                                (inputs - 60 + 24, "<f", 9.0)):  # fmt: skip
+        # (the last: an acceleration of 9 m/s^2 is not a pitch of 9 rad: a slice off by one)
+        expected = BAD if offset != inputs - 60 + 24 else None
+        decoded = fmt.decode(_with(data, offset, layout, bad), VehicleState())
+        assert decoded is BAD if expected is BAD else plausible(decoded or BAD)
+    geared = fmt.decode(_with(data, drive, "<B", 12), VehicleState())
+    assert geared is not None and geared.gear == 11  # 12 is the last raw gear taken
     if options & 1:
         assert fmt.decode(b"LFSX" + data[4:], VehicleState()) is BAD
 
@@ -848,3 +862,19 @@ def test_beamng_up_vector_any_direction() -> None:
 def test_a_source_on_an_address_this_machine_lacks_says_so() -> None:
     with pytest.raises(InputError, match="no interface of this machine has that address"):
         Receiver(Source.parse("forza:192.0.2.1:0,from=any"))
+
+
+def test_what_each_model_needs_of_the_state() -> None:
+    """The paper's law needs the speed and Ay or, failing it, the yaw rate (AC, Codemasters and
+    F1 send Ay and no yaw rate; BeamNG the reverse); the H-pattern the speed and rpm."""
+    from carfeel.telemetry.driving import hpattern_needs, speed_needs, steering_needs
+
+    nan = math.nan
+    assert steering_needs(VehicleState(speed_m_s=10.0, lateral_accel_m_s2=2.0))
+    assert steering_needs(VehicleState(speed_m_s=10.0, yaw_rate_rad_s=0.1))
+    assert not steering_needs(VehicleState(speed_m_s=10.0))
+    assert not steering_needs(VehicleState(speed_m_s=nan, lateral_accel_m_s2=2.0))
+    assert speed_needs(VehicleState(speed_m_s=0.0)) and not speed_needs(VehicleState())
+    assert hpattern_needs(VehicleState(speed_m_s=5.0, engine_speed_rpm=900.0))
+    assert not hpattern_needs(VehicleState(speed_m_s=5.0))
+    assert not hpattern_needs(VehicleState(engine_speed_rpm=900.0))

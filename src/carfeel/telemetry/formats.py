@@ -222,7 +222,7 @@ def decode_assetto(data: Any, last: VehicleState) -> VehicleState | None:
     # accG_horizontal, g: positive in right-hand turns (Monza, clockwise: its large values are
     # positive and follow the steer's sign). gear: 0 reverse, 1 neutral, 2 first. clutch: 1
     # engaged (pedal up). steer: degrees at the wheel, right positive.
-    gear = REVERSE if raw_gear == 0 else raw_gear - 1
+    gear = raw_gear - 1  # 0 R -> -1 (REVERSE), 1 N -> 0, 2 first -> 1
     return _make((speed, -lateral_g * G, NAN, rpm, gear, 1.0 - clutch, gas, brake,
                   -steer * DEG, NAN, last.car, 0, False, NAN))  # fmt: skip
 
@@ -320,7 +320,7 @@ def decode_outgauge(data: Any, last: VehicleState) -> VehicleState | None:
     # The car's name is text; gear 0 R, 1 N, 2.. forward; fuel 0..1.
     if car is None or raw_gear > 12 or not 0.0 <= fuel <= 1.0:
         return BAD
-    gear = REVERSE if raw_gear == 0 else raw_gear - 1
+    gear = raw_gear - 1  # 0 R -> -1 (REVERSE), 1 N -> 0, 2 first -> 1
     return _make((speed, NAN, NAN, rpm, gear, clutch, throttle, brake, NAN, NAN, car, 0, False,
                   stamp_ms / 1000.0))  # fmt: skip
 
@@ -406,7 +406,7 @@ def outsim_pack2(options: int) -> Format:
             raw_gear, engine = _OS2_DRIVE.unpack_from(data, drive)
             if raw_gear > 12:
                 return BAD
-            gear = REVERSE if raw_gear == 0 else raw_gear - 1
+            gear = raw_gear - 1  # 0 R -> -1 (REVERSE), 1 N -> 0, 2 first -> 1
             rpm = engine * 30.0 / math.pi
         if clock is not None:
             time_s = _OS2_TIME.unpack_from(data, clock)[0] / 1000.0
