@@ -878,3 +878,86 @@ def test_what_each_model_needs_of_the_state() -> None:
     assert hpattern_needs(VehicleState(speed_m_s=5.0, engine_speed_rpm=900.0))
     assert not hpattern_needs(VehicleState(speed_m_s=5.0))
     assert not hpattern_needs(VehicleState(engine_speed_rpm=900.0))
+
+
+# --- every component its own value (a product or a slice off by one shows) --------------------
+
+F1_FORWARD = (21845, 10922, 21845)  # (2/3, 1/3, 2/3) x 32767: a unit vector
+F1_RIGHT = (-10922, -21845, 21845)  # (-1/3, -2/3, 2/3): unit, square to the forward one
+
+
+def test_f1_values_with_every_component_its_own() -> None:
+    car = struct.pack("<6f6h6f", 100.0, 2.0, -50.0, 30.0, 12.0, 40.0, *F1_FORWARD, *F1_RIGHT,
+                      1.2, 0.1, 0.3, 0.6, 0.01, 0.02)  # fmt: skip
+    motion = _f1_header(0) + bytes(60) * 3 + car + bytes(60) * 18
+    s = formats.decode_f1(motion, VehicleState())
+    assert s is not None and plausible(s)
+    assert s.speed_m_s == pytest.approx(math.sqrt(30**2 + 12**2 + 40**2), rel=1e-7)
+    assert s.time_s == 61.5 and s.lateral_accel_m_s2 == pytest.approx(-1.2 * G, rel=1e-6)
+    # The telemetry's own speed (200 km/h) is not the motion's: the motion's is kept.
+    tele = bytearray(_f1_telemetry(gear=0))
+    struct.pack_into("<H", tele, 209, 200)
+    merged = formats.decode_f1(bytes(tele), s)
+    assert merged is not None and merged.speed_m_s == s.speed_m_s
+    assert merged.gear == NEUTRAL  # 0 is neutral, -1 reverse
+    alone = formats.decode_f1(bytes(tele), VehicleState())
+    assert alone is not None and alone.speed_m_s == pytest.approx(200 / 3.6)
+
+
+def test_beamng_values_with_every_component_its_own() -> None:
+    values = [10.0, 20.0, 30.0, 12.0, 16.0, 3.0, 1.0, 2.0, 9.8, 0.36, 0.48, 0.8,
+              0.1, 0.2, 1.5, 0.05, -0.02, 0.3, 0.1, 0.2, 0.3]  # fmt: skip
+    data = struct.pack("<4s21f", b"BNG1", *values)
+    s = formats.decode_beamng(data, VehicleState())
+    assert s is not None and plausible(s) and s.lateral_derived
+    speed = math.sqrt(12**2 + 16**2 + 3**2)
+    assert s.speed_m_s == pytest.approx(speed, rel=1e-6)
+    assert s.yaw_rate_rad_s == pytest.approx(0.3, rel=1e-6)
+    assert s.lateral_accel_m_s2 == pytest.approx(speed * 0.3, rel=1e-6)
+    assert (s.car, s.cylinders, math.isnan(s.time_s)) == ("", 0, True)
+    for index, value in ((4, 1.5e7), (19, 1.5e7), (16, 51.0), (13, 7.0), (7, 501.0), (10, 3.0)):
+        bad = list(values)
+        bad[index - 1] = value  # position, angular acceleration, rate, angle, accel, up
+        assert formats.decode_beamng(struct.pack("<4s21f", b"BNG1", *bad), VehicleState()) is BAD
+
+
+def test_outsim_values_with_every_component_its_own() -> None:
+    heading = 0.7
+    ax, ay = 1.0, 2.0
+    data = struct.pack("<I3f3f3f3f3i", 1234, 0.05, -0.04, 0.2, heading, 0.1, -0.05, ax, ay, 9.8,
+                       -10.0, 14.0, 0.3, 5, 6, 7)  # fmt: skip
+    s = formats.decode_outsim(data, VehicleState())
+    assert s is not None and plausible(s) and s.lateral_derived
+    lateral = -ax * math.cos(heading) - ay * math.sin(heading)
+    assert s.lateral_accel_m_s2 == pytest.approx(lateral, rel=1e-6)
+    assert s.speed_m_s == pytest.approx(math.sqrt(100 + 196 + 0.09), rel=1e-6)
+    assert s.yaw_rate_rad_s == pytest.approx(0.2, rel=1e-6)
+    assert (s.time_s, s.car, s.cylinders, s.gear) == (1.234, "", 0, NEUTRAL)
+    for offset, value in ((4, 51.0), (28, 501.0), (48, 151.0), (24, 7.0)):
+        assert formats.decode_outsim(_with(data, offset, "<f", value), VehicleState()) is BAD
+
+
+def test_assetto_steer_sign_and_speed_slack() -> None:
+    """AC's steer is degrees at the wheel, right positive: the state's angle is left positive.
+    The km/h field may be 0.5 km/h + 1 % off the m/s one x 3.6, not more."""
+    p = _assetto()
+    right = formats.decode_assetto(_with(p, 72, "<f", 90.0), VehicleState())
+    assert right is not None and right.steering_angle_rad == pytest.approx(-math.pi / 2)
+    assert not right.lateral_derived and right.cylinders == 0
+    kmh, mph, ms = struct.unpack_from("<3f", p, 8)
+    for off_kmh, good in ((1.0, True), (1.8, False)):  # slack 0.5 + 1 % of 75 km/h = 1.25
+        data = bytearray(p)
+        struct.pack_into("<2f", data, 8, 3.6 * ms + off_kmh, (3.6 * ms + off_kmh) / 1.609344)
+        state = formats.decode_assetto(bytes(data), VehicleState())
+        assert (state is not BAD) == good, off_kmh
+
+
+def test_assetto_car_name_from_hostile_bytes() -> None:
+    """The handshake's car name: UTF-16 up to a NUL or the first %, printable only; invalid
+    UTF-16 and control characters do not raise and do not come through."""
+    name = "ks_audi%r8".encode("utf-16-le") + b"\x00\x00" + "junk".encode("utf-16-le")
+    assert formats.ac_car_name(name.ljust(408, b"\x00")) == "ks_audi"
+    hostile = b"\x00\xd8" + "a\x07b".encode("utf-16-le")  # a lone surrogate, a bell
+    assert formats.ac_car_name(hostile.ljust(408, b"\x00")) == "\ufffdab"
+    long = ("x" * 60).encode("utf-16-le")  # beyond wchar_t[50]: the rest is the driver's
+    assert formats.ac_car_name(long.ljust(408, b"\x00")) == "x" * 50
