@@ -944,7 +944,7 @@ def test_assetto_steer_sign_and_speed_slack() -> None:
     right = formats.decode_assetto(_with(p, 72, "<f", 90.0), VehicleState())
     assert right is not None and right.steering_angle_rad == pytest.approx(-math.pi / 2)
     assert not right.lateral_derived and right.cylinders == 0
-    kmh, mph, ms = struct.unpack_from("<3f", p, 8)
+    ms = struct.unpack_from("<f", p, 16)[0]
     for off_kmh, good in ((1.0, True), (1.8, False)):  # slack 0.5 + 1 % of 75 km/h = 1.25
         data = bytearray(p)
         struct.pack_into("<2f", data, 8, 3.6 * ms + off_kmh, (3.6 * ms + off_kmh) / 1.609344)
