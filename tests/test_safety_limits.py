@@ -127,3 +127,44 @@ def test_a_default_run_slews_at_the_force_limit_per_5_ms(
     assert fall[-1] == 0.0
     assert all(d == pytest.approx(-step) for d in steps[-len(fall) + 1 : -1])
     assert len(fall) - 1 == math.ceil(peak / step)  # 0.44 / 0.2: 3 ticks to zero
+
+
+def test_a_fault_fades_the_force_over_50_ms_not_at_once(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The watchdog's fade (fade_s, 50 ms): a NaN reading at 0.25 s, the command at the ramp-in's
+    ceiling then. 10 ms later it is still more than a tenth of what it was (an envelope that
+    dropped at once would leave only the slew's 5 ms), and 51 ms later it is zero."""
+    monkeypatch.setattr(
+        rendering.SteeringRenderer,
+        "tick",
+        lambda self, sample, dt: ((1e3,), (math.nan,) * len(self.columns)),
+    )
+    opened = session.open_device
+    monkeypatch.setattr(session, "open_device", lambda *a, **k: _Offset(opened(*a, **k), math.nan))
+    monkeypatch.setattr(_Offset, "read", _nan_from(0.25))
+    record = tmp_path / "fade.csv"
+    run = RealtimeRun(model="steering", device="virtual:wheel", clock="simulated",
+                      duration_s=1.0, calibrate=False, hand="none", record=record,
+                      passivity_controller=False)  # fmt: skip
+    result = run_realtime(run)
+    assert result.summary.stopped == "fault" and "read nan" in result.summary.faults[0]
+    rows = _rows(record)
+    times = [float(r["time_s"]) for r in rows]
+    commands = [float(r["command_0"]) for r in rows]
+    at = next(i for i, r in enumerate(rows) if r["fault"] == "1")
+    before = commands[at - 1]
+    assert before > 0.3 * 4.0  # near the ramp-in's 0.4 x max_force of the 4 Nm wheel
+    after_10ms = next(c for t, c in zip(times, commands, strict=True) if t >= times[at] + 0.010)
+    assert after_10ms > 0.1 * before
+    assert all(c == 0.0 for t, c in zip(times, commands, strict=True) if t > times[at] + 0.051)
+
+
+def _nan_from(start_s: float) -> Any:
+    def read(self: _Offset, t: float) -> DeviceSample:
+        sample: DeviceSample = self._device.read(t)
+        if t < start_s:
+            return sample
+        return sample._replace(positions=(math.nan, *sample.positions[1:]))
+
+    return read
