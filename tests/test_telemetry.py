@@ -961,3 +961,82 @@ def test_assetto_car_name_from_hostile_bytes() -> None:
     assert formats.ac_car_name(hostile.ljust(408, b"\x00")) == "\ufffdab"
     long = ("x" * 60).encode("utf-16-le")  # beyond wchar_t[50]: the rest is the driver's
     assert formats.ac_car_name(long.ljust(408, b"\x00")) == "x" * 50
+
+
+def test_gear_numbers_of_each_format() -> None:
+    """Every game's gear numbering to -1 R, 0 N, 1..: Codemasters (-1 or 10 reverse, 10 a
+    gear where the car has 10), Forza (0 R, 11 N), F1 (-1 R, 0 N)."""
+    cm = _codemasters()
+    for raw, gears, gear in ((-1.0, 6.0, REVERSE), (0.0, 6.0, NEUTRAL), (1.0, 6.0, 1),
+                             (10.0, 6.0, REVERSE), (10.0, 10.0, 10), (9.0, 9.0, 9)):  # fmt: skip
+        packet = _with(_with(cm, 4 * 33, "<f", raw), 4 * 65, "<f", gears)
+        s = formats.decode_codemasters(packet, VehicleState())
+        assert s is not None and s.gear == gear, (raw, gears)
+    fz = _forza()
+    for raw, gear in ((0, REVERSE), (1, 1), (10, 10), (11, NEUTRAL)):
+        s = formats.decode_forza(_with(fz, 232 + 75, "<B", raw), VehicleState())
+        assert s is not None and s.gear == gear, raw
+    for raw, gear in ((-1, REVERSE), (0, NEUTRAL), (8, 8)):
+        s = formats.decode_f1(_f1_telemetry(gear=raw), VehicleState())
+        assert s is not None and s.gear == gear, raw
+
+
+def test_forza_pedals_and_the_sleds_signs() -> None:
+    """Accel, brake and clutch are 0..255 (255 is 1.0); the sled alone gives the dash's Ay and
+    yaw rate, signs turned to left positive."""
+    fz = _forza()
+    for offset, name in ((232 + 71, "throttle"), (232 + 72, "brake"), (232 + 73, "clutch_pedal")):
+        s = formats.decode_forza(_with(fz, offset, "<B", 255), VehicleState())
+        assert s is not None and getattr(s, name) == 1.0, name
+    dash = formats.decode_forza(fz, VehicleState())
+    sled = formats.decode_forza(fz[:232], VehicleState())
+    assert dash is not None and sled is not None
+    assert (sled.lateral_accel_m_s2, sled.yaw_rate_rad_s) == (
+        dash.lateral_accel_m_s2, dash.yaw_rate_rad_s,
+    )  # fmt: skip
+    ax, yaw = struct.unpack_from("<f", fz, 20)[0], struct.unpack_from("<f", fz, 48)[0]
+    assert (dash.lateral_accel_m_s2, dash.yaw_rate_rad_s) == (-ax, -yaw) and ax != 0 != yaw
+    assert not dash.lateral_derived and not sled.lateral_derived
+    assert formats.decode_forza(_with(fz[:232], 40, "<f", 151.0), VehicleState()) is BAD  # vz
+
+
+def test_constant_fields_of_the_formats_without_them() -> None:
+    """No car name, no cylinders, nothing derived where the format sends none."""
+    cm = formats.decode_codemasters(_codemasters(), VehicleState())
+    crfl = formats.decode_carfeel(encode_carfeel(VehicleState(speed_m_s=1.0)), VehicleState())
+    for s in (cm, crfl):
+        assert s is not None and (s.car, s.cylinders, s.lateral_derived) == ("", 0, False)
+
+
+@pytest.mark.parametrize("offset", [209, 213, 217])
+def test_f1_each_position_component(offset: int) -> None:
+    assert formats.decode_f1(_with(_f1_motion(), offset, "<f", 2e5), VehicleState()) is BAD
+
+
+@pytest.mark.parametrize(("offset", "bad"), [(221, 151.0), (225, 151.0), (229, 151.0),
+                                             (257, 7.0), (261, 7.0), (265, 7.0)])  # fmt: skip
+def test_f1_each_velocity_and_angle_component(offset: int, bad: float) -> None:
+    assert formats.decode_f1(_with(_f1_motion(), offset, "<f", bad), VehicleState()) is BAD
+
+
+def test_f1_a_header_alone_is_ignored() -> None:
+    """29 bytes: a header with no body is not a packet this reads (ignored), not garbage."""
+    assert formats.decode_f1(_f1_header(2), VehicleState()) is None
+
+
+@pytest.mark.parametrize(("index", "bad"), [(4, 151.0), (5, 151.0), (6, 151.0), (7, 501.0),
+                                            (8, 501.0), (9, 501.0), (13, 7.0), (14, 7.0),
+                                            (15, 7.0), (16, 51.0), (17, 51.0), (18, 51.0),
+                                            (1, 1.5e7), (2, 1.5e7), (3, 1.5e7), (19, 1.5e7),
+                                            (20, 1.5e7), (21, 1.5e7)])  # fmt: skip
+def test_beamng_each_component(index: int, bad: float) -> None:
+    """Index into the 21 floats after the magic, 1-based: position, velocity, acceleration,
+    (up vector), angles, rates, angular accelerations."""
+    assert formats.decode_beamng(_with(_beamng(), 4 * index, "<f", bad), VehicleState()) is BAD
+
+
+@pytest.mark.parametrize(("offset", "bad"), [(4, 51.0), (8, 51.0), (16, 7.0), (20, 7.0),
+                                             (28, 501.0), (32, 501.0), (40, 151.0),
+                                             (44, 151.0)])  # fmt: skip
+def test_outsim_each_component(offset: int, bad: float) -> None:
+    assert formats.decode_outsim(_with(_outsim(), offset, "<f", bad), VehicleState()) is BAD

@@ -100,7 +100,7 @@ def decode_codemasters(data: Any, last: VehicleState) -> VehicleState | None:
         return BAD
     raw_gear = int(raw)
     # 0 neutral; reverse is -1 (DiRT Rally 2.0) or 10 (DiRT Rally 1, where no car has 10 gears).
-    gear = REVERSE if raw_gear < 0 or (raw_gear == 10 and gears < 10) else raw_gear
+    gear = REVERSE if raw_gear == 10 and gears < 10 else raw_gear  # -1 is REVERSE already
     # gforce_lat in g, positive to the right as published; engine_rate is rpm / 10.
     return _make((speed, -lateral_g * G, NAN, rate * 10.0, gear, clutch, throttle, brake, NAN,
                   max_rate * 10.0, "", 0, False, time_s))  # fmt: skip
@@ -165,7 +165,7 @@ def decode_f1(data: Any, last: VehicleState) -> VehicleState | None:
             throttle=c[1],
             brake=c[3],
             clutch_pedal=c[4] / 100.0,
-            gear=REVERSE if c[5] < 0 else c[5],
+            gear=c[5],  # -1 R (REVERSE), 0 N, 1..8
             engine_speed_rpm=float(c[6]),
             time_s=session_time,
         )
