@@ -17,7 +17,7 @@ import pytest
 
 from carfeel.errors import InputError
 from carfeel.telemetry import formats, replay
-from carfeel.telemetry.formats import FORMATS, FORZA_MAX_ORDINAL, G, encode_carfeel
+from carfeel.telemetry.formats import FORMATS, FORZA_MAX_ORDINAL, Format, G, encode_carfeel
 from carfeel.telemetry.receiver import MAX_PER_POLL, Receiver, Source
 from carfeel.telemetry.source import FADE_S, STALE_AFTER_S, VehicleSource
 from carfeel.telemetry.state import BAD, NEUTRAL, REVERSE, VehicleState, plausible
@@ -425,6 +425,19 @@ def test_nan_in_a_needed_field_counts_as_no_data() -> None:
         source.close()
 
 
+def _pack2(packets: Any, options: int, kwargs: dict[str, object]) -> tuple[bytes, Format]:
+    """OutSimPack2 packed by lfs-insim with the parts these tests do not read filled in, and
+    the format carfeel makes of the same options."""
+    if options & 64:
+        kwargs.update(CurrentLapDist=10.0, IndexedDistance=11.0)
+    if options & 128:
+        kwargs["OSWheels"] = [packets.OutSimWheel() for _ in range(4)]
+    if options & 256:
+        kwargs["SteerTorque"] = 2.0
+    data = packets.OutSimPack2(**kwargs).pack()
+    return data, Source.parse(f"outsim@{options:x}:127.0.0.1:0").format
+
+
 @pytest.mark.parametrize("options", [0x1FF, 0x3D, 0x08])
 def test_outsim_pack2_against_lfs_insim(options: int) -> None:
     """OutSimPack2 packed by lfs-insim with LFS's OutSim Opts decodes to what it was given."""
@@ -443,14 +456,7 @@ def test_outsim_pack2_against_lfs_insim(options: int) -> None:
         kwargs["OSInputs"] = packets.OutSimInputs(Throttle=0.6, Brake=0.1, Clutch=0.9)
     if options & 32:
         kwargs.update(Gear=4, EngineAngVel=500.0, MaxTorqueAtVel=300.0)
-    if options & 64:
-        kwargs.update(CurrentLapDist=10.0, IndexedDistance=11.0)
-    if options & 128:
-        kwargs["OSWheels"] = [packets.OutSimWheel() for _ in range(4)]
-    if options & 256:
-        kwargs["SteerTorque"] = 2.0
-    data = packets.OutSimPack2(**kwargs).pack()
-    fmt = Source.parse(f"outsim@{options:x}:127.0.0.1:0").format
+    data, fmt = _pack2(packets, options, kwargs)
     assert len(data) in fmt.sizes
     s = fmt.decode(data, VehicleState())
     assert s is not None
@@ -702,14 +708,7 @@ def test_outsim_pack2_checks(options: int) -> None:
                                  "MaxTorqueAtVel": 200.0}  # fmt: skip
     if options & 2:
         kwargs["ID"] = 1
-    if options & 64:
-        kwargs.update(CurrentLapDist=10.0, IndexedDistance=11.0)
-    if options & 128:
-        kwargs["OSWheels"] = [packets.OutSimWheel() for _ in range(4)]
-    if options & 256:
-        kwargs["SteerTorque"] = 2.0
-    data = packets.OutSimPack2(**kwargs).pack()
-    fmt = Source.parse(f"outsim@{options:x}:127.0.0.1:0").format
+    data, fmt = _pack2(packets, options, kwargs)
     state = fmt.decode(data, VehicleState())
     assert state is not None and plausible(state) and state.time_s == 4.321
     inputs = 4 * (bool(options & 1) + bool(options & 2) + bool(options & 4)) + 60
