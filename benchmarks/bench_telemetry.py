@@ -7,18 +7,27 @@ Runs, in one process (the sender in a second one, as a game would be):
    telemetry (the reference), then with `carfeel` packets arriving at 1 kHz from another
    process: overruns and period errors of both, and the latency from a packet's send (its
    time stamp) to the first force command computed from it (p50, p99);
-3. the same with garbage flooding the port from a third process (20 kHz).
+3. the same with garbage flooding the port from a third process (20 kHz);
+4. `carfeel telemetry listen --record` (its own process) against a paced sender (another
+   process) at 1 and 5 kHz: rows written against packets sent, beside the reference, the
+   recorder as it was (the latest state of a poll, a 1 ms sleep between polls, the loop's
+   64 KiB buffer) fed by the same sender in the same run.
 Asserts nothing; numbers go in notes, not tests.
-    python benchmarks/bench_telemetry.py [--seconds 10]
+    python benchmarks/bench_telemetry.py [--seconds 10] [--only-record]
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
+import json
 import multiprocessing
 import platform
 import socket
 import struct
+import subprocess
+import sys
+import tempfile
 import time
 import timeit
 from pathlib import Path
@@ -26,12 +35,13 @@ from typing import Any, ClassVar
 
 from carfeel.realtime import session
 from carfeel.realtime.session import RealtimeRun, run_realtime
-from carfeel.telemetry import formats, source
+from carfeel.telemetry import formats, replay, source
 from carfeel.telemetry.formats import encode_carfeel
 from carfeel.telemetry.receiver import Receiver, Source
 from carfeel.telemetry.state import VehicleState
 
-DATA = Path("/work/shared/data/telemetry")
+DATA = Path(__file__).resolve().parents[1] / "tests" / "data" / "telemetry"
+FORZA = DATA / "forza-motorsport-2023-dash.raw"
 
 
 def packets_per_format() -> dict[str, bytes]:
@@ -65,7 +75,7 @@ def packets_per_format() -> dict[str, bytes]:
     }
     ac, fz = DATA / "assetto-corsa-rtcarinfo-monza.raw", DATA / "forza-motorsport-2023-dash.raw"
     if ac.is_file():
-        out["assetto (capture)"] = ac.read_bytes()[328 * 3000 : 328 * 3001]
+        out["assetto (capture)"] = ac.read_bytes()[328 * 1500 : 328 * 1501]
     if fz.is_file():
         out["forza FM2023 (capture)"] = fz.read_bytes()[331 * 500 : 331 * 501]
     return out
@@ -156,11 +166,87 @@ def run(seconds: float, telemetry: str | None) -> Any:
     return run_realtime(run)
 
 
+def paced_sender(port: int, count: int, rate_hz: float, start_at: float) -> None:
+    """The game: `count` datagrams of the Forza capture (cycled) at rate_hz from `start_at`
+    (time.monotonic()), paced by replay.send."""
+    packets = replay.datagrams(FORZA, 331)
+    stream = [packets[k % len(packets)] for k in range(count)]
+    time.sleep(max(0.0, start_at - time.monotonic()))
+    replay.send(stream, ("127.0.0.1", port), rate_hz)
+
+
+def _sender(port: int, count: int, rate_hz: float) -> multiprocessing.Process:
+    game = multiprocessing.Process(
+        target=paced_sender, args=(port, count, rate_hz, time.monotonic() + 0.5)
+    )
+    game.start()
+    return game
+
+
+def _port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        return int(probe.getsockname()[1])
+
+
+def record_listen(count: int, rate_hz: float, seconds: float) -> tuple[int, int, float]:
+    """`carfeel telemetry listen --record` in its own process: (rows, packets, rate_hz)."""
+    port = _port()
+    with tempfile.TemporaryDirectory() as tmp:
+        record = Path(tmp) / "r.csv"
+        command = [sys.executable, "-c", "import sys; from carfeel.cli import main; "
+                   "sys.exit(main(sys.argv[1:]))", "telemetry", "listen",
+                   f"forza:127.0.0.1:{port}", "--duration", f"{seconds + 2.0:g}", "--json",
+                   "--record", str(record)]  # fmt: skip
+        listener = subprocess.Popen(command, stdout=subprocess.PIPE, text=True)
+        time.sleep(1.0)  # its imports and bind (the sender waits 0.5 s more)
+        game = _sender(port, count, rate_hz)
+        out, _ = listener.communicate(timeout=seconds + 60.0)
+        game.join()
+        with record.open(newline="") as handle:
+            rows = sum(1 for _ in csv.reader(handle)) - 1
+    summary = json.loads(out.strip().splitlines()[-1])
+    return rows, int(summary["packets"]), float(summary["rate_hz"])
+
+
+def record_reference(count: int, rate_hz: float, seconds: float) -> tuple[int, int]:
+    """The recorder as it was: poll, write the latest state, sleep 1 ms (rows, packets)."""
+    with Receiver(Source.parse("forza:127.0.0.1:0")) as receiver, tempfile.TemporaryFile("w") as f:
+        writer = csv.writer(f)
+        game = _sender(receiver.address[1], count, rate_hz)
+        rows = 0
+        end = time.monotonic() + seconds + 1.5
+        while time.monotonic() < end:
+            if receiver.poll():
+                writer.writerow((time.monotonic(), *receiver.latest))
+                rows += 1
+            time.sleep(0.001)
+        game.join()
+        return rows, receiver.packets
+
+
+def record_rates(seconds: float) -> None:
+    print(f"listen --record, the Forza capture cycled, {seconds:g} s a rate (sent / packets "
+          "counted / rows written):")  # fmt: skip
+    for rate_hz in (1000.0, 5000.0):
+        count = int(rate_hz * seconds)
+        rows, packets, measured = record_listen(count, rate_hz, seconds)
+        ref_rows, ref_packets = record_reference(count, rate_hz, seconds)
+        print(f"  {rate_hz:6.0f} Hz  listen --record: {count} sent, {packets} counted, {rows} "
+              f"rows ({rows / count:.1%}); rate_hz {measured:.0f}")  # fmt: skip
+        print(f"  {'':9s} reference (latest of a poll, 1 ms sleep): {ref_packets} counted, "
+              f"{ref_rows} rows ({ref_rows / count:.1%})")  # fmt: skip
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=10.0)
+    parser.add_argument("--only-record", action="store_true", help="part 4 only")
     args = parser.parse_args()
     print(f"CPython {platform.python_version()} on {platform.machine()}")
+    if args.only_record:
+        record_rates(min(args.seconds, 5.0))
+        return
     decode_costs()
 
     ref = run(args.seconds, None).summary
@@ -228,6 +314,7 @@ def main() -> None:
         ordered = sorted(flood_used)
         print(f"under the flood, send to force command: p50 {ordered[len(ordered) // 2] * 1e6:.0f}"
               f" us, p99 {ordered[int(0.99 * (len(ordered) - 1))] * 1e6:.0f} us")  # fmt: skip
+    record_rates(min(args.seconds, 5.0))
 
 
 if __name__ == "__main__":

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from pathlib import Path as _Path
 
 import pytest
 
@@ -12,12 +11,8 @@ from carfeel.io.presets import load_shift
 from carfeel.simulation.result import Result
 from carfeel.simulation.shift import ShiftParams, simulate_shift
 
-_REPO = _Path(__file__).resolve().parents[1]
-SHARED = next(
-    (p for p in (_REPO.parent / "shared", _Path("/work/shared")) if (p / "data").is_dir()),
-    _REPO.parent / "shared",
-)
-"""The shared recordings (`../shared` beside the repository, as CI lays it out)."""
+# Recordings the tests use live in tests/data (tests.datafiles.data_file): nothing here reads
+# ../shared or a machine path.
 
 
 @functools.cache

@@ -36,12 +36,20 @@ def test_pull_out_option_ends_in_neutral(tmp_path):
 
 
 def test_dt_and_substeps_options(tmp_path):
-    out = tmp_path / "d.csv"
-    args = ["simulate", "shift", "--dt", "0.002", "--substeps", "5", "--duration", "1.0"]
-    assert main([*args, "--out", str(out)]) == 0
-    result = Result.from_csv(out)
-    assert len(result) == 500
-    assert result.time_s[1] - result.time_s[0] == pytest.approx(0.002)
+    """--dt 0.002 --substeps 5 steps the model at 0.4 ms and writes every 2 ms: the same rows,
+    to the digit, as --dt 0.0004 written every fifth row, and not those of --dt 0.002 alone
+    (the test before checked only the time grid: substeps ignored passed it)."""
+    runs = {}
+    for dt, substeps in (("0.002", "5"), ("0.0004", "1"), ("0.002", "1")):
+        out = tmp_path / f"d{dt}-{substeps}.csv"
+        args = ["simulate", "shift", "--dt", dt, "--substeps", substeps, "--duration", "1.0"]
+        assert main([*args, "--out", str(out)]) == 0
+        runs[dt, substeps] = out.read_text().splitlines()
+    coarse, fine, plain = runs["0.002", "5"], runs["0.0004", "1"], runs["0.002", "1"]
+    assert len(coarse) == 501 and len(fine) == 2501  # a header and 500 (2500) rows
+    assert coarse[1].startswith("0.002,")
+    assert coarse[1:] == fine[5::5]  # 0.0004 s steps, every fifth written
+    assert coarse[1:] != plain[1:]
 
 
 def test_demo_writes_into_the_folder_it_names(tmp_path, capsys):

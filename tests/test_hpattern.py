@@ -122,6 +122,38 @@ def test_a_gear_is_entered_only_from_the_corridor():
             assert abs(x[i - 1]) <= edge
 
 
+def _slot_offset(layout, x, y):
+    """Per sample, how far y is from the nearest plane with a gear on x's side, m (by the
+    layout's geometry, not by the model's region label)."""
+    out = np.full(len(x), np.inf)
+    for gear in layout.gears:
+        side = np.sign(x) == gear.direction
+        offset = np.abs(y - layout.planes_y_m[gear.plane])
+        out = np.where(side, np.minimum(out, offset), out)
+    return out
+
+
+def test_the_gate_holds_by_geometry_not_by_the_labels():
+    """The region labels checked against the layout's geometry (the tests above read the
+    model's own labels): past the corridor by more than a wall's compliance the knob is always
+    in a gear's slot band; past the corridor's edge outside every slot band it is labelled
+    outside and no deeper than the compliance; a sample labelled slot lies in a slot band."""
+    layout = preset().setup.layout
+    half, band = layout.corridor_width_m / 2, layout.slot_width_m / 2
+    walls_met = 0
+    for result in (drive(), drive(("N", "2", "5", "N"), wall=3)):
+        x, y, regions = result["x_m"], result["y_m"], result["region"]
+        offset = _slot_offset(layout, x, y)
+        deep = np.abs(x) > half + hpattern.WALL_DEPTH_M
+        assert deep.any() and (offset[deep] <= band).all()  # measured: at most 2.9 of 4 mm
+        in_wall = (np.abs(x) > half) & (offset > band)
+        walls_met += int(in_wall.sum())
+        assert (np.abs(x[in_wall]) <= half + hpattern.WALL_DEPTH_M + 1e-12).all()
+        assert (regions[in_wall] == "outside").all()
+        assert (offset[regions == "slot"] <= band).all()
+    assert walls_met > 0  # the wall run did press the gate
+
+
 def test_each_engagement_shows_the_synchronization_plateau():
     p = preset()
     for e in engagements_of(drive()):

@@ -34,7 +34,6 @@ from carfeel.simulation.result import Result
 from carfeel.simulation.steering import physical_start
 from tests.test_physical_steering import release as offline_release
 from tests.test_stability import decays
-from tests.test_telemetry_loop import needs_capture
 
 CAR = load_steering("b-segment").params.physical()
 
@@ -445,7 +444,6 @@ def telemetry_run(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, lateral: bool
                         device="virtual:wheel")  # fmt: skip
 
 
-@needs_capture
 def test_telemetry_drives_the_physical_models_speed_and_fades_to_the_runs(tmp_path, monkeypatch):
     """The game's speed is the model's while telemetry is fresh; when it stops the speed goes
     back to the run's (--speed-kmh, 30) within the fade, and returns with the packets. The

@@ -23,10 +23,13 @@ from carfeel.realtime.session import RealtimeRun, run_realtime
 from carfeel.telemetry import gearout, replay, source
 from carfeel.telemetry.gearout import GearDriver, RecordingGearOutput
 from carfeel.telemetry.source import FADE_S, STALE_AFTER_S, VehicleSource
-from tests.conftest import SHARED
+from tests.datafiles import data_file
 
-FORZA_CAPTURE = SHARED / "data" / "telemetry" / "forza-motorsport-2023-dash.raw"
-needs_capture = pytest.mark.skipif(not FORZA_CAPTURE.is_file(), reason="no shared capture")
+
+def forza_capture() -> Path:
+    return data_file("telemetry", "forza-motorsport-2023-dash.raw")
+
+
 PACKET_S = 1.0 / 60.0
 STOP_S, RESTART_S = 1.5, 2.2
 
@@ -37,7 +40,7 @@ class FeedingSource(VehicleSource):
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
-        self.packets = replay.datagrams(FORZA_CAPTURE, 331)[300:]
+        self.packets = replay.datagrams(forza_capture(), 331)[300:]
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.next_s = 0.0
         self.index = 0
@@ -92,7 +95,6 @@ LATE_S = STALE_AFTER_S + FADE_S + PACKET_S + 0.003
 the last packet (up to one packet period before STOP_S), plus the loop's ticks of rounding."""
 
 
-@needs_capture
 def test_replayed_telemetry_drives_the_steering_torque(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -119,7 +121,6 @@ def test_replayed_telemetry_drives_the_steering_torque(
     assert not result.summary.faults
 
 
-@needs_capture
 def test_replayed_telemetry_drives_the_hpattern_synchronizer(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -242,7 +243,9 @@ def test_uinput_backend_against_a_recorded_fake(monkeypatch: pytest.MonkeyPatch)
     out.close()
     events, kwargs = calls[0][1]
     assert events == {1: [0x120, 0x121, 0x122]}
-    assert kwargs["name"] == "carfeel H-shifter"
+    # A stable name and ids (pid.codes' 0x1209 and 0xCAFE), so that games keep the bindings.
+    assert kwargs == {"name": "carfeel H-shifter", "vendor": 0x1209, "product": 0xCAFE,
+                      "version": 1}  # fmt: skip
     assert calls[1:] == [
         ("write", (1, 0x120, 1)), ("syn", ()),
         ("write", (1, 0x120, 0)), ("write", (1, 0x122, 1)), ("syn", ()),
@@ -340,13 +343,12 @@ def test_cli_bad_sources_exit_2_before_anything(
                      "--to", "127.0.0.1:5300"]) == 2  # fmt: skip
 
 
-@needs_capture
 def test_cli_listen_and_replay(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
         probe.bind(("127.0.0.1", 0))
         port = probe.getsockname()[1]
     small = tmp_path / "forza.raw"
-    small.write_bytes(FORZA_CAPTURE.read_bytes()[: 331 * 30])
+    small.write_bytes(forza_capture().read_bytes()[: 331 * 30])
     record = tmp_path / "state.csv"
     codes: list[int] = []
     listener = threading.Thread(target=lambda: codes.append(cli.main(
@@ -380,6 +382,22 @@ def test_car_presets_mapping(tmp_path: Path) -> None:
     mapping.write_text('[cars."445"]\nhpattern = 5\n')
     with pytest.raises(InputError, match="cars"):
         preset_for_car(mapping, receiver, "hpattern")
+    mapping.write_text('[cars."445"]\nhpattern = "5r"\n')
+    late = types.SimpleNamespace(latest=VehicleState(), polls=0)
+
+    def poll() -> int:  # the car's first packet comes on the third poll
+        late.polls += 1
+        if late.polls == 3:
+            late.latest = VehicleState(car="445")
+        return 1
+
+    late.poll = poll
+    assert preset_for_car(mapping, late, "hpattern") == "5r"  # waited for it
+    assert late.polls == 3
+    mapping.write_text("# no cars\n")
+    assert preset_for_car(mapping, receiver, "hpattern") is None
+    with pytest.raises(InputError, match="no such file"):
+        preset_for_car(tmp_path / "missing.toml", receiver, "hpattern")
 
 
 class ConstantSource(VehicleSource):
@@ -426,3 +444,27 @@ def test_the_games_clutch_reaches_the_synchronizer(monkeypatch: pytest.MonkeyPat
         assert not result.summary.faults
         gears[pedal] = result.summary.gears
     assert gears == {1.0: ["1", "2"], 0.0: []}
+
+
+def test_options_that_would_do_nothing_are_refused(capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 26 point 7, as a new user tries them: each exits 2 with the reason."""
+    cases = [
+        (["run", "--model", "hpattern", "--gear-output", "uinput", "--clock", "simulated"],
+         "needs --telemetry"),
+        (["run", "--model", "hpattern", "--gear-output", "vjoy", "--clock", "simulated"],
+         "needs --telemetry"),
+        (["run", "--rate-hz", "20000", "--clock", "simulated"], "above, a tick is shorter"),
+        (["run", "--rate-hz", "100", "--clock", "simulated"], "below, the rendering"),
+        (["run", "--accept-from", "127.0.0.1", "--clock", "simulated"], "give --telemetry"),
+        (["run", "--model", "steering", "--clock", "simulated", "--telemetry",
+          "forza:0.0.0.0:0"], "--accept-from ADDR"),
+    ]  # fmt: skip
+    for args, reason in cases:
+        assert cli.main(args) == 2, args
+        err = capsys.readouterr().err
+        assert reason in err and "Traceback" not in err, (args, err)
+    from carfeel.realtime.session import _check
+
+    with pytest.raises(InputError) as too_fast:
+        _check(RealtimeRun(rate_hz=20_000.0))
+    assert "below" not in str(too_fast.value)  # it said "below" for a rate above the range

@@ -103,6 +103,9 @@ def register(commands: Any) -> None:
     run.add_argument("--telemetry", metavar="SOURCE", default=None,
                      help="FORMAT:HOST:PORT: the game's speed, Ay, engine, gear and clutch drive "
                      "the model (see `carfeel telemetry listen`)")  # fmt: skip
+    run.add_argument("--accept-from", metavar="ADDR", default=None,
+                     help="--telemetry: take packets from ADDR only (an address, a network such "
+                     "as 192.168.1.0/24, or any); default: the game's host")  # fmt: skip
     run.add_argument(
         "--gear-output",
         default="none",
@@ -143,6 +146,15 @@ def _handle(args: argparse.Namespace) -> int:
     return code
 
 
+def _with_accept(telemetry: str | None, accept_from: str | None) -> str | None:
+    """The source with `--accept-from` in it (`,from=ADDR`, as `Source.parse` reads it)."""
+    if telemetry is None or accept_from is None:
+        return telemetry
+    if ",from=" in telemetry:
+        raise InputError(f"--telemetry {telemetry!r} names its ,from= already: drop --accept-from")
+    return f"{telemetry},from={accept_from}"
+
+
 def _run(args: argparse.Namespace) -> int:
     from carfeel.commands.simulate import parse_sequence
     from carfeel.io.outputs import Outputs
@@ -158,6 +170,8 @@ def _run(args: argparse.Namespace) -> int:
             "--aligning chooses the paper law's aligning torque; the physical model's comes from "
             "its own tyres (drop --aligning, or use --steering-model paper)"
         )
+    if args.accept_from is not None and args.telemetry is None:
+        raise InputError("--accept-from filters --telemetry's packets: give --telemetry too")
     if args.sequence is not None and args.model != "hpattern":
         raise InputError(f"--sequence is the H-pattern's script; --model {args.model} has none")
     if record is not None:
@@ -192,7 +206,7 @@ def _run(args: argparse.Namespace) -> int:
         steering_model=args.steering_model,
         road=args.road,
         synchronizer=args.synchronizer,
-        telemetry=args.telemetry,
+        telemetry=_with_accept(args.telemetry, args.accept_from),
         gear_output=args.gear_output,
         gear_timing=args.gear_timing,
         car_presets=Path(args.car_presets) if args.car_presets else None,

@@ -20,7 +20,9 @@ def register(commands: Any) -> None:
         help="receive a game's telemetry (listen) or send a capture as the game would (replay)",
         description="SOURCE is FORMAT:HOST:PORT (or FORMAT:PORT on 127.0.0.1) with FORMAT one "
         "of codemasters, f1, assetto, forza, outgauge, outsim, beamng, carfeel. For assetto, "
-        "HOST:PORT is the game's (port 9996); for the others, where to listen.",
+        "HOST:PORT is the game's (port 9996); for the others, where to listen. Packets are "
+        "taken from the game's host only (127.0.0.1 on loopback); beyond loopback name it with "
+        "--accept-from ADDR (or ,from=ADDR after the source).",
     )
     actions = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
     listen = actions.add_parser("listen", help="print what arrives; record the vehicle state")
@@ -28,7 +30,13 @@ def register(commands: Any) -> None:
     listen.add_argument("--duration", type=float, default=None, metavar="S",
                         help="seconds to listen (default: until Ctrl-C)")  # fmt: skip
     listen.add_argument("--record", metavar="FILE.csv", default=None,
-                        help="one row per good packet: time_s and the vehicle state")  # fmt: skip
+                        help="one row per good packet: time_s (when it came, s), packet_time_s "
+                        "(the game's own stamp, where the format has one) and the vehicle "
+                        "state")  # fmt: skip
+    listen.add_argument("--accept-from", metavar="ADDR", default=None,
+                        help="take packets from ADDR only (an address, a network such as "
+                        "192.168.1.0/24, or any); default: the game's host (127.0.0.1 on "
+                        "loopback; required when listening beyond it)")  # fmt: skip
     listen.add_argument("--json", action="store_true", help="print the summary as JSON")
     listen.set_defaults(handler=_listen)
     replay = actions.add_parser("replay", help="send a capture (datagrams concatenated)")
@@ -62,69 +70,106 @@ def _address(text: str) -> tuple[str, int]:
     return host, int(port)
 
 
+LISTEN_BUFFER_BYTES = 4 * 1024 * 1024
+"""The listener's kernel receive buffer (asked for; the system may give less, e.g. Linux's
+rmem_max): a recorder wants every packet, where the loop wants only the newest (64 KiB)."""
+WAIT_S = 0.1
+"""The longest the listener sleeps in `select` between two looks at the clock."""
+
+
 def _listen(args: argparse.Namespace) -> int:
+    from carfeel.io.outputs import Outputs
     from carfeel.telemetry.receiver import Receiver, Source
-    from carfeel.telemetry.state import FIELDS, gear_name
 
     if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
         raise InputError(f"--duration {args.duration:g}: must be a positive number of seconds")
-    source = Source.parse(args.source)
+    source = Source.parse(args.source, accept_from=args.accept_from)
     record = Path(args.record) if args.record else None
-    with Receiver(source) as receiver:
-        handle = record.open("w", newline="") if record else None
-        writer = csv.writer(handle) if handle else None
-        if writer is not None:
-            writer.writerow(("time_s", *FIELDS))
-        start = last_print = time.monotonic()
-        counted = 0
-        if not args.json:
-            host, port = receiver.address
-            print(f"listening for {source.format.describe} on {host}:{port}; Ctrl-C stops",
-                  flush=True)  # fmt: skip
-        try:
-            while args.duration is None or time.monotonic() - start < args.duration:
-                if receiver.poll() and writer is not None:
-                    s = receiver.latest
-                    writer.writerow((f"{time.monotonic() - start:.4f}",
-                                     *(getattr(s, f) for f in FIELDS)))  # fmt: skip
-                now = time.monotonic()
-                if not args.json and now - last_print >= 1.0:
-                    rate = (receiver.packets - counted) / (now - last_print)
-                    counted, last_print = receiver.packets, now
-                    s = receiver.latest
-                    print(
-                        f"{rate:6.1f} Hz  speed {s.speed_m_s:7.2f} m/s  Ay "
-                        f"{s.lateral_accel_m_s2:6.2f} m/s2  yaw {s.yaw_rate_rad_s:6.3f} rad/s  "
-                        f"{s.engine_speed_rpm:6.0f} rpm  gear {gear_name(s.gear)}  clutch "
-                        f"{s.clutch_pedal:.2f}  bad {receiver.bad}",
-                        flush=True,
-                    )
-                time.sleep(0.001)
-        except KeyboardInterrupt:
-            pass
-        finally:
-            if handle is not None:
-                handle.close()
-        elapsed = time.monotonic() - start
-        s = receiver.latest
-        summary = {
-            "format": source.format.name,
-            "packets": receiver.packets,
-            "bad": receiver.bad,
-            "ignored": receiver.ignored,
-            "duration_s": elapsed,
-            "rate_hz": receiver.packets / elapsed if elapsed > 0 else 0.0,
-            "car": s.car,
-            "last": {f: (None if isinstance(v, float) and math.isnan(v) else v)
-                     for f, v in zip(FIELDS, (getattr(s, f) for f in FIELDS), strict=True)},
-        }  # fmt: skip
+    outputs = Outputs()
+    # A killed listener leaves NAME.part.csv readable; one that ends (duration, Ctrl-C) NAME.csv.
+    staged = outputs.add(record, ".csv", partial=True) if record is not None else None
+    with Receiver(source, LISTEN_BUFFER_BYTES) as receiver, outputs:
+        summary = _receive(args, receiver, staged)
     if args.json:
         print(json.dumps(summary))
     else:
-        recorded = f"; recorded {record}" if record else ""
-        print(f"{receiver.packets} packets ({summary['rate_hz']:.1f} Hz), {receiver.bad} bad, "
-              f"{receiver.ignored} ignored{recorded}")  # fmt: skip
+        recorded = f"; recorded {summary['rows']} rows to {record}" if record else ""
+        print(f"{receiver.counts()} ({summary['rate_hz']:.1f} Hz){recorded}")
     return 0
+
+
+def _receive(args: argparse.Namespace, receiver: Any, staged: Path | None) -> dict[str, Any]:
+    """Wait for datagrams in `select` (no fixed sleep: a 5 kHz stream is read as it comes),
+    drain the socket each time, write one row per good packet, print once a second."""
+    import select
+
+    from carfeel.telemetry.state import FIELDS, VehicleState, gear_name
+
+    handle = staged.open("w", newline="") if staged is not None else None
+    writer = csv.writer(handle) if handle is not None else None
+    rows = 0
+    start = last_print = time.monotonic()
+
+    def write(state: VehicleState) -> None:
+        nonlocal rows
+        if writer is not None:
+            writer.writerow((f"{time.monotonic() - start:.6f}", state.time_s,
+                             *(getattr(state, f) for f in FIELDS)))  # fmt: skip
+            rows += 1
+
+    if writer is not None:
+        writer.writerow(("time_s", "packet_time_s", *FIELDS))
+    counted = 0
+    if not args.json:
+        host, port = receiver.address
+        print(f"listening for {receiver.format.describe} on {host}:{port} (accepting "
+              f"{receiver.source.describe_accept()}); Ctrl-C stops", flush=True)  # fmt: skip
+    end = math.inf if args.duration is None else start + args.duration
+    try:
+        while (now := time.monotonic()) < end:
+            readable, _, _ = select.select([receiver.socket], [], [], min(WAIT_S, end - now))
+            if readable:
+                while receiver.poll(write):  # drain: MAX_PER_POLL at a time until empty
+                    pass
+            now = time.monotonic()
+            if not args.json and now - last_print >= 1.0:
+                rate = (receiver.packets - counted) / (now - last_print)
+                counted, last_print = receiver.packets, now
+                s = receiver.latest
+                print(
+                    f"{rate:6.1f} Hz  speed {s.speed_m_s:7.2f} m/s  Ay "
+                    f"{s.lateral_accel_m_s2:6.2f} m/s2  yaw {s.yaw_rate_rad_s:6.3f} rad/s  "
+                    f"{s.engine_speed_rpm:6.0f} rpm  gear {gear_name(s.gear)}  clutch "
+                    f"{s.clutch_pedal:.2f}  bad {receiver.bad}  foreign {receiver.foreign}",
+                    flush=True,
+                )
+    except KeyboardInterrupt:
+        pass
+    finally:
+        if handle is not None:
+            handle.close()
+    elapsed = time.monotonic() - start
+    # The rate over the time the packets came (first to last), not the time spent listening.
+    span = (receiver.arrival_ns - receiver.first_ns) / 1e9
+    rate_hz = (receiver.packets - 1) / span if receiver.packets > 1 and span > 0 else 0.0
+    s = receiver.latest
+    return {
+        "format": receiver.format.name,
+        "packets": receiver.packets,
+        "bad": receiver.bad,
+        "ignored": receiver.ignored,
+        "foreign": receiver.foreign,
+        "foreign_from": dict(receiver.foreign_from),
+        "accepted": receiver.source.describe_accept(),
+        "decoder_errors": receiver.errors,
+        "rows": rows,
+        "duration_s": elapsed,
+        "receiving_s": span,
+        "rate_hz": rate_hz,
+        "car": s.car,
+        "last": {f: (None if isinstance(v, float) and math.isnan(v) else v)
+                 for f, v in zip(FIELDS, (getattr(s, f) for f in FIELDS), strict=True)},
+    }  # fmt: skip
 
 
 def _replay(args: argparse.Namespace) -> int:

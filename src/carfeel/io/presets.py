@@ -13,6 +13,7 @@ import itertools
 import math
 import numbers
 import re
+import stat
 import tomllib
 import typing
 from collections.abc import Callable, Mapping
@@ -21,7 +22,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Generic, TypeVar
 
-from carfeel.errors import PresetError
+from carfeel.errors import CarfeelError, PresetError
 from carfeel.models.gearshift.hpattern import WALL_DEPTH_M, HPatternParams
 from carfeel.models.gearshift.synchronizer import LOCATIONS
 from carfeel.simulation.hpattern import HPatternSetup
@@ -257,34 +258,193 @@ def available(kind: str) -> list[str]:
     return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
 
 
+MAX_TOML_BYTES = 256 * 1024
+"""The largest preset (or map) file read: the shipped ones are under 8 kB; 256 kB of the
+worst TOML (keys alone) parses in about 0.3 s."""
+MAX_TOML_NESTING = 16
+"""Arrays and inline tables nested deeper than this are refused before parsing (a preset
+nests 3 deep; 100k deep made tomllib overflow Python's stack)."""
+MAX_KEY_PARTS = 16
+"""Parts of one dotted key (a.b.c is 3): tomllib's memory grows as their square (10k parts
+took 400 MB), so a longer key is refused before parsing."""
+MAX_NAME_CHARS = 200
+MAX_SOURCE_CHARS = 64 * 1024
+MAX_PROBLEMS = 40
+"""Problems listed in one error (a file of 100k unknown keys gives a readable message)."""
+
+_TOML_TOKEN = re.compile(r'"""|' + r"'''" + r"""|["'#\[\]{}.=,\n]""")
+
+
+def read_limited(path: Path, what: str, error: type[CarfeelError] = PresetError) -> str:
+    """A TOML file's text, refused (not read) beyond MAX_TOML_BYTES or if it is not a regular
+    file (a FIFO or /dev/zero would block or never end). FileNotFoundError passes through."""
+    try:
+        info = path.stat()
+    except FileNotFoundError:
+        raise
+    except OSError as exc:
+        raise error(f"{what} {path} cannot be read: {exc}") from None
+    if not stat.S_ISREG(info.st_mode):
+        raise error(f"{what} {path} is not a regular file")
+    if info.st_size > MAX_TOML_BYTES:
+        raise error(
+            f"{what} {path} is {info.st_size} bytes: at most {MAX_TOML_BYTES} are read "
+            "(a preset is a few kB)"
+        )
+    try:
+        with path.open("rb") as handle:
+            data = handle.read(MAX_TOML_BYTES + 1)
+    except OSError as exc:
+        raise error(f"{what} {path} cannot be read: {exc}") from None
+    if len(data) > MAX_TOML_BYTES:
+        raise error(f"{what} {path} grew past {MAX_TOML_BYTES} bytes while read")
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise error(f"{what} {path} is not UTF-8 text: {exc}") from None
+
+
+def check_toml_limits(label: str, text: str, error: type[CarfeelError] = PresetError) -> None:
+    """Refuse, before tomllib sees it, TOML that is too large, nested too deep or has too long a
+    dotted key (the limits above). A scan of the text outside its strings and comments that
+    counts brackets and dots; tomllib then checks the syntax."""
+    if len(text) > MAX_TOML_BYTES:
+        raise error(f"{label}: {len(text)} characters; at most {MAX_TOML_BYTES} are read")
+    depth = parts = 0
+    find, n = _TOML_TOKEN.search, len(text)
+    pos = 0
+    while (match := find(text, pos)) is not None:
+        token, i = match.group(), match.start()
+        pos = match.end()
+        if token == "#":
+            end = text.find("\n", pos)
+            pos = n if end < 0 else end
+        elif token in ('"""', "'''", '"', "'"):
+            pos = _string_end(text, pos, token)
+        elif token in "[{":
+            depth += 1
+            parts = 0
+            if depth > MAX_TOML_NESTING:
+                raise error(
+                    f"{label}: arrays or tables nested more than {MAX_TOML_NESTING} deep (line "
+                    f"{text.count(chr(10), 0, i) + 1}); a preset nests 3 deep"
+                )
+        elif token in "]}":
+            depth = max(0, depth - 1)
+            parts = 0
+        elif token == ".":
+            parts += 1
+            if parts >= MAX_KEY_PARTS:
+                raise error(
+                    f"{label}: a dotted key of more than {MAX_KEY_PARTS} parts (line "
+                    f"{text.count(chr(10), 0, i) + 1})"
+                )
+        else:  # = , newline
+            parts = 0
+
+
+def _string_end(text: str, pos: int, quote: str) -> int:
+    """Where the string that `quote` opened just before `pos` ends (past its closing quotes).
+    Basic strings (") take backslash escapes, literal ones (') none; single-line ones end at
+    the line's end at the latest (tomllib refuses them there)."""
+    multiline = len(quote) == 3
+    while True:
+        end = text.find(quote, pos)
+        stop = len(text) if multiline else text.find("\n", pos)
+        stop = len(text) if stop < 0 else stop
+        if end < 0 or end > stop:
+            return stop
+        slashes = 0
+        while quote[0] == '"' and end - slashes > pos and text[end - slashes - 1] == "\\":
+            slashes += 1
+        if slashes % 2:  # an escaped quote
+            pos = end + 1
+            continue
+        end += len(quote)
+        extra = 0
+        while multiline and extra < 2 and end < len(text) and text[end] == quote[0]:
+            end += 1  # up to two quotes of the content before the closing three
+            extra += 1
+        return end
+
+
+def load_toml(label: str, text: str, error: type[CarfeelError] = PresetError) -> dict[str, Any]:
+    """TOML text as a dict within the limits above; `error` (exit code 2) for anything else."""
+    check_toml_limits(label, text, error)
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise error(f"{label}: not valid TOML: {exc}") from None
+    except (RecursionError, ValueError) as exc:  # a 5000-digit integer raises ValueError
+        raise error(f"{label}: not TOML this reader takes: {str(exc)[:200]}") from None
+
+
 def resolve(kind: str, name_or_path: str) -> tuple[str, str]:
     """Find a preset by shipped name or file path; return (label, TOML text)."""
     path = Path(name_or_path)
     looks_like_path = path.suffix == ".toml" or "/" in name_or_path or "\\" in name_or_path
     if looks_like_path or path.is_file():
         try:
-            return str(path), path.read_text(encoding="utf-8")
+            return str(path), read_limited(path, "preset file")
         except FileNotFoundError:
             raise PresetError(
                 f"preset file {path} not found; give an existing TOML file or one of the "
                 f"{kind} presets: {', '.join(available(kind))}"
             ) from None
-        except (OSError, UnicodeDecodeError) as exc:
-            raise PresetError(f"preset file {path} cannot be read: {exc}") from None
     shipped = resources.files("carfeel.presets").joinpath(kind, f"{name_or_path}.toml")
-    if not shipped.is_file():
+    if len(name_or_path) > MAX_NAME_CHARS or not shipped.is_file():
         raise PresetError(
-            f"no {kind} preset named {name_or_path!r}; the shipped ones are: "
+            f"no {kind} preset named {name_or_path[:MAX_NAME_CHARS]!r}; the shipped ones are: "
             f"{', '.join(available(kind))} (or give the path of a .toml file)"
         )
     return name_or_path, shipped.read_text(encoding="utf-8")
 
 
 def parse(label: str, text: str) -> dict[str, Any]:
-    try:
-        return tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise PresetError(f"preset {label}: not valid TOML: {exc}") from None
+    return load_toml(f"preset {label}", text)
+
+
+KIND_TABLES = {
+    "shift": ("gearbox",),
+    "steering": ("vehicle", "torque"),
+    "hpattern": ("layout", "select", "walls"),
+}
+"""The tables that tell the kinds apart (a shift and a steering preset both have [driver])."""
+
+
+def _kind_mismatch(kind: str, label: str, data: Mapping[str, Any]) -> None:
+    """Say what a preset of another kind is, instead of listing every key it lacks."""
+    own = KIND_TABLES[kind]
+    if any(t in data for t in own):
+        return
+    for other, tables in KIND_TABLES.items():
+        found = [t for t in tables if t in data]
+        if other != kind and found:
+            article = "an" if other[0] in "aeiouh" else "a"
+            raise PresetError(
+                f"preset {label} is {article} {other} preset (it has "
+                f"{', '.join(f'[{t}]' for t in found)}), not a {kind} one: give a {kind} preset "
+                f"({', '.join(available(kind))}, or a file with "
+                f"{', '.join(f'[{t}]' for t in own)})"
+            )
+
+
+def _report(label: str, problems: list[str]) -> PresetError:
+    shown = problems[:MAX_PROBLEMS]
+    more = [f"... and {len(problems) - len(shown)} more"] if len(problems) > len(shown) else []
+    return PresetError(f"preset {label} is not valid:\n  " + "\n  ".join([*shown, *more]))
+
+
+def _text_fields(data: Mapping[str, Any], keys: tuple[str, ...], problems: list[str]) -> None:
+    """`name`, `source` (and `engagement`): non-empty strings of a bounded length."""
+    for key in keys:
+        value = data.get(key)
+        if not isinstance(value, str) or not value.strip():
+            problems.append(f"{key}: missing; expected a string (where the numbers come from)")
+            continue
+        limit = MAX_SOURCE_CHARS if key == "source" else MAX_NAME_CHARS
+        if len(value) > limit:
+            problems.append(f"{key}: {len(value)} characters; at most {limit}")
 
 
 _MISSING = object()
@@ -609,20 +769,19 @@ def from_toml(kind: str, label: str, text: str) -> Preset[Any]:
     """Parse and validate a preset of `kind`; every problem is reported in one PresetError."""
     cls, tables_of_kind, check = _KINDS[kind]
     data = parse(label, text)
+    _kind_mismatch(kind, label, data)
     problems: list[str] = []
     allowed = ("name", "source", *tables_of_kind)
     for key in data:
         if key not in allowed:
-            problems.append(f"{key}: unknown key; a {kind} preset has {', '.join(allowed)}")
-    for key in ("name", "source"):
-        if not isinstance(data.get(key), str) or not data[key].strip():
-            problems.append(f"{key}: missing; expected a string (where the numbers come from)")
+            problems.append(f"{key[:80]}: unknown key; a {kind} preset has {', '.join(allowed)}")
+    _text_fields(data, ("name", "source"), problems)
     tables: dict[str, Any] = {k: data[k] for k in tables_of_kind if k in data}
     params = build(cls, tables, "", problems)
     if params is not None and not problems:
         problems.extend(check(params))
     if problems or params is None:
-        raise PresetError(f"preset {label} is not valid:\n  " + "\n  ".join(problems))
+        raise _report(label, problems)
     return Preset(data["name"], data["source"], params)
 
 
@@ -792,19 +951,18 @@ def load_hpattern(name_or_path: str = "5r") -> HPatternPreset:
     """Load and validate an H-pattern (layout) preset by shipped name or path."""
     label, text = resolve("hpattern", name_or_path)
     data = parse(label, text)
+    _kind_mismatch("hpattern", label, data)
     problems: list[str] = []
     allowed = ("name", "source", "engagement", "layout", "select", "walls", "synchronizer",
                "feel", "driver")  # fmt: skip
     for key in data:
         if key not in allowed:
-            problems.append(f"{key}: unknown key; an hpattern preset has {', '.join(allowed)}")
-    for key in ("name", "source", "engagement"):
-        if not isinstance(data.get(key), str) or not data[key].strip():
-            problems.append(f"{key}: missing; expected a string")
+            problems.append(f"{key[:80]}: unknown key; an hpattern preset has {', '.join(allowed)}")
+    _text_fields(data, ("name", "source", "engagement"), problems)
     tables: dict[str, Any] = {k: data[k] for k in allowed[3:] if k in data}
     setup = build(HPatternSetup, tables, "", problems)
     if problems or setup is None:
-        raise PresetError(f"preset {label} is not valid:\n  " + "\n  ".join(problems))
+        raise _report(label, problems)
     reference = data["engagement"]
     if (reference.endswith(".toml") or "/" in reference) and not Path(reference).is_absolute():
         base = Path(label).parent if Path(label).suffix == ".toml" else Path(".")
@@ -812,53 +970,44 @@ def load_hpattern(name_or_path: str = "5r") -> HPatternPreset:
     shift = load_shift(reference)
     problems = check_hpattern(setup, shift.params)
     if problems:
-        raise PresetError(f"preset {label} is not valid:\n  " + "\n  ".join(problems))
+        raise _report(label, problems)
     return HPatternPreset(data["name"], data["source"], data["engagement"], shift.params, setup)
 
 
 def to_toml(
     name: str, source: str, tables: Mapping[str, Any], extra: Mapping[str, str] | None = None
 ) -> str:
-    """A preset's TOML text: `name`, `source`, string keys of `extra`, then one table per
-    dataclass of `tables` (nested dataclasses as sub-tables, tuples of them as arrays of tables).
-    Loading it back with the matching loader gives the same parameters."""
-    lines = [f"name = {_toml_string(name)}", f'source = """\n{source.strip()}\n"""']
-    for key, value in (extra or {}).items():
-        lines.append(f"{key} = {_toml_string(value)}")
+    """A preset's TOML text, written by tomli-w (so a name, source or path holding backslashes,
+    quotes or newlines is escaped as TOML wants): `name`, `source`, the string keys of `extra`,
+    then one table per dataclass of `tables` (nested dataclasses as sub-tables, tuples of them
+    as arrays of tables). Loading it back with the matching loader gives the same parameters
+    and the same strings (the source less its leading and trailing newlines)."""
+    import tomli_w
+
+    document: dict[str, Any] = {"name": name, "source": source.strip("\n")}
+    document.update(extra or {})
+    texts = [v for v in document.values() if isinstance(v, str)]
     for key, value in tables.items():
-        _toml_table(lines, key, value)
-    return "\n".join(lines) + "\n"
+        document[key] = _toml_table(value)
+    # Multi-line strings read best, but a TOML reader turns their CR LF into LF: a text with a
+    # CR is written on one line, its newlines escaped, so that it comes back as it was.
+    multiline = not any("\r" in t for t in texts)
+    return tomli_w.dumps(document, multiline_strings=multiline)
 
 
-def _toml_string(text: str) -> str:
-    return '"' + text.replace("\\", "\\\\").replace('"', '\\"') + '"'
-
-
-def _toml_value(value: Any) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
+def _toml_value(value: Any) -> Any:
+    if isinstance(value, bool | str):
+        return value
     if isinstance(value, numbers.Integral):
-        return str(int(value))
+        return int(value)
     if isinstance(value, numbers.Real):  # float, and numpy scalars a fit may leave behind
-        return repr(float(value))
-    if isinstance(value, str):
-        return _toml_string(value)
-    if isinstance(value, tuple):
-        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+        return float(value)
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return _toml_table(value)
+    if isinstance(value, tuple | list):
+        return [_toml_value(v) for v in value]
     raise TypeError(f"no TOML form for {value!r}")
 
 
-def _toml_table(lines: list[str], key: str, value: Any, array: bool = False) -> None:
-    lines.append("")
-    lines.append(f"[[{key}]]" if array else f"[{key}]")
-    nested = []
-    for field in dataclasses.fields(value):
-        item = getattr(value, field.name)
-        if dataclasses.is_dataclass(item):
-            nested.append((f"{key}.{field.name}", item, False))
-        elif isinstance(item, tuple) and item and dataclasses.is_dataclass(item[0]):
-            nested.extend((f"{key}.{field.name}", element, True) for element in item)
-        else:
-            lines.append(f"{field.name} = {_toml_value(item)}")
-    for sub_key, sub_value, is_array in nested:
-        _toml_table(lines, sub_key, sub_value, is_array)
+def _toml_table(value: Any) -> dict[str, Any]:
+    return {f.name: _toml_value(getattr(value, f.name)) for f in dataclasses.fields(value)}

@@ -669,6 +669,10 @@ class Panel:
             _check(RealtimeRun(**run))
         except TypeError as exc:  # pragma: no cover - the fields are filtered above
             raise InputError(str(exc)) from None
+        if "telemetry" in run:  # loopback only, unless the panel itself is on the network
+            from carfeel.telemetry.receiver import Source
+
+            Source.parse(run["telemetry"], network=not self.config.hosts)
         return run
 
     async def start(self, body: dict[str, Any]) -> Session:

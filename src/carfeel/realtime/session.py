@@ -206,9 +206,16 @@ def _check(run: RealtimeRun) -> None:
             "use --mode impedance"
         )
     if not (MIN_RATE_HZ <= run.rate_hz <= MAX_RATE_HZ) or not math.isfinite(run.rate_hz):
+        why = (
+            f"above, a tick is shorter than the {1e6 / MAX_RATE_HZ:g} us the loop can keep to"
+            if run.rate_hz > MAX_RATE_HZ
+            else "below, the rendering's filters and the walls' passivity no longer hold"
+            if run.rate_hz < MIN_RATE_HZ
+            else "a rate is a finite number of ticks a second"
+        )
         raise InputError(
             f"--rate-hz {run.rate_hz:g}: allowed {MIN_RATE_HZ:g} <= value <= {MAX_RATE_HZ:g} Hz "
-            "(below, the rendering's filters and the walls' passivity no longer hold)"
+            f"({why})"
         )
     if not (math.isfinite(run.speed_kmh) and 0.0 <= run.speed_kmh <= 250.0):
         raise InputError(f"--speed-kmh {run.speed_kmh:g}: allowed 0 <= value <= 250 km/h")
@@ -342,6 +349,11 @@ def _check_telemetry(run: RealtimeRun) -> None:
         )
     if run.gear_output != "none" and run.model != "hpattern":
         raise InputError("--gear-output needs --model hpattern (the lever's slot is the gear)")
+    if run.gear_output != "none" and run.telemetry is None:
+        raise InputError(
+            f"--gear-output {run.gear_output} presses the gear's buttons for a game: it needs "
+            "--telemetry (without it no button is pressed)"
+        )
     if run.car_presets is not None and run.telemetry is None:
         raise InputError("--car-presets needs --telemetry (the format names the car)")
     if run.telemetry is not None:

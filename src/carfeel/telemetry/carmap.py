@@ -12,7 +12,6 @@ Read once, before the loop: the first packet that names the car is waited for (a
 from __future__ import annotations
 
 import time
-import tomllib
 from pathlib import Path
 from typing import Any
 
@@ -22,10 +21,15 @@ WAIT_S = 2.0
 
 
 def load_car_map(path: Path) -> dict[str, dict[str, str]]:
+    """The file's [cars] tables, read within the presets' limits (size, nesting)."""
+    from carfeel.io.presets import load_toml, read_limited
+
+    label = f"--car-presets {path}"
     try:
-        data = tomllib.loads(path.read_text())
-    except (OSError, tomllib.TOMLDecodeError) as exc:
-        raise InputError(f"--car-presets {path}: {exc}") from exc
+        text = read_limited(path, "--car-presets", InputError)
+    except FileNotFoundError:
+        raise InputError(f"{label}: no such file") from None
+    data = load_toml(label, text, InputError)
     cars = data.get("cars", {})
     if not isinstance(cars, dict) or not all(
         isinstance(v, dict) and all(isinstance(x, str) for x in v.values()) for v in cars.values()

@@ -1,13 +1,18 @@
 """One decoder per game format, from the published layouts (`struct`, little-endian).
 
-Each decoder takes one datagram (a bytes-like object whose size the receiver has checked against
-`Format.sizes`) and the last state (for formats that split the state over several packets), and
-returns a `VehicleState` in SI units, or None for a datagram that carries no vehicle state (a menu,
-a paused game, another packet type). The receiver then checks the state once (`plausible`).
+Each decoder takes one datagram of one of its `Format.sizes` (any size where `other_sizes`) and
+the last state (for formats that split the state over several packets), and returns a
+`VehicleState` in SI units; None for a packet of the format that carries no vehicle state (a
+menu, a paused game, another packet type); or `BAD` for bytes that are not a packet of the
+format: a field outside the game's own range (a flag that is not 0 or 1, a car id, a gear, a
+speed field that disagrees with the other). Decoders are total: whatever the bytes (NaN,
+infinities, random), they return, never raise (`decode_datagram` checks the size first; the
+fuzz tests hold them to it). The receiver then checks the state once (`plausible`).
 
 Signs are turned into ISO 8855 here (left positive). Where a format has no lateral acceleration,
 it is derived and `lateral_derived` is set: OutSim rotates its world acceleration by the heading;
 BeamNG's MotionSim uses speed x yaw rate (exact in a steady turn; it misses the sideslip's rate).
+`time_s` is the packet's own time stamp where the format has one.
 """
 
 from __future__ import annotations
@@ -18,7 +23,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from carfeel.telemetry.state import NAN, NEUTRAL, REVERSE, VehicleState
+from carfeel.telemetry.state import BAD, NAN, NEUTRAL, REVERSE, VehicleState
 
 G = 9.80665
 KMH = 1.0 / 3.6
@@ -27,6 +32,24 @@ _make = VehicleState._make
 """Positional, as the fields' order: a third of the keyword constructor's cost."""
 
 Decoder = Callable[[Any, VehicleState], VehicleState | None]
+
+ANGLE_BOUND_RAD = 2.0 * math.pi + 0.1
+"""Headings, pitch and roll as the games send them (radians, within one turn either way)."""
+ANGULAR_RATE_BOUND_RAD_S = 50.0
+"""A car's rotation rate about any axis, even tumbling after a crash (8 turns a second)."""
+ACCEL_BOUND_M_S2 = 500.0
+"""A component of a car's acceleration, crashes included (50 g)."""
+VELOCITY_BOUND_M_S = 150.0
+"""As `plausible`'s speed: a component of the velocity."""
+
+
+def _within(bound: float, *values: float) -> bool:
+    """Every value finite and within +-bound (NaN and infinities fail). A plain loop: half the
+    cost of all() over a generator, per packet."""
+    for v in values:  # noqa: SIM110 - all() over a generator costs twice this, a packet
+        if not -bound <= v <= bound:
+            return False
+    return True
 
 
 @dataclass(frozen=True, slots=True)
@@ -38,23 +61,49 @@ class Format:
     default_port: int
     describe: str
     other_sizes: bool = False
-    """True where the game sends other packet types, of other sizes, to the same port (F1)."""
+    """True where the game sends other packet types, of other sizes, to the same port (F1): the
+    decoder is given every datagram and tells its other packets (ignored) from garbage (bad)."""
+
+
+def decode_datagram(fmt: Format, data: Any, last: VehicleState) -> VehicleState | None:
+    """One datagram of any size and content: a state, None (a packet without a vehicle state)
+    or a state that fails `plausible` (`BAD`: the wrong size, or not this format's)."""
+    if not fmt.other_sizes and len(data) not in fmt.sizes:
+        return BAD
+    return fmt.decode(data, last)
 
 
 # --- Codemasters "extradata" (DiRT Rally 1/2, DiRT 4, GRID ...), extradata=3: 66 floats ----------
-_CM = struct.Struct("<28xf84x6f8xf100xf4xf")
-"""Only the floats used (the rest skipped): 7 speed; 29 throttle, 30 steer, 31 brake, 32 clutch,
-33 gear, 34 gforce_lat; 37 engine_rate; 63 max_rpm; 65 max_gears (float index = byte / 4)."""
+_CM = struct.Struct("<f24xf84x6f8xf100xf4xf")
+"""Only the floats used (the rest skipped): 0 time; 7 speed; 29 throttle, 30 steer, 31 brake,
+32 clutch, 33 gear, 34 gforce_lat; 37 engine_rate; 63 max_rpm; 65 max_gears (index = byte / 4)."""
+CM_MAX_GEAR = 10.0
 
 
 def decode_codemasters(data: Any, last: VehicleState) -> VehicleState | None:
-    speed, throttle, _, brake, clutch, raw, lateral_g, rate, max_rate, gears = _CM.unpack_from(data)
-    raw_gear = round(raw)
+    time_s, speed, throttle, steer, brake, clutch, raw, lateral_g, rate, max_rate, gears = (
+        _CM.unpack_from(data)
+    )
+    # The gear and the gear count are whole numbers the game keeps small; rpm / 10 and its
+    # maximum at most 3000 (30000 rpm); the time is the session's, from 0. Checked before any
+    # conversion: round() of NaN raised, and random floats are rarely whole.
+    if not (
+        -1.0 <= raw <= CM_MAX_GEAR
+        and raw == int(raw)
+        and 0.0 <= gears <= 12.0
+        and gears == int(gears)
+        and 0.0 <= rate <= 3000.0
+        and 0.0 <= max_rate <= 3000.0
+        and -1e9 < time_s < 1e9
+        and -1.01 <= steer <= 1.01
+    ):
+        return BAD
+    raw_gear = int(raw)
     # 0 neutral; reverse is -1 (DiRT Rally 2.0) or 10 (DiRT Rally 1, where no car has 10 gears).
-    gear = REVERSE if raw_gear < 0 or (raw_gear == 10 and gears < 10) else raw_gear
+    gear = REVERSE if raw_gear == 10 and gears < 10 else raw_gear  # -1 is REVERSE already
     # gforce_lat in g, positive to the right as published; engine_rate is rpm / 10.
     return _make((speed, -lateral_g * G, NAN, rate * 10.0, gear, clutch, throttle, brake, NAN,
-                  max_rate * 10.0, "", 0, False))  # fmt: skip
+                  max_rate * 10.0, "", 0, False, time_s))  # fmt: skip
 
 
 # --- EA SPORTS F1 2023+: header, Motion (id 0) and Car Telemetry (id 6) -----------------------
@@ -63,30 +112,65 @@ _F1_MOTION_CAR = struct.Struct("<6f6h6f")  # 60 bytes a car
 _F1_TELEMETRY_CAR = struct.Struct("<HfffBbHBBH4H4B4BH4f4B")  # 60 bytes a car
 F1_MOTION_SIZE = 29 + 22 * 60
 F1_TELEMETRY_SIZE = 29 + 22 * 60 + 3
+F1_FIRST_FORMAT, F1_LAST_FORMAT = 2023, 2030
+"""The header's packetFormat this layout reads; earlier F1 games (from 2017) are ignored."""
+F1_PACKET_IDS = 16
+"""Packet ids 0..15 (F1 24); any other is not an F1 header."""
+_UNIT_INT16 = 32767.0
+"""The motion packet's direction vectors are unit vectors scaled to int16."""
 
 
 def decode_f1(data: Any, last: VehicleState) -> VehicleState | None:
+    if len(data) < _F1_HEADER.size:
+        return BAD
     header = _F1_HEADER.unpack_from(data)
-    packet_format, packet_id, player = header[0], header[5], header[10]
-    if packet_format < 2023 or player >= 22:
-        return None
+    packet_format, packet_id, session_time, player, second = (
+        header[0], header[5], header[7], header[10], header[11],
+    )  # fmt: skip
+    if (
+        not 2017 <= packet_format <= F1_LAST_FORMAT
+        or packet_id >= F1_PACKET_IDS
+        or player >= 22
+        or not (second < 22 or second == 255)
+        or not 0.0 <= session_time < 1e9
+    ):
+        return BAD  # not an F1 header
+    if packet_format < F1_FIRST_FORMAT:
+        return None  # an older game's layout
     offset = 29 + 60 * player
     if packet_id == 0 and len(data) == F1_MOTION_SIZE:
         m = _F1_MOTION_CAR.unpack_from(data, offset)
+        forward = math.sqrt(m[6] * m[6] + m[7] * m[7] + m[8] * m[8]) / _UNIT_INT16
+        right = math.sqrt(m[9] * m[9] + m[10] * m[10] + m[11] * m[11]) / _UNIT_INT16
+        if not (
+            0.9 <= forward <= 1.1
+            and 0.9 <= right <= 1.1
+            and _within(1e5, m[0], m[1], m[2])
+            and _within(VELOCITY_BOUND_M_S, m[3], m[4], m[5])
+            and _within(ANGLE_BOUND_RAD, m[15], m[16], m[17])
+        ):
+            return BAD
         speed = math.sqrt(m[3] * m[3] + m[4] * m[4] + m[5] * m[5])
         # gForceLateral, g, positive to the right as published (the car's right-direction vector).
-        return last._replace(speed_m_s=speed, lateral_accel_m_s2=-m[12] * G)
+        return last._replace(speed_m_s=speed, lateral_accel_m_s2=-m[12] * G, time_s=session_time)
     if packet_id == 6 and len(data) == F1_TELEMETRY_SIZE:
         c = _F1_TELEMETRY_CAR.unpack_from(data, offset)
+        # clutch 0..100, gear -1..8, DRS 0/1, rev lights 0..100 %; steer -1..1.
+        if not (c[4] <= 100 and -1 <= c[5] <= 8 and c[7] <= 1 and c[8] <= 100
+                and -1.01 <= c[2] <= 1.01):  # fmt: skip
+            return BAD
         speed = last.speed_m_s if not math.isnan(last.speed_m_s) else c[0] * KMH
         return last._replace(
             speed_m_s=speed,
             throttle=c[1],
             brake=c[3],
             clutch_pedal=c[4] / 100.0,
-            gear=REVERSE if c[5] < 0 else c[5],
+            gear=c[5],  # -1 R (REVERSE), 0 N, 1..8
             engine_speed_rpm=float(c[6]),
+            time_s=session_time,
         )
+    if len(data) in (F1_MOTION_SIZE, F1_TELEMETRY_SIZE) and packet_id in (0, 6):
+        return BAD  # a motion or telemetry id at the other's size
     return None
 
 
@@ -94,10 +178,14 @@ def decode_f1(data: Any, last: VehicleState) -> VehicleState | None:
 _AC = struct.Struct("<c3xi3f6?2x3f4i5fif52f4f2f3f")
 _AC_USED = struct.Struct("<c3xi8xf12xf20x5fi")
 """identifier, size, speed_Ms, accG_horizontal, gas, brake, clutch, engineRPM, steer, gear."""
+_AC_CHECKED = struct.Struct("<8xff4x6B14x4i")
+"""speed_Kmh, speed_Mph, the six flags (isAbsEnabled .. isEngineLimiterOn, one byte each),
+lapTime, lastLap, bestLap, lapCount."""
 AC_PORT = 9996
 AC_HANDSHAKE, AC_SUBSCRIBE_UPDATE, AC_SUBSCRIBE_SPOT, AC_DISMISS = 0, 1, 2, 3
 AC_RESPONSE_SIZE = 408
 _AC_HANDSHAKER = struct.Struct("<iii")  # identifier, version, operationId
+AC_NAME_CHARS = 50
 
 
 def ac_request(operation: int) -> bytes:
@@ -107,23 +195,36 @@ def ac_request(operation: int) -> bytes:
 
 def ac_car_name(response: Any) -> str:
     """The car's name from the 408-byte handshake response (wchar_t[50], UTF-16LE, then
-    '%'-padded in practice)."""
-    raw = bytes(response[0:100]).decode("utf-16-le", "replace")
-    return raw.split("\x00", 1)[0].split("%", 1)[0].strip()
+    '%'-padded in practice); printable characters only (it is shown and looked up)."""
+    raw = bytes(response[0 : 2 * AC_NAME_CHARS]).decode("utf-16-le", "replace")
+    name = raw.split("\x00", 1)[0].split("%", 1)[0].strip()
+    return "".join(c for c in name if c.isprintable())
 
 
 def decode_assetto(data: Any, last: VehicleState) -> VehicleState | None:
     ident, size, speed, lateral_g, gas, brake, clutch, rpm, steer, raw_gear = _AC_USED.unpack_from(
         data
     )
-    if ident != b"a" or size != 328:
-        return None
+    kmh, mph, *flags, lap_ms, last_ms, best_ms, laps = _AC_CHECKED.unpack_from(data)
+    # The identifier and size fields; the flags are bools (0 or 1); the km/h field is the m/s
+    # one x 3.6 and the mph one the km/h one / 1.609 (both float32: 1 % and 0.5 km/h of slack);
+    # times in ms are not negative; gear 0 R, 1 N, 2 first .. (at most 10 forward).
+    if (
+        ident != b"a"
+        or size != 328
+        or max(flags) > 1
+        or not abs(kmh - 3.6 * speed) <= 0.5 + 0.01 * abs(kmh)
+        or not abs(mph * 1.609344 - kmh) <= 0.5 + 0.01 * abs(kmh)
+        or min(lap_ms, last_ms, best_ms, laps) < 0
+        or not 0 <= raw_gear <= 11
+    ):
+        return BAD
     # accG_horizontal, g: positive in right-hand turns (Monza, clockwise: its large values are
     # positive and follow the steer's sign). gear: 0 reverse, 1 neutral, 2 first. clutch: 1
     # engaged (pedal up). steer: degrees at the wheel, right positive.
-    gear = REVERSE if raw_gear <= 0 else raw_gear - 1
+    gear = raw_gear - 1  # 0 R -> -1 (REVERSE), 1 N -> 0, 2 first -> 1
     return _make((speed, -lateral_g * G, NAN, rpm, gear, 1.0 - clutch, gas, brake,
-                  -steer * DEG, NAN, last.car, 0, False))  # fmt: skip
+                  -steer * DEG, NAN, last.car, 0, False, NAN))  # fmt: skip
 
 
 def assetto_speed_kmh(data: Any) -> float:
@@ -133,34 +234,62 @@ def assetto_speed_kmh(data: Any) -> float:
 
 # --- Forza "Data Out": Sled (232), Dash FM7 (311), FH4/5 (324), FM 2023 (331) -----------------
 _FORZA_SLED = struct.Struct("<iI3f3f3f3f3f")  # the first 68 bytes
-_FORZA_USED = struct.Struct("<i4xf4xff8x3f4xf")
-"""IsRaceOn, EngineMaxRpm, CurrentEngineRpm, AccelerationX, Velocity XYZ, AngularVelocityY."""
-_FORZA_CAR = struct.Struct("<i12xi")  # at 212: CarOrdinal .. NumCylinders
-_FORZA_DASH = struct.Struct("<12xf55xBBBxB")
-"""After the sled (+12 bytes in FH4/5): Speed, Accel, Brake, Clutch, Gear (u8 each)."""
+_FORZA_USED = struct.Struct("<iIffff8x3f4xf")
+"""IsRaceOn, TimestampMS, EngineMaxRpm, EngineIdleRpm, CurrentEngineRpm, AccelerationX,
+Velocity XYZ, AngularVelocityY."""
+_FORZA_RUMBLE = struct.Struct("<4i")  # at 116: WheelOnRumbleStrip, 0 or 1 each
+_FORZA_CAR = struct.Struct("<5i")
+"""At 212: CarOrdinal, CarClass, CarPerformanceIndex, DrivetrainType, NumCylinders."""
+_FORZA_DASH = struct.Struct("<12xf28xf23xBBBxB")
+"""After the sled (+12 bytes in FH4/5): Speed, Fuel, Accel, Brake, Clutch, Gear (u8 each)."""
 FORZA_NEUTRAL = 11
 """Forza Motorsport 2023 reports gear 11 in neutral (and between gears); 0 is reverse."""
+FORZA_MAX_ORDINAL = 1_000_000
+"""Car ordinals run to a few thousand (FM 2023's capture: 2,000s); random bytes rarely fit."""
 
 
 def decode_forza(data: Any, last: VehicleState) -> VehicleState | None:
-    race_on, max_rpm, rpm, ax, vx, vy, vz, yaw = _FORZA_USED.unpack_from(data)
-    if race_on == 0:  # menus, paused
+    race_on, stamp_ms, max_rpm, idle_rpm, rpm, ax, vx, vy, vz, yaw = _FORZA_USED.unpack_from(data)
+    if race_on == 0:  # menus, paused (the rest is zeros)
         return None
-    ordinal, cylinders = _FORZA_CAR.unpack_from(data, 212)
+    ordinal, car_class, performance, drivetrain, cylinders = _FORZA_CAR.unpack_from(data, 212)
+    # IsRaceOn and the rumble flags are 0 or 1; the car's ordinal, class (D..X and the
+    # rest), performance index (to 999), drivetrain (FWD, RWD, AWD) and cylinders (none for an
+    # electric car, 16 at most) are the game's small numbers; the engine's speeds are rpm.
+    if (
+        race_on != 1
+        or not 0 <= min(rumble := _FORZA_RUMBLE.unpack_from(data, 116)) <= max(rumble) <= 1
+        or not 0 < ordinal <= FORZA_MAX_ORDINAL
+        or not 0 <= car_class <= 15
+        or not 0 <= performance <= 1100
+        or not 0 <= drivetrain <= 2
+        or not 0 <= cylinders <= 16
+        or not (0.0 <= max_rpm <= 30_000.0 and 0.0 <= idle_rpm <= 30_000.0)
+        or not _within(VELOCITY_BOUND_M_S, vx, vy, vz)
+    ):
+        return BAD
     car = str(ordinal)
+    time_s = stamp_ms / 1000.0
     # Car frame: x right, y up, z forward; the yaw rate about y is positive turning right.
     size = len(data)
+    speed = math.sqrt(vx * vx + vy * vy + vz * vz)
     if size == 232:
-        speed = math.sqrt(vx * vx + vy * vy + vz * vz)
         return _make((speed, -ax, -yaw, rpm, NEUTRAL, NAN, NAN, NAN, NAN, max_rpm, car,
-                      cylinders, False))  # fmt: skip
-    speed, accel, brake, clutch, raw_gear = _FORZA_DASH.unpack_from(
+                      cylinders, False, time_s))  # fmt: skip
+    dash_speed, fuel, accel, brake, clutch, raw_gear = _FORZA_DASH.unpack_from(
         data, 244 if size == 324 else 232
     )
+    # The dash's Speed is the velocity's magnitude (to float32 on the capture); fuel 0..1.
+    if (
+        not abs(dash_speed - speed) <= 1.0 + 0.05 * speed
+        or not 0.0 <= fuel <= 1.0
+        or raw_gear > FORZA_NEUTRAL
+    ):
+        return BAD
     gear = REVERSE if raw_gear == 0 else NEUTRAL if raw_gear >= FORZA_NEUTRAL else raw_gear
     # Steer is a normalized input (-127..127), not an angle: steering_angle_rad stays NaN.
-    return _make((speed, -ax, -yaw, rpm, gear, clutch / 255.0, accel / 255.0, brake / 255.0,
-                  NAN, max_rpm, car, cylinders, False))  # fmt: skip
+    return _make((dash_speed, -ax, -yaw, rpm, gear, clutch / 255.0, accel / 255.0, brake / 255.0,
+                  NAN, max_rpm, car, cylinders, False, time_s))  # fmt: skip
 
 
 def forza_velocity_speed(data: Any) -> float:
@@ -170,32 +299,67 @@ def forza_velocity_speed(data: Any) -> float:
 
 
 # --- Live for Speed / BeamNG OutGauge (92 bytes, 96 with the optional ID) ----------------------
-_OUTGAUGE = struct.Struct("<4x4s2xBxff28x3f")
-"""Car, Gear (0 R, 1 N, 2 first), Speed, RPM, then Throttle, Brake, Clutch (the first 60)."""
+_OUTGAUGE = struct.Struct("<I4s2xBxff8xf16x3f")
+"""Time (ms), Car, Gear (0 R, 1 N, 2 first), Speed, RPM, Fuel, then Throttle, Brake, Clutch."""
+
+
+def _car_name(raw: bytes) -> str | None:
+    """A car's short name: printable ASCII, then NUL padding; None if it is not one."""
+    name = raw.split(b"\x00", 1)[0]
+    if raw[len(name) :].strip(b"\x00") or not name.isascii():
+        return None
+    text = name.decode("ascii")
+    return text if text.isprintable() else None
 
 
 def decode_outgauge(data: Any, last: VehicleState) -> VehicleState | None:
-    name, raw_gear, speed, rpm, throttle, brake, clutch = _OUTGAUGE.unpack_from(data)
-    car = _name(name)
-    gear = REVERSE if raw_gear == 0 else raw_gear - 1
-    return _make((speed, NAN, NAN, rpm, gear, clutch, throttle, brake, NAN, NAN, car, 0, False))
-
-
-def _name(raw: bytes) -> str:
-    return raw.split(b"\x00", 1)[0].decode("ascii", "replace")
+    stamp_ms, name, raw_gear, speed, rpm, fuel, throttle, brake, clutch = _OUTGAUGE.unpack_from(
+        data
+    )
+    car = _car_name(name)
+    # The car's name is text; gear 0 R, 1 N, 2.. forward; fuel 0..1.
+    if car is None or raw_gear > 12 or not 0.0 <= fuel <= 1.0:
+        return BAD
+    gear = raw_gear - 1  # 0 R -> -1 (REVERSE), 1 N -> 0, 2 first -> 1
+    return _make((speed, NAN, NAN, rpm, gear, clutch, throttle, brake, NAN, NAN, car, 0, False,
+                  stamp_ms / 1000.0))  # fmt: skip
 
 
 # --- Live for Speed OutSim (64 bytes, 68 with the optional ID) --------------------------------
 _OUTSIM = struct.Struct("<I3f3f3f3f3i")
 
 
-def decode_outsim(data: Any, last: VehicleState) -> VehicleState | None:
-    _, _, _, yaw_rate, heading, _, _, ax, ay, _, vx, vy, vz, *_ = _OUTSIM.unpack_from(data)
+Floats = tuple[float, ...]
+
+
+def _outsim_main(
+    angular: Floats, angles: Floats, accel: Floats, velocity: Floats
+) -> tuple[float, float, float] | None:
+    """OSMain's (yaw rate, Ay, speed), or None where a value is beyond a car (checked before
+    the heading's cosine: cos(inf) raised)."""
+    if not (
+        _within(ANGULAR_RATE_BOUND_RAD_S, *angular)
+        and _within(ANGLE_BOUND_RAD, *angles)
+        and _within(ACCEL_BOUND_M_S2, *accel)
+        and _within(VELOCITY_BOUND_M_S, *velocity)
+    ):
+        return None
+    heading = angles[0]
     # Heading 0 faces world +y, anticlockwise from above: the car's left is (-cos h, -sin h).
-    lateral = -ax * math.cos(heading) - ay * math.sin(heading)
-    speed = math.sqrt(vx * vx + vy * vy + vz * vz)
+    lateral = -accel[0] * math.cos(heading) - accel[1] * math.sin(heading)
+    vx, vy, vz = velocity
     # The angular velocity about world z (anticlockwise) is the yaw rate on flat ground.
-    return _make((speed, lateral, yaw_rate, NAN, NEUTRAL, NAN, NAN, NAN, NAN, NAN, "", 0, True))
+    return angular[2], lateral, math.sqrt(vx * vx + vy * vy + vz * vz)
+
+
+def decode_outsim(data: Any, last: VehicleState) -> VehicleState | None:
+    f = _OUTSIM.unpack_from(data)
+    main = _outsim_main(f[1:4], f[4:7], f[7:10], f[10:13])
+    if main is None:
+        return BAD
+    yaw_rate, lateral, speed = main
+    return _make((speed, lateral, yaw_rate, NAN, NEUTRAL, NAN, NAN, NAN, NAN, NAN, "", 0, True,
+                  f[0] / 1000.0))  # fmt: skip
 
 
 # --- Live for Speed OutSimPack2 (OutSim Opts != 0: the parts present depend on them) ----------
@@ -203,9 +367,10 @@ OSO_HEADER, OSO_ID, OSO_TIME, OSO_MAIN, OSO_INPUTS, OSO_DRIVE = 1, 2, 4, 8, 16, 
 OSO_DISTANCE, OSO_WHEELS, OSO_EXTRA_1 = 64, 128, 256
 _OSO_SIZES = ((OSO_HEADER, 4), (OSO_ID, 4), (OSO_TIME, 4), (OSO_MAIN, 60), (OSO_INPUTS, 20),
               (OSO_DRIVE, 12), (OSO_DISTANCE, 8), (OSO_WHEELS, 160), (OSO_EXTRA_1, 8))  # fmt: skip
-_OS2_MAIN = struct.Struct("<8xff8xff4x3f")
-"""From OSMain: AngVel z, Heading, Accel x y, Vel x y z."""
-_OS2_INPUTS = struct.Struct("<ff4xf")  # Throttle, Brake, (InputSteer), Clutch
+_OS2_MAIN = struct.Struct("<12f")
+"""OSMain: AngVel xyz, Heading, Pitch, Roll, Accel xyz, Vel xyz (then Pos, not read)."""
+_OS2_TIME = struct.Struct("<I")
+_OS2_INPUTS = struct.Struct("<5f")  # Throttle, Brake, InputSteer, Clutch, Handbrake
 _OS2_DRIVE = struct.Struct("<B3xf")  # Gear (0 R, 1 N, 2 first), EngineAngVel rad/s
 
 
@@ -220,25 +385,33 @@ def outsim_pack2(options: int) -> Format:
     main = offsets.get(OSO_MAIN)
     if main is None or options >> 9:
         raise ValueError(f"OutSim Opts {options:x}: needs OSMain (8) and only the bits 1..100")
-    inputs, drive = offsets.get(OSO_INPUTS), offsets.get(OSO_DRIVE)
+    inputs, drive, clock = offsets.get(OSO_INPUTS), offsets.get(OSO_DRIVE), offsets.get(OSO_TIME)
     header = OSO_HEADER in offsets
 
     def decode(data: Any, last: VehicleState) -> VehicleState | None:
         if header and bytes(data[0:4]) != b"LFST":
-            return None
-        yaw_rate, heading, ax, ay, vx, vy, vz = _OS2_MAIN.unpack_from(data, main)
-        lateral = -ax * math.cos(heading) - ay * math.sin(heading)  # as OutSim's
-        speed = math.sqrt(vx * vx + vy * vy + vz * vz)
-        throttle = brake = clutch = rpm = NAN
+            return BAD
+        m = _OS2_MAIN.unpack_from(data, main)
+        checked = _outsim_main(m[0:3], m[3:6], m[6:9], m[9:12])
+        if checked is None:
+            return BAD
+        yaw_rate, lateral, speed = checked
+        throttle = brake = clutch = rpm = time_s = NAN
         gear = NEUTRAL
         if inputs is not None:
-            throttle, brake, clutch = _OS2_INPUTS.unpack_from(data, inputs)
+            throttle, brake, steer, clutch, handbrake = _OS2_INPUTS.unpack_from(data, inputs)
+            if not (-1.01 <= steer <= 1.01 and -0.01 <= handbrake <= 1.01):
+                return BAD
         if drive is not None:
             raw_gear, engine = _OS2_DRIVE.unpack_from(data, drive)
-            gear = REVERSE if raw_gear == 0 else raw_gear - 1
+            if raw_gear > 12:
+                return BAD
+            gear = raw_gear - 1  # 0 R -> -1 (REVERSE), 1 N -> 0, 2 first -> 1
             rpm = engine * 30.0 / math.pi
+        if clock is not None:
+            time_s = _OS2_TIME.unpack_from(data, clock)[0] / 1000.0
         return _make((speed, lateral, yaw_rate, rpm, gear, clutch, throttle, brake, NAN, NAN, "",
-                      0, True))  # fmt: skip
+                      0, True, time_s))  # fmt: skip
 
     return Format(f"outsim@{options:x}", frozenset({size}), decode, 4123,
                   f"Live for Speed OutSimPack2 (OutSim Opts {options:x})")  # fmt: skip
@@ -251,11 +424,23 @@ _BNG1 = struct.Struct("<4s21f")
 def decode_beamng(data: Any, last: VehicleState) -> VehicleState | None:
     f = _BNG1.unpack_from(data)
     if f[0] != b"BNG1":
-        return None
+        return BAD
+    # posX..Z, velX..Z, accX..Z, upVec X..Z (a unit vector), roll/pitch/yaw, their rates and
+    # accelerations.
+    up = math.sqrt(f[10] * f[10] + f[11] * f[11] + f[12] * f[12]) if _within(2.0, *f[10:13]) else 0
+    if not (
+        0.95 <= up <= 1.05
+        and _within(VELOCITY_BOUND_M_S, *f[4:7])
+        and _within(ACCEL_BOUND_M_S2, *f[7:10])
+        and _within(ANGLE_BOUND_RAD, *f[13:16])
+        and _within(ANGULAR_RATE_BOUND_RAD_S, *f[16:19])
+        and _within(1e7, *f[1:4], *f[19:22])
+    ):
+        return BAD
     speed = math.sqrt(f[4] * f[4] + f[5] * f[5] + f[6] * f[6])
     yaw_rate = f[18]
     return _make((speed, speed * yaw_rate, yaw_rate, NAN, NEUTRAL, NAN, NAN, NAN, NAN, NAN, "",
-                  0, True))  # fmt: skip
+                  0, True, NAN))  # fmt: skip
 
 
 # --- carfeel's own format, version 1 (56 bytes) ------------------------------------------------
@@ -276,16 +461,18 @@ def encode_carfeel(state: VehicleState, sequence: int = 0, time_s: float = 0.0) 
     )  # fmt: skip
 
 
-_CARFEEL_USED = struct.Struct("<4sH14x4fb3x4f")
+_CARFEEL_USED = struct.Struct("<4sH6xd4fb3x4f")
 
 
 def decode_carfeel(data: Any, last: VehicleState) -> VehicleState | None:
-    magic, version, v, ay, r, rpm, gear, clutch, throttle, brake, steer = _CARFEEL_USED.unpack_from(
-        data
+    magic, version, t, v, ay, r, rpm, gear, clutch, throttle, brake, steer = (
+        _CARFEEL_USED.unpack_from(data)
     )
-    if magic != CARFEEL_MAGIC or version != CARFEEL_VERSION:
-        return None
-    return _make((v, ay, r, rpm, gear, clutch, throttle, brake, steer, NAN, "", 0, False))
+    if magic != CARFEEL_MAGIC:
+        return BAD
+    if version != CARFEEL_VERSION:
+        return None  # a later version: refused, not misread
+    return _make((v, ay, r, rpm, gear, clutch, throttle, brake, steer, NAN, "", 0, False, t))
 
 
 FORMATS: dict[str, Format] = {

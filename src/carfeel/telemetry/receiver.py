@@ -6,15 +6,22 @@ non-blocking socket costs one failing `recv_into` (about 1 us) on a tick with no
 2 us a datagram (`benchmarks/bench_telemetry.py` measures it). A flood cannot slow the loop: at
 most `MAX_PER_POLL` datagrams are read a tick, and the kernel's receive buffer is kept small so
 that what waits is recent (the rest is dropped by the kernel, not by us).
+
+Every datagram is hostile until checked: one from an address the source does not accept is
+dropped and counted (`foreign`), one that is not a packet of the format is counted bad, and
+`poll` never raises, whatever the bytes (a decoder that did would be counted bad and named in
+`errors`).
 """
 
 from __future__ import annotations
 
 import contextlib
 import errno
+import ipaddress
 import math
 import socket
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from carfeel.errors import InputError
@@ -27,6 +34,7 @@ from carfeel.telemetry.formats import (
     Format,
     ac_car_name,
     ac_request,
+    decode_datagram,
     outsim_pack2,
 )
 from carfeel.telemetry.state import VehicleState, plausible
@@ -35,39 +43,97 @@ MAX_PER_POLL = 64
 RECEIVE_BUFFER_BYTES = 64 * 1024
 AC_RETRY_S = 1.0
 """Assetto Corsa: the handshake is sent again every second until the game answers."""
+ANY = "any"
+"""`--accept-from any`: packets from every address (say so: the default is the game's host)."""
+FOREIGN_SHOWN = 8
+"""Foreign addresses remembered for the summary (the count goes on past them)."""
+_ACCEPT_MEMO = 1024
+
+Network = ipaddress.IPv4Network
+
+
+def _loopback(address: str) -> bool:
+    return ipaddress.IPv4Address(address).is_loopback
+
+
+def _resolve(text: str, host: str, what: str) -> str:
+    """An IPv4 address for `host` (a name is looked up once, here, not per packet)."""
+    try:
+        return str(ipaddress.IPv4Address(host))
+    except ValueError:
+        pass
+    try:
+        infos = socket.getaddrinfo(host, None, socket.AF_INET, socket.SOCK_DGRAM)
+    except (OSError, UnicodeError) as exc:
+        raise InputError(f"telemetry source {text!r}: unknown {what} {host!r} ({exc})") from exc
+    return str(infos[0][4][0])
+
+
+def _route_to(address: str) -> str:
+    """The local address the system would send to `address` from (no packet is sent)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        try:
+            probe.connect((address, 9))
+            return str(probe.getsockname()[0])
+        except OSError:
+            return "0.0.0.0"
 
 
 @dataclass(frozen=True, slots=True)
 class Source:
-    """`FORMAT:HOST:PORT` (or `FORMAT:PORT`, on 127.0.0.1), checked once. Port 0 listens on
-    any free port (`Receiver.address` says which)."""
+    """`FORMAT:HOST:PORT` (or `FORMAT:PORT`, on 127.0.0.1), checked once, optionally followed by
+    `,from=ADDR`: whose packets to take (an address, a network such as 192.168.1.0/24, or
+    `any`). Port 0 listens on any free port (`Receiver.address` says which).
+
+    HOST is where to listen, except for Assetto Corsa, where it is the game's (carfeel is its
+    client, listening on the interface that reaches it). By default only the game's host is
+    accepted: on a loopback address, 127.0.0.1 (the game on this machine); for Assetto Corsa,
+    the game's address. A source that listens beyond loopback must say whom it accepts."""
 
     format: Format
     host: str
     port: int
+    bind_host: str = "127.0.0.1"
+    """The local address the socket is bound to."""
+    accept: tuple[Network, ...] | None = (Network("127.0.0.1/32"),)
+    """The addresses packets are taken from; None: any."""
 
     @classmethod
-    def parse(cls, text: str) -> Source:
-        name, _, rest = text.partition(":")
-        base, at, options = name.partition("@")
+    def parse(cls, text: str, accept_from: str | None = None, network: bool = True) -> Source:
+        """`accept_from` overrides the text's `,from=`; `network` False refuses any source that
+        would listen beyond loopback (the panel started for this machine only)."""
+        spec, *options = text.split(",")
+        for option in options:
+            key, eq, value = option.partition("=")
+            if key.strip() != "from" or not eq or not value.strip():
+                raise InputError(
+                    f"telemetry source {text!r}: {option!r} is not an option; the one option "
+                    "is ,from=ADDR (e.g. forza:0.0.0.0:5300,from=192.168.1.20)"
+                )
+            accept_from = accept_from if accept_from is not None else value.strip()
+        name, _, rest = spec.partition(":")
+        base, at, opts = name.partition("@")
         if base == "outsim" and at:  # OutSimPack2: outsim@OPTS, OPTS as in LFS's cfg.txt (hex)
             try:
-                pack2 = outsim_pack2(int(options, 16))
+                fmt = outsim_pack2(int(opts, 16))
             except ValueError as exc:
                 raise InputError(
                     f"telemetry source {text!r}: outsim@OPTS takes LFS's OutSim Opts in hex, "
                     f"with OSMain (8) among them, e.g. outsim@1ff ({exc})"
                 ) from exc
-            return cls._address(text, pack2, rest)
-        if name not in FORMATS:
+        elif name in FORMATS:
+            fmt = FORMATS[name]
+        else:
             raise InputError(
                 f"telemetry source {text!r}: the format {name!r} is not one of "
-                f"{', '.join(FORMATS)} (SOURCE is FORMAT:HOST:PORT, e.g. forza:0.0.0.0:5300)"
+                f"{', '.join(FORMATS)} (SOURCE is FORMAT:HOST:PORT, e.g. forza:127.0.0.1:5300)"
             )
-        return cls._address(text, FORMATS[name], rest)
+        return cls._address(text, fmt, rest, accept_from, network)
 
     @classmethod
-    def _address(cls, text: str, fmt: Format, rest: str) -> Source:
+    def _address(
+        cls, text: str, fmt: Format, rest: str, accept_from: str | None, network: bool
+    ) -> Source:
         host, _, port_text = rest.rpartition(":")
         if not rest:
             port_text = str(fmt.default_port)
@@ -76,49 +142,101 @@ class Source:
             raise InputError(
                 f"telemetry source {text!r}: the port {port_text!r} is not a number 0..65535"
             )
-        if fmt.name == "assetto" and int(port_text) == 0:
+        assetto = fmt.name == "assetto"
+        if assetto and int(port_text) == 0:
             raise InputError(f"telemetry source {text!r}: give the game's port (9996)")
-        try:
-            socket.getaddrinfo(host, None, socket.AF_INET, socket.SOCK_DGRAM)
-        except OSError as exc:
-            raise InputError(f"telemetry source {text!r}: unknown host {host!r} ({exc})") from exc
-        return cls(fmt, host, int(port_text))
+        address = _resolve(text, host, "game host" if assetto else "host")
+        if assetto:
+            bind = "127.0.0.1" if _loopback(address) else _route_to(address)
+            default: tuple[Network, ...] | None = (Network(f"{address}/32"),)
+        else:
+            bind = address
+            default = (Network("127.0.0.1/32"),) if _loopback(address) else None
+        if accept_from is not None:
+            accept = _accept(text, accept_from)
+        elif default is not None:
+            accept = default
+        else:
+            where = "every interface" if bind == "0.0.0.0" else bind
+            raise InputError(
+                f"telemetry source {text!r} listens on {where}: say whose packets to take with "
+                "--accept-from ADDR (the game's machine, e.g. 192.168.1.20; a network, e.g. "
+                "192.168.1.0/24; or any), or listen on 127.0.0.1 for a game on this machine"
+            )
+        if not network and not _loopback(bind):
+            raise InputError(
+                f"telemetry source {text!r} would listen on {bind}, beyond this machine: the "
+                "panel was started for this machine only (its sessions listen on 127.0.0.1); "
+                "start the panel with --host for the network to take telemetry from it"
+            )
+        return cls(fmt, address, int(port_text), bind, accept)
+
+    @property
+    def text(self) -> str:
+        return f"{self.format.name}:{self.host}:{self.port}"
+
+    def describe_accept(self) -> str:
+        if self.accept is None:
+            return "any address"
+        return ", ".join(
+            str(n.network_address) if n.prefixlen == 32 else str(n) for n in self.accept
+        )
+
+
+def _accept(text: str, value: str) -> tuple[Network, ...] | None:
+    """`--accept-from`'s value: None for any."""
+    value = value.strip()
+    if value == ANY:
+        return None
+    try:
+        return (ipaddress.IPv4Network(value, strict=False),)
+    except ValueError:
+        pass
+    if "/" in value:
+        raise InputError(
+            f"--accept-from {value!r}: not an IPv4 network (e.g. 192.168.1.0/24) for {text!r}"
+        )
+    address = _resolve(text, value, "--accept-from host")
+    return (Network(f"{address}/32"),)
 
 
 class Receiver:
     """Receive one source's datagrams; `poll()` reads what waits and keeps the latest good state.
 
-    Counters: `packets` (decoded to a state that passed the checks), `bad` (wrong size, failing
-    the checks, NaN where it must not be) and `ignored` (no vehicle state: other packet types, a
-    paused game). `poll` returns how many good states arrived since the last call.
+    Counters: `packets` (decoded to a state that passed the checks), `bad` (wrong size, not the
+    format's, failing the checks, NaN where it must not be), `ignored` (no vehicle state: other
+    packet types, a paused game) and `foreign` (from an address the source does not accept,
+    dropped before decoding; `foreign_from` names the first few). `poll` returns how many good
+    states arrived since the last call; `first_ns` and `arrival_ns` are when the first and the
+    latest good ones were read (time.monotonic_ns()).
     """
 
-    def __init__(self, source: Source) -> None:
+    def __init__(self, source: Source, buffer_bytes: int = RECEIVE_BUFFER_BYTES) -> None:
         self.source = source
         self.format = source.format
         self.latest = VehicleState()
-        self.packets = self.bad = self.ignored = 0
+        self.packets = self.bad = self.ignored = self.foreign = 0
+        self.foreign_from: dict[str, int] = {}
+        self.errors = 0
+        """Datagrams a decoder raised on (counted bad too): a bug, never expected."""
+        self.first_error = ""
+        self.first_ns = 0
         self.arrival_ns = 0
         """time.monotonic_ns() of the poll that saw the latest good state (for the benchmark)."""
         self._buffer = bytearray(2048)
         self._view = memoryview(self._buffer)
+        self._memo: dict[str, bool] = {}
         self.car = ""
         self.subscribed = False
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECEIVE_BUFFER_BYTES)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, buffer_bytes)
         self._assetto = source.format.name == "assetto"
         try:
-            # Assetto Corsa is a server: we are its client on any local port.
-            sock.bind(
-                ("0.0.0.0" if self._assetto else source.host, 0 if self._assetto else source.port)
-            )
+            # Assetto Corsa is a server: we are its client, on any port of the interface to it.
+            sock.bind((source.bind_host, 0 if self._assetto else source.port))
         except OSError as exc:
             sock.close()
-            why = "in use" if exc.errno == errno.EADDRINUSE else str(exc)
-            raise InputError(
-                f"telemetry source {source.format.name}:{source.host}:{source.port}: cannot "
-                f"listen there ({why})"
-            ) from exc
+            raise InputError(_bind_error(source, exc)) from exc
         sock.setblocking(False)
         self.socket = sock
         self.bound = self.address
@@ -132,6 +250,21 @@ class Receiver:
         host, port = self.socket.getsockname()[:2]
         return str(host), int(port)
 
+    def accepts(self, address: str) -> bool:
+        """Whether packets from `address` are taken (memoized: one dict lookup a datagram)."""
+        known = self._memo.get(address)
+        if known is not None:
+            return known
+        networks = self.source.accept
+        try:
+            ip = ipaddress.IPv4Address(address)
+            ok = networks is None or any(ip in n for n in networks)
+        except ValueError:
+            ok = False
+        if len(self._memo) < _ACCEPT_MEMO:
+            self._memo[address] = ok
+        return ok
+
     def _send_to_game(self, operation: int) -> None:
         # The game may not be there yet: the handshake is sent again later.
         with contextlib.suppress(OSError):
@@ -141,44 +274,59 @@ class Receiver:
     def _handshake(self) -> None:
         self._send_to_game(AC_HANDSHAKE)
 
-    def poll(self) -> int:
+    def _foreign(self, address: str) -> None:
+        self.foreign += 1
+        if address in self.foreign_from or len(self.foreign_from) < FOREIGN_SHOWN:
+            self.foreign_from[address] = self.foreign_from.get(address, 0) + 1
+
+    def poll(self, sink: Callable[[VehicleState], object] | None = None) -> int:
+        """Read what waits (at most MAX_PER_POLL datagrams); `sink` is given every good state in
+        the order they came (a recorder: none is lost between polls). Never raises."""
         fresh = 0
         fmt = self.format
-        sizes, decode, other = fmt.sizes, fmt.decode, fmt.other_sizes
-        recv = self.socket.recv_into
+        recv = self.socket.recvfrom_into
         view = self._view
         latest = self.latest
+        accepts = self._memo.get
         for _ in range(MAX_PER_POLL):
             try:
-                n = recv(self._buffer)
+                n, sender = recv(self._buffer)
             except (BlockingIOError, InterruptedError):
                 break
             except OSError:  # e.g. ICMP port unreachable from an earlier send to the game
                 continue
-            if n not in sizes:
-                if self._assetto and n == AC_RESPONSE_SIZE:
-                    self.car = ac_car_name(view[:n])
-                    self._send_to_game(AC_SUBSCRIBE_UPDATE)
-                    self.subscribed = True
-                elif other:
-                    self.ignored += 1
-                else:
-                    self.bad += 1
+            host = sender[0]
+            if not (accepts(host) or self.accepts(host)):
+                self._foreign(host)
                 continue
-            state = decode(view[:n], latest)
+            if self._assetto and n == AC_RESPONSE_SIZE:
+                self.car = ac_car_name(view[:n])
+                self._send_to_game(AC_SUBSCRIBE_UPDATE)
+                self.subscribed = True
+                continue
+            try:
+                state = decode_datagram(fmt, view[:n], latest)
+            except Exception as exc:  # a decoder's bug must not end a session: counted, named
+                self.errors += 1
+                self.first_error = self.first_error or f"{type(exc).__name__}: {exc}"
+                self.bad += 1
+                continue
             if state is None:
                 self.ignored += 1
             elif plausible(state):
+                if self._assetto and self.car:
+                    state = state._replace(car=self.car)
                 latest = state
                 fresh += 1
+                if sink is not None:
+                    sink(state)
             else:
                 self.bad += 1
         if fresh:
             self.packets += fresh
-            if self._assetto and self.car:
-                latest = latest._replace(car=self.car)
             self.latest = latest
             self.arrival_ns = time.monotonic_ns()
+            self.first_ns = self.first_ns or self.arrival_ns
         elif self._assetto and not self.subscribed and time.monotonic() - self._sent_s > AC_RETRY_S:
             self._handshake()
         return fresh
@@ -199,6 +347,20 @@ class Receiver:
             dropped += 1
         return dropped
 
+    def counts(self) -> str:
+        """The counters in words, for a summary."""
+        text = f"{self.packets} good packets, {self.bad} bad, {self.ignored} ignored"
+        if self.foreign:
+            shown = ", ".join(f"{a} ({k})" for a, k in self.foreign_from.items())
+            more = ", ..." if sum(self.foreign_from.values()) < self.foreign else ""
+            text += (
+                f", {self.foreign} from addresses not accepted (dropped: {shown}{more}; "
+                f"accepted: {self.source.describe_accept()}, see --accept-from)"
+            )
+        if self.errors:
+            text += f"; {self.errors} raised in the decoder (a bug: {self.first_error})"
+        return text
+
     def close(self) -> None:
         """Idempotent; tells Assetto Corsa we are gone (dismiss)."""
         if self.socket.fileno() < 0:
@@ -212,3 +374,19 @@ class Receiver:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _bind_error(source: Source, exc: OSError) -> str:
+    where = f"telemetry source {source.text}: cannot listen on {source.bind_host}"
+    if exc.errno == errno.EADDRINUSE or getattr(exc, "winerror", None) == 10048:
+        other = source.port + 1 if source.port < 65535 else 5300
+        return (
+            f"{where}:{source.port} (in use: another program, or another carfeel, listens "
+            "there). Stop it, or choose another port here and set the game to send to it "
+            f"(e.g. {source.format.name}:{source.bind_host}:{other})"
+        )
+    if exc.errno == errno.EADDRNOTAVAIL:
+        return f"{where}: no interface of this machine has that address"
+    if exc.errno == errno.EACCES:
+        return f"{where}:{source.port}: permission denied (ports below 1024 need privileges)"
+    return f"{where}:{source.port} ({exc})"

@@ -69,4 +69,18 @@ class VehicleSource:
         return self.state, self.weight
 
     def close(self) -> None:
-        self.receiver.close()
+        """Close the socket; what the summary must say beyond the counts (packets from
+        addresses not accepted, a decoder that raised) goes to `events`."""
+        r = self.receiver
+        r.close()
+        if r.foreign:
+            shown = ", ".join(f"{a} ({k})" for a, k in r.foreign_from.items())
+            self.events.append(
+                f"telemetry: {r.foreign} packets from addresses not accepted dropped ({shown}); "
+                f"accepted: {r.source.describe_accept()} (--accept-from)"
+            )
+        if r.errors:
+            self.events.append(
+                f"telemetry: the decoder raised on {r.errors} packets (counted bad; a bug to "
+                f"report): {r.first_error}"
+            )

@@ -35,6 +35,9 @@ class VehicleState(NamedTuple):
     """Where the format gives it (Forza): for the firing frequency."""
     lateral_derived: bool = False
     """True where Ay was derived (speed x yaw rate, or world acceleration rotated by heading)."""
+    time_s: float = NAN
+    """The packet's own time stamp, s, as the game counts it (its session or race clock; NaN
+    where the format has none: Assetto Corsa, BeamNG's MotionSim, OutSim without OSO_TIME)."""
 
 
 FIELDS = (
@@ -48,10 +51,16 @@ def gear_name(gear: int) -> str:
     return "R" if gear < 0 else "N" if gear == 0 else str(gear)
 
 
+BAD = VehicleState(speed_m_s=math.inf)
+"""What a decoder returns for a datagram of the right size that is not a packet of its format
+(garbage, a field out of the game's own range): it fails `plausible`, so it is counted bad."""
+
+
 def plausible(state: VehicleState) -> bool:
     """The check every decoded packet passes once, at the boundary: finite where present and within
     what a car can do (speed < 150 m/s, |Ay| < 60 m/s^2, rpm < 30000, gear -1..12, pedals 0..1
-    with a little slack for float noise)."""
+    with a little slack for float noise). The decoders check their format's own fields first
+    (car ids, flags, ranges the game keeps) and return `BAD` where one is off."""
     s = state
     for value, bound in (
         (s.speed_m_s, 150.0),
@@ -65,4 +74,6 @@ def plausible(state: VehicleState) -> bool:
     for pedal in (s.clutch_pedal, s.throttle, s.brake):
         if not (-0.01 <= pedal <= 1.01 or math.isnan(pedal)):
             return False
+    if not (abs(s.time_s) < 1e10 or math.isnan(s.time_s)):
+        return False  # 300 years: no game's clock
     return -1 <= s.gear <= 12 and (s.engine_speed_rpm >= 0.0 or math.isnan(s.engine_speed_rpm))
