@@ -13,11 +13,10 @@ from carfeel.cli import main
 from carfeel.errors import InputError
 from carfeel.io import logs
 from carfeel.simulation.result import Result
-from tests.conftest import SHARED
+from tests.datafiles import data_file
 
-CAN = SHARED / "data" / "can"
-RAV4_LOG = CAN / "toyota-rav4-2017-highway.candump.log"
-RAV4_DBC = CAN / "toyota-rav4-2017.dbc"
+RAV4_LOG = data_file("can", "toyota-rav4-2017-highway.candump.log")
+RAV4_DBC = data_file("can", "toyota-rav4-2017.dbc")
 RAV4_MAP = """
 [resample]
 rate_hz = 50.0
@@ -34,10 +33,8 @@ signal = "STEER_TORQUE_SENSOR.STEER_TORQUE_DRIVER"
 unit = "Nm"
 scale = 0.01
 """
-needs_rav4 = pytest.mark.skipif(not RAV4_LOG.is_file(), reason="shared RAV4 data not here")
 
 
-@needs_rav4
 def test_the_rav4_can_log_decodes_into_carfeels_channels_in_si_units(tmp_path):
     path = tmp_path / "rav4.toml"
     path.write_text(RAV4_MAP)
@@ -59,7 +56,6 @@ def test_the_rav4_can_log_decodes_into_carfeels_channels_in_si_units(tmp_path):
     read_log(result, "rav4")
 
 
-@needs_rav4
 def test_an_ay_that_turns_the_other_way_is_refused_and_a_highway_gives_no_understeer(
     tmp_path, capsys
 ):
@@ -100,7 +96,6 @@ def test_an_ay_that_turns_the_other_way_is_refused_and_a_highway_gives_no_unders
     assert "the model explains little of this log's torque" in capsys.readouterr().err
 
 
-@needs_rav4
 def test_a_gap_in_a_can_message_is_refused_not_bridged(tmp_path, capsys):
     """30 s without a STEER_ANGLE_SENSOR frame (the bus logger lost them): interpolating would
     draw a straight line through half the drive; refused, naming the channel and where."""
@@ -133,7 +128,6 @@ def test_drift_knots_closer_than_a_weave_are_refused(weave_csv, tmp_path, capsys
     assert not out.exists()
 
 
-@needs_rav4
 def test_carfeel_channels_lists_the_rav4_signals(capsys):
     assert main(["channels", str(RAV4_LOG), "--dbc", str(RAV4_DBC), "--json"]) == 0
     listed = {s["signal"]: s for s in json.loads(capsys.readouterr().out)["signals"]}
