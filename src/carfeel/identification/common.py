@@ -69,17 +69,20 @@ def write_checked_preset(
 def read_results(
     paths: Sequence[Path], channels: Path | None = None, dbc: Path | None = None
 ) -> list[Result]:
-    """Each log as carfeel's channels in SI units: CSV as carfeel writes it directly, every
-    other format (or any file with a channel map) through `carfeel.io.logs`."""
+    """Each log as carfeel's channels in SI units, through `carfeel.io.logs` (a CSV named in
+    carfeel's way needs no map). Every file's size is checked before any is read."""
     from carfeel.io import logs
 
     channel_map = logs.load_map(channels) if channels is not None else None
     if dbc is not None and not dbc.is_file():
         raise InputError(f"--dbc {dbc}: no such file")
+    for path in paths:
+        logs.check_size(path)
     seen: dict[bytes, Path] = {}
     for path in paths:
         try:
-            digest = hashlib.sha256(path.read_bytes()).digest()
+            with path.open("rb") as handle:
+                digest = hashlib.file_digest(handle, "sha256").digest()
         except OSError:
             continue  # the reader below names the problem
         if digest in seen:
@@ -90,10 +93,7 @@ def read_results(
         seen[digest] = path
     results: list[Result] = []
     for path in paths:
-        if channel_map is None and path.suffix.lower() == ".csv":
-            result = Result.from_csv(path)
-        else:
-            result = logs.read_channels(path, channel_map, dbc)
+        result = logs.read_channels(path, channel_map, dbc)
         check_physical(result, path)
         for other, earlier in zip(paths, results, strict=False):
             if _same_log(result, earlier):
