@@ -104,6 +104,34 @@ def excitation_runs() -> tuple[tuple[str, Result], ...]:
 
 
 @functools.cache
+def smooth_runs() -> tuple[tuple[str, Result], ...]:
+    """The hidden law's car through manoeuvres a hand or a steering robot with an acceleration
+    limit steers (their rate continuous, as tests/physical_logs.py's): parking sines at 0 and
+    6 km/h (the tyre spin K4..K6), the ISO 13674-1 weave, sines at 80 km/h (1 Hz: the damping
+    K9) and 60 km/h (0.5 Hz), ISO 4138 both ways and ISO 3888 (the saturation K2, K3). The
+    library's steer cycle and ISO 7401 step change the rate within one sample: no 200 Hz log
+    can place that, and the misfit it leaves is the same on every drive, so it is bias the
+    sandwich counts as noise (the friction's sigma came out 4 times its scatter over seeds)."""
+    from tests.physical_logs import sine
+
+    car = hidden_car()
+    v = car.vehicle
+    lock = v.steering_lock_rad
+    built = [
+        ("park-0kmh", sine("park-0kmh", 0.0, 0.85 * lock, 0.125, 10.0)),
+        ("park-6kmh", sine("park-6kmh", 6.0, 0.85 * lock, 0.125, 10.0)),
+        ("sine-80kmh", sine("sine-80kmh", 80.0, 0.6, 1.0, 8.0)),
+        ("sine-60kmh", sine("sine-60kmh", 60.0, 1.2, 0.5, 10.0)),
+    ]
+    runs = [*_segments(car, ("weave", "iso4138", "iso3888"))]
+    for name, manoeuvre in built:
+        full = simulate_steering(car, manoeuvre)
+        runs.append((name, Result(full.time_s, {
+            k: values for k, values in full.signals.items() if k != "segment"})))  # fmt: skip
+    return tuple(runs)
+
+
+@functools.cache
 def golf_runs(names: tuple[str, ...] = MANOEUVRES) -> tuple[tuple[str, Result], ...]:
     """The manoeuvres of the base car with the Golf-like law's torque (1 kHz, noise-free)."""
     runs = []
@@ -138,7 +166,10 @@ def faulty(
 ) -> list[Result]:  # fmt: skip
     """The runs logged with every fault of FAULTS (noise levels times `scale`): the angle is
     the true one plus its offset and noise, then quantized to the resolution (an encoder counts
-    what it sees); the torque is sampled `torque_delay_s` late; no rate column."""
+    what it sees); the torque is sampled `torque_delay_s` late; no rate column. Where the
+    quantizer's steps fall against the true angle is a draw of the seed too (the offset's part
+    within one step, uniform: no car's offset is a whole number of steps), so repeated seeds
+    scatter as repeated drives would."""
     f = {**FAULTS, **(faults or {})}
     rng = np.random.default_rng(seed)
     out = []
@@ -146,8 +177,9 @@ def faulty(
         idx = np.arange(0, len(r), DIVIDER)
         n, t = idx.size, r.time_s[idx]
         step = math.radians(f["angle_resolution_deg"])
+        phase = rng.uniform(-0.5, 0.5) * f["angle_resolution_deg"]
         angle = r["steering_angle_rad"][idx] + np.radians(
-            f["angle_offset_deg"] + rng.normal(0, scale * f["angle_noise_deg"], n)
+            f["angle_offset_deg"] + phase + rng.normal(0, scale * f["angle_noise_deg"], n)
         )
         if step > 0:
             angle = step * np.round(angle / step)

@@ -121,7 +121,7 @@ def test_a_run_with_memory_adds_k10_z_to_the_friction_and_the_torque():
 def test_the_c_port_of_the_memory_is_bit_for_bit(tmp_path):
     import ctypes
 
-    from carfeel.export import fmu, port
+    from carfeel.export import fmu
 
     library = ctypes.CDLL(str(fmu.build_port_library(tmp_path)))
     law = with_memory(level=0.6, angle=0.017)
@@ -129,7 +129,7 @@ def test_the_c_port_of_the_memory_is_bit_for_bit(tmp_path):
     rate = np.concatenate([rng.normal(0, 2.0, 3000), [0.0, -0.0, 5e-324, -1e-300, 1e6, -3.0]])
     dt = np.concatenate([rng.uniform(1e-4, 5e-3, 3000), [1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 0.0]])
     z = np.zeros(len(rate))
-    flat = np.asarray(port.flat_values(law), dtype="<f8")
+    flat = np.asarray(fmu.flat_values(law), dtype="<f8")
     pointer = ctypes.POINTER(ctypes.c_double)
     library.cf_friction_memory_run(
         rate.ctypes.data_as(pointer), dt.ctypes.data_as(pointer), ctypes.c_size_t(len(rate)),

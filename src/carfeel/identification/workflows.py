@@ -219,9 +219,14 @@ def _fit_steering_logs(
                        progress=progress)  # fmt: skip
     progress.done()
     if not any(e.status == "fitted" for e in fit.estimates):
+        last = fit.keep_tests[-1] if fit.keep_tests else None
+        test = f" (likelihood ratio p = {last.p_value:.2g})" if last is not None else ""
         raise InputError(
-            f"the logs identify none of K1..K9 (r2 {fit.r2:.3g}): the preset would be the base "
-            f"{preset.name}'s, so none is written. Why: "
+            f"the logs identify none of the law's parameters: the base preset {preset.name}'s law "
+            f"explains r2 {fit.r2:.3g} of them (with a torque offset per log and the delay "
+            f"fitted), the free fit's r2 {fit.free_fit.get('r2', math.nan):.3g} is not "
+            f"significantly better{test}; the preset would be the base's, so none is written. "
+            "Why: "
             + "; ".join(fit.warnings)
             + ". Log the manoeuvres named (a weave, a steady-state circle, parking)"
         )
