@@ -77,6 +77,12 @@ def inflation(full: Fitted, index: int) -> float:
 
 def scaled_lr(full: Fitted, held: Fitted, indices: Sequence[int]) -> tuple[float, float]:
     """(T, p) of holding `indices` (those of `held`'s that the free fit had free)."""
+    return scaled_lr_of_cost(full, held.cost, indices)
+
+
+def scaled_lr_of_cost(full: Fitted, cost: float, indices: Sequence[int]) -> tuple[float, float]:
+    """(T, p) of a restricted fit of robust cost `cost` (at `full`'s scale) that removes
+    `indices` of `full`'s free entries."""
     from scipy.stats import chi2
 
     lambdas = [inflation(full, i) for i in indices]
@@ -86,7 +92,7 @@ def scaled_lr(full: Fitted, held: Fitted, indices: Sequence[int]) -> tuple[float
         finite = [v for v in every if math.isfinite(v)] or [1.0]
         finite = [float(np.median(finite))]
     scale = float(np.mean(finite))
-    statistic = max(2.0 * (held.cost - full.cost), 0.0) / scale
+    statistic = max(2.0 * (cost - full.cost), 0.0) / scale
     return statistic, float(chi2.sf(statistic, len(indices)))
 
 

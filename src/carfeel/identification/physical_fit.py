@@ -667,6 +667,7 @@ def fit_physical(
             "samples": float(len(log.time_s)),
             "offset_Nm": float(np.mean(offset_values[rows])) if len(rows) else math.nan,
             "offset_range_Nm": float(np.ptp(offset_values[rows])) if len(rows) else 0.0,
+            "offset_end_Nm": float(offset_values[rows][-1]) if len(rows) else math.nan,
         }
     rms, r2 = rms_r2(data.torque_Nm, model)
     if not r2 > 0.5:
