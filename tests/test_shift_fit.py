@@ -707,6 +707,6 @@ def test_a_fit_under_the_r2_a_preset_needs_is_refused_with_why(tmp_path, capsys,
     assert main(["fit", "shift", *paths, "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert re.search(r"r2 0\.99[0-9]*, under the 0\.999999 a preset needs", err), err
-    assert "so none is written" in err and "departing most at" in err
+    assert "mine.toml is not written" in err and "departing most at" in err
     assert "Traceback" not in err
     assert not out.exists()

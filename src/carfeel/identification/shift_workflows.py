@@ -111,6 +111,13 @@ def fit_shift_traces(
         )  # fmt: skip
 
 
+def _fit_warnings(warnings: Sequence[str]) -> str:
+    """The fit's own warnings, other than its traces' r2 (named already), for a refusal: what
+    the fit found odd (a force in kgf) is often why its model cannot follow the traces."""
+    said = [w for w in warnings if "under the" not in w or "of a model that follows" not in w]
+    return f"The fit warned: {'; '.join(said)}. " if said else ""
+
+
 def _fit_shift_traces(
     paths: Sequence[Path],
     out: Path,
@@ -132,7 +139,8 @@ def _fit_shift_traces(
         chamfer = preset.params.gearbox.chamfer
         raise InputError(
             f"the fitted shift model follows the traces with r2 {r2:.4g}, under the {MIN_R2:g} "
-            f"a preset needs, so none is written; worst: {'; '.join(fit.departures[:3])}. The "
+            f"a preset needs, so {out} is not written; worst: {'; '.join(fit.departures[:3])}. "
+            f"{_fit_warnings(fit.warnings)}The "
             "model is driven by each trace's recorded force from its arrival at the synchro "
             "ring: a knob that goes where the model does not means a mechanism the base preset "
             f"{preset.name} lacks or has otherwise (its chamfers: gear inertia "
