@@ -26,7 +26,15 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--minutes", type=float, default=10.0)
     parser.add_argument("--rate-hz", type=float, default=100.0)
+    parser.add_argument(
+        "--rav4",
+        action="store_true",
+        help="instead: the RAV4's real drive (no Ay) on three held-out splits",
+    )
     args = parser.parse_args()
+    if args.rav4:
+        _rav4()
+        return
     car = load_steering().params
     pieces = []
     for name in ("weave", "steer-cycle", "iso4138", "iso3888"):
@@ -70,6 +78,44 @@ def main() -> None:
     )
     print(f"rms error {fit.rms_error_Nm:.3f} Nm, r2 {fit.r2:.4f}, torque delay found "
           f"{fit.torque_delay_s * 1e3:.2g} ms")  # fmt: skip
+
+
+def _rav4() -> None:
+    """The vendored RAV4 drive (tests/data/can, driver torque, no Ay) fitted on its first part
+    and predicted on the rest, as `carfeel fit --holdout` does: the law's r2 (no offset fitted on
+    the held-out part) beside the linear fit and the lagged ridge trained on the same part."""
+    import contextlib
+    import io
+    import json
+    import sys
+    import tempfile
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the tests' data and map
+    from carfeel.cli import main as cli
+    from tests.test_logs import RAV4_DBC, RAV4_LOG, RAV4_NO_AY_MAP
+
+    with tempfile.TemporaryDirectory() as folder:
+        channel_map = Path(folder) / "rav4-no-ay.toml"
+        channel_map.write_text(RAV4_NO_AY_MAP)
+        print(f"{'split':26s} {'law r2':>8s} {'ridge r2':>8s} {'linear r2':>9s}   fit s")
+        for holdout in (0.3, 0.4, 0.5):
+            out = io.StringIO()
+            t0 = time.perf_counter()
+            with contextlib.redirect_stdout(out), contextlib.redirect_stderr(io.StringIO()):
+                code = cli(["fit", "steering", str(RAV4_LOG), "--dbc", str(RAV4_DBC),
+                            "--channels", str(channel_map), "--out",
+                            str(Path(folder) / "rav4.toml"), "--holdout", str(holdout),
+                            "--json"])  # fmt: skip
+            elapsed = time.perf_counter() - t0
+            if code != 0:
+                print(f"holdout {holdout:g}: exit {code}")
+                continue
+            b = json.loads(out.getvalue())["baselines"]
+            split = f"first {1 - holdout:.0%} -> last {holdout:.0%}"
+            print(f"{split:26s} {b['model']['all']['r2']:8.3f} "
+                  f"{b['lagged ridge']['all']['r2']:8.3f} {b['linear']['all']['r2']:9.3f}   "
+                  f"{elapsed:5.1f}")  # fmt: skip
 
 
 def _law_evaluation(log: SteeringLog, car: SteeringCar) -> float:
