@@ -899,18 +899,10 @@ def _sandwich(
     return covariance, unconstrained
 
 
-def _scan_delay(pb: _Problem, x: FloatArray) -> float:
-    """The torque's delay (s) that fits best with the rest of x held: a grid over
-    +-MAX_DELAY_S, then a bounded search around its best point; the soft_l1 cost."""
+def minimize_delay(cost: Callable[[float], float]) -> float:
+    """The delay (s) of least `cost`: a grid of 21 over +-MAX_DELAY_S, then a bounded search
+    within a grid step of its best point (kept only where it does better)."""
     from scipy.optimize import minimize_scalar
-
-    scale = _robust_scale(pb.residual(x)) or 0.1
-    offsets = pb.data.offsets @ x[pb.offset_slice]
-    weights = 1.0 if pb.weights is None else pb.weights
-
-    def cost(delay: float) -> float:
-        r = (pb.law_torque(x, delay) + offsets - pb.data.torque) * weights
-        return soft_l1_cost(r, scale)
 
     grid = np.linspace(-MAX_DELAY_S, MAX_DELAY_S, 21)
     best = float(grid[int(np.argmin([cost(float(d)) for d in grid]))])
@@ -920,6 +912,20 @@ def _scan_delay(pb: _Problem, x: FloatArray) -> float:
         method="bounded", options={"xatol": 1e-4},
     )  # fmt: skip
     return float(found.x) if found.fun <= cost(best) else best
+
+
+def _scan_delay(pb: _Problem, x: FloatArray) -> float:
+    """The torque's delay (s) that fits best with the rest of x held: a grid over
+    +-MAX_DELAY_S, then a bounded search around its best point; the soft_l1 cost."""
+    scale = _robust_scale(pb.residual(x)) or 0.1
+    offsets = pb.data.offsets @ x[pb.offset_slice]
+    weights = 1.0 if pb.weights is None else pb.weights
+
+    def cost(delay: float) -> float:
+        r = (pb.law_torque(x, delay) + offsets - pb.data.torque) * weights
+        return soft_l1_cost(r, scale)
+
+    return minimize_delay(cost)
 
 
 def _free_fit(pb: _Problem, x0: FloatArray, free: BoolArray) -> _Fit:
