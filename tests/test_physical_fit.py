@@ -240,7 +240,7 @@ def test_fit_and_validate_the_physical_model_from_the_command_line(tmp_path, cap
     assert set(figures) == set(paths)
     for values in figures.values():
         assert values["r2"] > 0.99
-        assert values["rms_error_Nm"] <= values["rms_error_without_offset_Nm"]
+        assert values["rms_error_offset_removed_Nm"] <= values["rms_error_Nm"]
         assert values["rms_lateral_accel_error_m_s2"] < 0.3
     page = (check / "index.html").read_text()
     # the feel metrics side by side, labelled as the law's validation labels them

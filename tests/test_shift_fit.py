@@ -14,6 +14,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import re
 from typing import Any
 
 import numpy as np
@@ -133,7 +134,9 @@ def test_round_trip_finds_every_engagement_where_it_starts(round_trip: ShiftFit)
         starts = [e.start_time_s for e in found if e.trace == index]
         # Within one sample: the arrival is the approach extrapolated to the ring.
         assert np.allclose(starts, arrivals(clean(seed)), atol=1.0 / RATE_HZ)
-    assert round_trip.warnings == ()
+    # The one warning: the base's chamfers, which this truth lacks, are taken out (tested below).
+    assert len(round_trip.warnings) == 1
+    assert "showed the chamfers' impact" in round_trip.warnings[0]
 
 
 def test_round_trip_recovers_the_positions(round_trip: ShiftFit):
@@ -382,7 +385,8 @@ def test_fit_and_validate_shift_traces_from_the_command_line(tmp_path, capsys):
     # The truth itself re-simulates these seeds to 1.8-2.1 mm rms: open loop, the knob's force
     # (which sags while the hand catches up) meets the preset's mean tooth resistance instead of
     # each engagement's own draw. 5 mm bounds the fitted preset; the shipped preset, whose
-    # stages sit elsewhere, must do far worse on the same traces (26 mm on seed 11).
+    # stages sit elsewhere, must do far worse on the same traces (measured: 11.9 and 11.3 mm
+    # against 1.6 and 2.3 mm).
     assert all(v["rms_error_m"] < 0.005 for v in figures.values())
     assert len(list(check.glob("*.png"))) == len(SEEDS)
     page = (check / "index.html").read_text()
@@ -614,3 +618,95 @@ def test_the_fits_gauss_newton_sigmas_match_the_scatter_of_repeated_fits():
         sigmas.append(np.sqrt(np.diag(_covariance(solution))) * scale)
     ratio = np.mean(sigmas, axis=0) / np.std(estimates, axis=0)
     assert np.all((ratio > 0.85) & (ratio < 1.25)), ratio
+
+
+# ---------------------------------------------------------------- issue 25, point 4
+
+
+def quantized(result: Result, seed: int) -> Result:
+    """Issue 25's sensors: the position in 0.05 mm steps (an encoder, no noise between them),
+    the force with 1 N of white noise; 500 Hz, half a step off the truth's samples."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(result.time_s[0] + 0.5e-3, result.time_s[-1], 1.0 / RATE_HZ)
+    x = np.round(np.interp(t, result.time_s, result["position_m"]) / 5e-5) * 5e-5
+    f = np.interp(t, result.time_s, result["force_N"]) + rng.normal(0, 1.0, t.size)
+    return Result(t, {"position_m": x, "force_N": f})
+
+
+@functools.cache
+def chamfered_truth() -> ShiftParams:
+    """The hidden preset of the tests above with the shipped preset's chamfers on: the gear's
+    inertia picked up at the teeth slows the knob, and each engagement meets them or not."""
+    t = truth()
+    return ShiftParams(dataclasses.replace(t.gearbox, chamfer=load_shift().params.gearbox.chamfer),
+                       t.driver)  # fmt: skip
+
+
+def test_a_quantized_position_and_1_n_of_force_noise_give_the_stages_and_honest_sigmas():
+    """Issue 25: 1 N of force noise and a 0.05 mm position resolution gave r2 -0.13 (0.41 here
+    with the chamfers on, 12 mm rms), the teeth -23 % at 10-24 sigma and a push force's sigma
+    of 8e-15 N (a quantized plateau reads the same everywhere). Measured now: r2 0.9996, every
+    stage within 0.07 mm, each within 2.0 of its sigma."""
+    truth_params = chamfered_truth()
+    traces = []
+    for seed in SEEDS:
+        result, _ = run(push_again(), shift.initial_state(seed), truth_params,
+                        duration_s=DURATION_S, dt_s=1e-3, substeps=10)  # fmt: skip
+        traces.append(quantized(result, seed))
+    fit = fit_shift(traces)
+    assert fit.figures["r2"] > 0.8
+    assert all(fit.figures[f"trace{i}.r2"] > 0.8 for i in range(len(SEEDS)))
+    assert fit.figures["chamfer_contacts"] >= 1  # the chamfers were seen and kept
+    assert fit.params.gearbox.chamfer == truth_params.gearbox.chamfer
+    g, t = fit.params.gearbox, truth_params.gearbox
+    for name in ("synchronization_position_m", "teeth_position_m", "teeth_end_position_m",
+                 "in_gear_position_m"):  # fmt: skip
+        error = getattr(g, name) - getattr(t, name)
+        sigma = fit.sigmas[f"gearbox.{name}"]
+        # The acceptance's 2 mm; and honest: 4 sigma is a 1-in-16000 miss of a normal error,
+        # and a sigma may not be smaller than the resolution's q / sqrt(12) / sqrt(n) can give.
+        assert abs(error) < 2e-3, name
+        assert sigma > 5e-6 and abs(error) < 4.0 * sigma, (name, error, sigma)
+    # A plateau of quantized positions and noisy forces: the sigma is the noise's, not 8e-15 N.
+    push_sigma = fit.sigmas["driver.push_force_N"]
+    assert 0.02 < push_sigma < 1.0
+    assert abs(fit.params.driver.push_force_N - 70.0) < 4.0 * push_sigma
+    # Each trace's quality, worst first, where its model departs most.
+    assert len(fit.departures) == len(SEEDS)
+    assert all("r2" in d and "departing most at" in d for d in fit.departures)
+
+
+def test_chamfers_the_traces_never_show_are_taken_out():
+    """The round trip's truth has no chamfers, the base has them: 6 engagements gap to gap
+    would happen with a probability of 0.2^6 under the base's, so the fitted preset has none
+    and says why (with them, the fitted preset validated at 4.9 mm rms, r2 0.90; 1.6 mm
+    without)."""
+    fit = fit_shift([quantized(clean(seed), seed) for seed in SEEDS])
+    assert fit.figures["chamfer_contacts"] == 0
+    assert fit.params.gearbox.chamfer.gear_inertia_kg_m2 == 0.0
+    assert fit.params.gearbox.chamfer.drag_torque_Nm == 0.0
+    assert any("showed the chamfers' impact" in w and "6.4e-05" in w for w in fit.warnings)
+    assert fit.figures["r2"] > 0.95
+
+
+def test_a_fit_under_the_r2_a_preset_needs_is_refused_with_why(tmp_path, capsys, monkeypatch):
+    """The refusal of issue 25 point 4: a fit whose model follows its traces with r2 under
+    MIN_R2 writes no preset, exits 2 and names the r2, the worst trace and where it departs.
+    No hidden preset this model cannot follow gives such a fit (the round trip's r2 is
+    0.9999), so the bar is raised above it here: the same code path, the same message."""
+    from carfeel.cli import main
+    from carfeel.identification import shift_workflows
+
+    paths = []
+    for seed in SEEDS[:1]:
+        path = tmp_path / f"trace-{seed}.csv"
+        measured(clean(seed), seed).to_csv(path)
+        paths.append(str(path))
+    monkeypatch.setattr(shift_workflows, "MIN_R2", 0.999999)
+    out = tmp_path / "mine.toml"
+    assert main(["fit", "shift", *paths, "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert re.search(r"r2 0\.99[0-9]*, under the 0\.999999 a preset needs", err), err
+    assert "mine.toml is not written" in err and "departing most at" in err
+    assert "Traceback" not in err
+    assert not out.exists()

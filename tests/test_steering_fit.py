@@ -139,23 +139,37 @@ def test_outliers_and_gaps_do_not_drag_the_fit():
     assert dirty["k7_Nm"].value == pytest.approx(clean["k7_Nm"].value, rel=0.1)
 
 
-def test_what_the_logs_cannot_identify_keeps_the_base_value_and_says_so():
+def test_what_the_logs_cannot_identify_is_kept_only_where_the_data_accept_the_base():
+    """A weave alone: no parking (the tyre spin K4..K6), Ay under 3 m/s^2 (the saturation K2,
+    K3). Whatever is kept from the base says so with the test that let it (the data fit as well
+    with it held there: likelihood ratio p > 0.05) and has no sigma; whatever the test refused
+    is fitted, with its sigma and a note saying the base's value fits worse. The tyre spin is
+    kept here (p 0.99: at 100 km/h the weave cannot tell it), the saturation is not (the
+    base's, kept unasked, biased K1 by 9 % at 47 sigma on a real weave)."""
+    from carfeel.identification.steering_fit import LOWER, UPPER
+
     base, _ = car()
     weave_only = [run for run in clean_runs() if run[0].startswith("weave")]
     fit = fit_steering(measured(weave_only), base)
     got = by_name(fit)
-    # No parking, Ay under 3 m/s^2: K2..K6 are the base's (not the truth's, which differs).
-    for name in ("k2", "k3", "k4_1_Nm", "k5_s_m_Nm", "k6_rad_s"):
+    for name in ("k4_1_Nm", "k5_s_m_Nm", "k6_rad_s"):
         assert got[name].status == "kept", name
         assert got[name].value == getattr(base.torque, name) != TRUE[name], name
         assert math.isnan(got[name].sigma)
+        assert "almost no parking" in got[name].note and "likelihood ratio p = " in got[name].note
     assert any("k4_1_Nm, k5_s_m_Nm, k6_rad_s not identifiable" in w for w in fit.warnings)
-    assert any("k2, k3 not identifiable" in w for w in fit.warnings)
-    # Nothing is left at a bound.
-    from carfeel.identification.steering_fit import LOWER, UPPER
-
-    for e, lo, hi in zip(fit.estimates, LOWER, UPPER, strict=False):
-        assert lo < e.value < hi, e.name
+    tested = {name for t in fit.keep_tests for name in t.held}
+    for e in fit.estimates:
+        if e.status == "kept":
+            assert e.name in tested and "fit is as good" in e.note, e.name
+        elif e.name in tested:  # refused by the test: fitted, with its interval
+            assert "fits significantly worse" in e.note and e.sigma > 0, e.name
+        if e.status == "fitted":  # written at a bound only with the reason
+            i = list(by_name(fit)).index(e.name)
+            assert e.value not in (LOWER[i], UPPER[i]) or "at its bound" in e.note, e.name
+    assert got["k2"].status == "fitted" and got["k2"].sigma > 0
+    # The preset predicts its logs no worse than the free fit (the kept values cost nothing).
+    assert fit.rms_error_Nm <= 1.01 * fit.free_fit["rms_error_Nm"]
 
 
 def test_without_measured_ay_the_car_model_supplies_it_and_can_be_fitted():
@@ -247,7 +261,13 @@ def test_fit_and_validate_from_the_command_line(tmp_path, capsys):
     assert main(["validate", "--preset", str(preset), *paths, "--report", str(check),
                  "--json"]) == 0  # fmt: skip
     checked = json.loads(capsys.readouterr().out)
+    comparison = checked.pop("comparison")
+    # The headline has no offset removed: the logs' 0.05 Nm bias is an error of the preset's.
     assert all(v["r2"] > 0.99 for v in checked.values())
+    assert all(v["r2_offset_removed"] >= v["r2"] for v in checked.values())
+    # Beside the black boxes on each log's last 30 %: the law of the logs' own car wins.
+    assert comparison["model"]["all"]["r2"] > comparison["lagged ridge"]["all"]["r2"]
+    assert comparison["model"]["all"]["r2"] > comparison["linear"]["all"]["r2"]
     page = (check / "index.html").read_text()
     assert "torque gradient at 0 g (Nm/g)" in page and "measured" in page
     assert page.count("<tr>") == page.count("</tr>")  # issue 11: rows were left open
@@ -283,7 +303,7 @@ def test_malformed_logs_exit_2_from_the_command_line(tmp_path, capsys):
     assert main(["fit", "steering", *paths, "--out", str(tmp_path / "p.toml")]) == 0
     summary = capsys.readouterr().out
     # weave + ISO 4138: no parking, so K4..K6 are kept (and what else the two cannot place)
-    assert "of 9 parameters" in summary and "kept from the base" in summary
+    assert "of 11 parameters" in summary and "kept from the base" in summary
 
 
 def weave_signals(degrees=False, km_h=False, flip_torque=False):
@@ -403,15 +423,29 @@ def test_carfeels_own_torque_column_is_accepted():
 
 
 def test_a_parameter_the_data_cannot_see_is_kept_from_the_base_and_marked():
+    """Parking at a standstill, no Ay column: the base car's Ay is 0 throughout, so K1..K3
+    multiply zero and nothing in the data moves them: held at the base's values the fit is
+    exactly as good (p about 1). (With a measured Ay, its noise at rest would be the
+    regressor: the classic errors in variables, which take K1 to 0 on noise alone.)"""
     base, _ = car()
+    parking = [run for run in clean_runs() if run[0].startswith("steer-cycle")]
+    fit = fit_steering(measured(parking, with_ay=False), base)
+    for name in ("k1_Nm_s2_m", "k2", "k3"):
+        kept = by_name(fit)[name]
+        assert kept.status == "kept" and kept.value == getattr(base.torque, name), name
+        assert "held at the base's value the fit is as good" in kept.note, name
+    assert by_name(fit)["k4_1_Nm"].status == "fitted"
+    assert any(w.startswith("k1_Nm_s2_m") and "not identifiable" in w for w in fit.warnings)
+
+
+def test_an_ay_channel_that_logged_nothing_is_refused():
+    """A weave at 100 km/h with Ay 0 in every row: a channel that logged nothing (the fit
+    made a spring of the friction's memory to explain the aligning torque)."""
     time, signals = weave_signals()
-    # No lateral acceleration at all: K1..K3 multiply zero, nothing in the data moves them.
     signals["lateral_accel_m_s2"] = np.zeros_like(time)
-    fit = fit_steering([read_log(Result(time, signals), "no-ay.csv")], base)
-    k1 = by_name(fit)["k1_Nm_s2_m"]
-    assert k1.status == "kept" and k1.value == base.torque.k1_Nm_s2_m
-    assert "do not constrain it" in k1.note
-    assert any(w.startswith("k1_Nm_s2_m not identifiable") for w in fit.warnings)
+    message = r"lateral_accel_m_s2 is 0 m/s\^2 in every row while the car drives: the channel"
+    with pytest.raises(InputError, match=message + r" logged nothing.*leave the column out"):
+        read_log(Result(time, signals), "no-ay.csv")
 
 
 def test_one_log_in_degrees_among_good_ones_is_refused_by_name():
@@ -445,54 +479,109 @@ def test_json_has_null_for_a_kept_parameters_sigma(tmp_path, capsys):
 
     from carfeel.cli import main
 
-    time, signals = weave_signals()  # a weave at speed: no parking for K4..K6
-    path = tmp_path / "weave.csv"
-    Result(time, signals).to_csv(path)
-    assert main(["fit", "steering", str(path), "--out", str(tmp_path / "p.toml"), "--json"]) == 0
+    paths = write_logs(tmp_path, logs_from=("weave",))  # a weave at speed: no parking for K4..K6
+    assert main(["fit", "steering", *paths, "--out", str(tmp_path / "p.toml"), "--json"]) == 0
     printed = capsys.readouterr().out
     fitted = json.loads(printed, parse_constant=lambda token: pytest.fail(f"{token} in JSON"))
     assert fitted["parameters"]["k4_1_Nm"]["sigma"] is None
     assert fitted["parameters"]["k4_1_Nm"]["status"] == "kept"
     assert fitted["parameters"]["k1_Nm_s2_m"]["status"] == "fitted"
     assert fitted["parameters"]["k1_Nm_s2_m"]["sigma"] > 0.0
+    assert fitted["sigmas_conditional_on_kept"] is True
+    assert any(t["kept"] for t in fitted["keep_tests"])
+
+
+def straight_drive(seconds=40.0, seed=4):
+    """Driving straight at 20 m/s, no Ay column: the wheel within the angle sensor's noise, the
+    torque its own noise about a 0.05 Nm bias. Nothing in it moves any term of the law."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, seconds, 0.005)
+    return Result(t, {
+        "speed_m_s": 20.0 + rng.normal(0, 0.05, t.size),
+        "steering_angle_rad": np.radians(rng.normal(0, 0.02, t.size)),
+        "steering_torque_Nm": 0.05 + rng.normal(0, 0.05, t.size),
+    })  # fmt: skip
 
 
 def test_a_log_that_identifies_nothing_writes_no_preset(tmp_path, capsys):
-    """Without Ay, K1..K3 multiply zero; a weave at speed has no parking for K4..K6; what is
-    left (friction, damping) comes out with sigmas thousands of times the values (K7 4.1 +-
-    3.5e4 Nm), within one sigma of their bounds: nothing is identified, so nothing is written
-    (the base preset under a new name, with "fitted" values, was)."""
+    """A straight drive, on two noise seeds. Seed 5: every term held at the base's values fits
+    as well as free (the free fit explains nothing but noise either), so the preset would be the
+    base's: none is written, and the message quotes the base's r2 as the base's (issue 25: it
+    read as the fit's). Seed 4: the keep test refuses the base's K1 (2.4) against the 0.29 +-
+    0.28 the angle sensor's noise gives, so one parameter is "fitted"; the law then removes
+    0.07 % of the torque's variance, and the test of the law against none refuses it (before
+    it, a preset with K1 0.29 was written: exit 0)."""
     from carfeel.cli import main
 
-    time, signals = weave_signals()
-    signals["lateral_accel_m_s2"] = np.zeros_like(time)
-    path = tmp_path / "no-ay.csv"
-    Result(time, signals).to_csv(path)
-    out = tmp_path / "p.toml"
-    assert main(["fit", "steering", str(path), "--out", str(out)]) == 2
-    err = capsys.readouterr().err
-    assert "the logs identify none of K1..K9" in err and "within one sigma of its bound" in err
-    assert not out.exists()
+    seen = set()
+    for seed in (4, 5):
+        path = tmp_path / f"straight-{seed}.csv"
+        straight_drive(seed=seed).to_csv(path)
+        out = tmp_path / f"p-{seed}.toml"
+        assert main(["fit", "steering", str(path), "--out", str(out)]) == 2, seed
+        err = capsys.readouterr().err
+        assert "Traceback" not in err and not out.exists()
+        if "none of the law's parameters" in err:
+            seen.add("base")
+            assert re.search(r"the base preset b-segment's law explains r2 -?\d\.\d+ of them",
+                             err), err  # fmt: skip
+            assert "the free fit's" in err and "not significantly better" in err
+        else:
+            seen.add("no law")
+            assert "the logs identify no steering feel" in err, err
+            assert re.search(
+                r"the fitted law \(r2 -?\d\.\d+; every parameter free, r2 "
+                r"-?\d\.\d+\) removes -?\d\.\d+% of the torque's variance",
+                err,
+            ), err
+    assert seen == {"base", "no law"}  # both refusals met (which seed gives which: docstring)
 
 
 def test_the_analytic_jacobian_matches_finite_differences():
-    from carfeel.identification.steering_fit import PAPER_LAW
+    """Every column, the friction memory's K10 and K11 (its own sensitivity recurrence) too."""
+    from carfeel.identification.steering_fit import PAPER_LAW, Regressors
 
     rng = np.random.default_rng(4)
     n = 400
     speed, rate = rng.uniform(0, 40, n), rng.normal(0, 1.0, n)
     ay = rng.normal(0, 4.0, n)
-    x = np.array(list(TRUE.values()))
-    analytic = PAPER_LAW.jacobian(x, speed, rate, ay)
+    starts = np.zeros(n, dtype=bool)
+    starts[[0, 200]] = True  # two stretches: the memory starts from rest in each
+    r = Regressors(speed, rate, ay, np.where(starts, 0.0, np.abs(rate) * 0.01), starts)
+    x = np.array([*TRUE.values(), 0.4, 0.03])
+    analytic = PAPER_LAW.jacobian(x, r)
     for j in range(len(x)):
         h = 1e-6 * max(abs(x[j]), 1e-3)
         up, down = x.copy(), x.copy()
         up[j] += h
         down[j] -= h
-        numeric = PAPER_LAW.torque(up, speed, rate, ay) - PAPER_LAW.torque(down, speed, rate, ay)
+        numeric = PAPER_LAW.torque(up, r) - PAPER_LAW.torque(down, r)
         numeric /= 2 * h
         # Central differences are good to about h^2 and 1e-10 / h of rounding: 1e-5 of the scale.
         assert np.allclose(analytic[:, j], numeric, rtol=1e-5, atol=1e-6 * np.abs(numeric).max())
+
+
+def test_a_log_with_a_gap_shifts_each_channel_by_its_own_spline():
+    """A log with a dropout is not uniformly sampled: its regressors are shifted through cubic
+    splines, one per log and channel. They were cached by id() of a fresh slice, which the next
+    channel's slice reused: the rate and Ay were shifted as the speed (a fit on gapped logs gave
+    r2 -0.4 and K4 14 for 0.5, differing from run to run)."""
+    from scipy.interpolate import CubicSpline
+
+    from carfeel.identification.steering_fit import _data
+
+    logs = measured(clean_runs(), gap=True)
+    assert all(np.ptp(np.diff(log.time_s)) > 0.1 for log in logs)  # splines, not Catmull-Rom
+    data = _data(logs, [log.lateral_accel_m_s2 for log in logs], None)
+    for delay in (0.013, 0.021, 0.034):  # as a fit's steps do
+        shifted = data.regressors(delay)
+        for log, part in zip(logs, data.parts, strict=True):
+            t = log.time_s - log.time_s[0]
+            for got, values in ((shifted.speed, log.speed_m_s), (shifted.rate, log.rate_rad_s),
+                                (shifted.ay, log.lateral_accel_m_s2)):  # fmt: skip
+                expected = CubicSpline(t, values)(np.clip(t - delay, 0.0, t[-1]))
+                assert np.allclose(got[part], expected, rtol=0,
+                                   atol=1e-9 * np.abs(values).max()), (log.name, delay)  # fmt: skip
 
 
 def test_a_torque_logged_late_is_found_and_corrected():
@@ -551,14 +640,19 @@ def test_base_another_car_from_the_command_line(tmp_path, capsys):
                  "--json"]) == 0  # fmt: skip
     printed = json.loads(capsys.readouterr().out)
     written = load(str(out)).params
-    # The fitted K's are the logs' car, not the base's; what the logs cannot identify (tyre
-    # spin, no parking) is the base's, marked so; the car (ratio, wheelbase, K_us) is the base's.
+    # The fitted K's are the logs' car, not the base's; the tyre spin (no parking) is the base's
+    # where the test accepts it, else the logs' own with the warning that it is extrapolated at
+    # a standstill (here the base's K9 = 0.3 and K7 = 1.0 cannot stand in for the truth's
+    # damping, so the logs' speeds place a spin term); the car (ratio, wheelbase, K_us) is the
+    # base's.
     assert written.torque.k1_Nm_s2_m == pytest.approx(TRUE["k1_Nm_s2_m"], rel=0.05)
     for name in ("k4_1_Nm", "k5_s_m_Nm", "k6_rad_s"):
-        assert getattr(written.torque, name) == getattr(other.torque, name)
-        assert printed["parameters"][name]["status"] == "kept"
+        entry = printed["parameters"][name]
+        if entry["status"] == "kept":
+            assert getattr(written.torque, name) == getattr(other.torque, name)
+        else:
+            assert any(f"{name}" in w and "extrapolated" in w for w in printed["warnings"])
     assert written.vehicle == other.vehicle
-    assert "kept from the base preset" in out.read_text()
 
 
 def test_drift_and_cross_validation_from_the_command_line(tmp_path, capsys):
@@ -586,12 +680,15 @@ def test_drift_and_cross_validation_from_the_command_line(tmp_path, capsys):
     assert printed["parameters"]["k1_Nm_s2_m"]["value"] == pytest.approx(1.9, rel=0.03)
     fitted, held = printed["cross_validation"]["fit"], printed["cross_validation"]["held_out"]
     assert len(fitted) == len(held) == len(paths)
-    # Generalization: the held-out parts' rms within 2.5x of the fitted parts' (measured 1.4x on
-    # the weave and the lane change; 2.1x on the steer cycle, whose held-out end has the wheel
-    # leave lock at 5 rad/s, a phase its fitted part holds once). Not r2: the lane change's last
-    # 2 s hold little torque to explain. Each part's drifting offset is its own.
+    # Generalization: the held-out parts' rms, their own drifting offset removed, within 2.5x of
+    # the fitted parts' (measured 1.4x on the weave and the lane change; 2.1x on the steer cycle,
+    # whose held-out end has the wheel leave lock at 5 rad/s, a phase its fitted part holds
+    # once). Not r2: the lane change's last 2 s hold little torque to explain. The headline
+    # predicts the held-out part with the offset its fit part ended with: a wandering offset is
+    # no one's to predict, so it is larger (0.17 Nm against 0.06 on the weave).
     for a, b in zip(fitted.values(), held.values(), strict=True):
-        assert b["rms_error_Nm"] < 2.5 * a["rms_error_Nm"]
+        assert b["rms_error_offset_removed_Nm"] < 2.5 * a["rms_error_Nm"]
+        assert b["rms_error_offset_removed_Nm"] <= b["rms_error_Nm"]
     page = (report_dir / "index.html").read_text()
     assert "Cross-validation" in page and "Parameter correlations" in page
     assert "held-out rms" in page
@@ -599,8 +696,9 @@ def test_drift_and_cross_validation_from_the_command_line(tmp_path, capsys):
     assert main(["validate", "--preset", str(out), *paths, "--drift", "10", "--report",
                  str(tmp_path / "v"), "--json"]) == 0  # fmt: skip
     checked = json.loads(capsys.readouterr().out)
+    checked.pop("comparison")
     for name, figures in checked.items():
-        assert figures["rms_error_Nm"] <= figures["rms_error_without_offset_Nm"]
+        assert figures["rms_error_offset_removed_Nm"] <= figures["rms_error_Nm"]
         if "weave" in name:  # longer than 1.5 knots: a drifting offset
             assert figures["offset_range_Nm"] > 0.1, name
 
@@ -615,8 +713,8 @@ def test_reported_sigmas_match_the_errors_over_repeated_noisy_fits():
     values, sigmas = [], []
     for seed in range(20, 24):
         fit = fit_steering(measured(excitation_runs(), seed=seed, rate=True), base)
-        values.append([e.value for e in fit.estimates])
-        sigmas.append([e.sigma for e in fit.estimates])
+        values.append([by_name(fit)[n].value for n in TRUE])
+        sigmas.append([by_name(fit)[n].sigma for n in TRUE])
     v, s = np.array(values), np.array(sigmas)
     truth = np.array(list(TRUE.values()))
     ratio = np.mean((np.std(v, axis=0, ddof=1) / np.median(s, axis=0)) ** 2)
@@ -643,3 +741,99 @@ def test_validate_gives_the_models_own_understeer_gradient_not_the_logs(tmp_path
         assert model == pytest.approx(k_us, rel=1e-3)
         assert (abs(measured / k_us - 1.0) < 0.05) == near, (source, measured, k_us)
         assert any("not one from this log" in line for line in sections[0].paragraphs)
+
+
+# ---------------------------------------------------------------- issue 25: a fit to trust
+
+
+def test_a_law_shape_the_preset_lacks_is_fitted_not_replaced_by_the_base():
+    """The Golf-like car (torque = 3.0 Nm x (Ay / 1.375 + 0.202 tanh(rate / 0.05)): linear
+    aligning, a friction step, no tyre spin) through the five ISO manoeuvres with noise. The old
+    rule kept K2..K9 from the base (the vanishing tyre spin's K4 "within one sigma of its bound"
+    became the base's large one): K1 4.04 for 2.18, rms 1.56 Nm against 0.071 for the true law
+    (measured on the code before the test). K1 must be within 8 % and the rms within 1.3 times
+    the true law's at the same (conditioned) inputs, each log with its best constant offset."""
+    from tests import steering_logs as logs_of
+
+    base = logs_of.base_car()
+    runs = logs_of.golf_runs()
+    logs = logs_of.as_logs(logs_of.noisy(runs, seed=0), runs)
+    fit = fit_steering(logs, base)
+    assert fit.car.torque.k1_Nm_s2_m == pytest.approx(logs_of.GOLF_K1, rel=0.08)
+    residuals = []
+    for log in logs:
+        error = log.torque_Nm - logs_of.golf_torque(log.rate_rad_s, log.lateral_accel_m_s2)
+        residuals.append(error - error.mean())
+    true_rms = float(np.sqrt(np.mean(np.concatenate(residuals) ** 2)))
+    assert fit.rms_error_Nm < 1.3 * true_rms
+    assert fit.rms_error_Nm <= 1.01 * fit.free_fit["rms_error_Nm"]
+    # The linear aligning is the data's: K2 at its bound 0, said so.
+    k2 = by_name(fit)["k2"]
+    assert k2.status == "fitted" and k2.value < 1e-6 and "at its bound 0" in k2.note
+
+
+def test_every_fault_of_a_real_cars_sensors_leaves_the_law_within_its_sigmas():
+    """Issue 25, point 2: the angle at a 0.1 deg resolution after 0.02 deg of noise and a 0.5
+    deg offset, speed, Ay and torque noise and offsets, the torque logged 20 ms late, no rate
+    column, through smooth manoeuvres (tests/steering_logs.smooth_runs). Before: K8 +36 % at 7.7
+    sigma from the quantization alone, the delay found as 11.7 ms (12.7 on these logs) and K9
+    -24 %. Measured (6 seeds, benchmarks/bench_fit_bias.py): every K within 3 %, K1..K3 within
+    1.1 %, the delay within 0.2 ms. The test: seed 0 within 10 % (K1..K3 3 %) and 2 ms; over 3
+    seeds the scatter of each K against its median sigma, pooled over K1..K9 (a spread from 3
+    draws is good to 50 %): the mean of (scatter / sigma)^2 within 0.5^2..2^2."""
+    from tests import steering_logs as logs_of
+
+    base = logs_of.base_car()
+    runs = logs_of.smooth_runs()
+    values, sigmas = [], []
+    for seed in range(3):
+        fit = fit_steering(logs_of.as_logs(logs_of.faulty(runs, seed), runs), base)
+        got = by_name(fit)
+        if seed == 0:
+            for name, truth in TRUE.items():
+                tolerance = 0.03 if name in ("k1_Nm_s2_m", "k2", "k3") else 0.10
+                assert got[name].status == "fitted", name
+                assert got[name].value == pytest.approx(truth, rel=tolerance), name
+            assert fit.torque_delay_s == pytest.approx(0.020, abs=0.002)
+        values.append([got[n].value for n in TRUE])
+        sigmas.append([got[n].sigma for n in TRUE])
+    v, s = np.array(values), np.array(sigmas)
+    ratio = np.mean((np.std(v, axis=0, ddof=1) / np.median(s, axis=0)) ** 2)
+    assert 0.25 < ratio < 4.0
+
+
+def test_a_rate_derived_from_a_quantized_angle_keeps_the_friction_unbiased():
+    """The quantization alone (0.1 deg, 0.02 deg of noise before it), nothing else: a fixed
+    81 ms Savitzky-Golay derivative took K8 16 % high (5.6 sigma) and K7 3.3 %; the adaptive
+    one keeps both within 3 %."""
+    from tests import steering_logs as logs_of
+
+    zero = {k: 0.0 for k in logs_of.FAULTS}
+    quantized = {**zero, "angle_resolution_deg": 0.1, "angle_noise_deg": 0.02,
+                 "torque_noise_Nm": 0.05}  # fmt: skip
+    runs = logs_of.smooth_runs()
+    fit = fit_steering(logs_of.as_logs(logs_of.faulty(runs, 1, faults=quantized), runs),
+                       logs_of.base_car(), estimate_delay=False)  # fmt: skip
+    for name in ("k7_Nm", "k8_rad_s"):
+        assert by_name(fit)[name].value == pytest.approx(TRUE[name], rel=0.03), name
+
+
+def test_a_kept_value_is_the_tests_and_the_report_says_the_sigmas_are_conditional(tmp_path, capsys):
+    """The weave alone keeps the tyre spin (no parking): the JSON and the summary give the test,
+    the free fit's figures and that the other sigmas are conditional on what is kept."""
+    import json
+
+    from carfeel.cli import main
+
+    paths = write_logs(tmp_path, logs_from=("weave",))
+    report = tmp_path / "report"
+    assert main(["fit", "steering", *paths, "--out", str(tmp_path / "p.toml"), "--report",
+                 str(report), "--json"]) == 0  # fmt: skip
+    printed = json.loads(capsys.readouterr().out)
+    assert printed["sigmas_conditional_on_kept"] is True
+    kept = [t for t in printed["keep_tests"] if t["kept"]]
+    assert kept and all(t["p_value"] > 0.01 for t in kept)
+    assert {"k4_1_Nm", "k5_s_m_Nm", "k6_rad_s"} <= set(kept[-1]["held"])
+    assert printed["free_fit"]["rms_error_Nm"] <= printed["rms_error"] * 1.0001
+    page = (report / "index.html").read_text()
+    assert "conditional on the values kept" in page and "free fit" in page

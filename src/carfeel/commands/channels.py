@@ -32,6 +32,7 @@ def _channels(args: argparse.Namespace) -> int:
         return 0
     print(f"{args.file}: {len(rows)} signal(s)")
     for r in rows:
+        group = f"  (group {r['group']})" if "group" in r else ""
         print(f"  {r['signal']:48s} {r['unit'] or '-':8s} {r['samples']:8d} samples "
-              f"{r['rate_hz']:8.1f} Hz  {r['min']:.4g} .. {r['max']:.4g}")  # fmt: skip
+              f"{r['rate_hz']:8.1f} Hz  {r['min']:.4g} .. {r['max']:.4g}{group}")  # fmt: skip
     return 0

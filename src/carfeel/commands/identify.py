@@ -60,7 +60,8 @@ def register(commands: Any) -> None:
     fit_steer.add_argument("--base", default="b-segment", metavar="NAME|PATH",
                            help="car preset the fit starts from (default b-segment)")  # fmt: skip
     fit_steer.add_argument("--fit-vehicle", action="store_true",
-                           help="also fit the understeer gradient (logs without Ay)")  # fmt: skip
+                           help="fit the understeer gradient too (the default where no log has "
+                           "Ay; refused where every log has it)")  # fmt: skip
     fit_steer.add_argument("--report", metavar="DIR", help="write a report (HTML + PNG)")
     fit_steer.add_argument("--drift", type=drift_seconds, metavar="SECONDS",
                            help="let the torque offset drift: knots this far apart (road crown, "
@@ -156,7 +157,8 @@ def _fit(args: argparse.Namespace) -> int:
         from carfeel.identification.workflows import Sources, fit_steering_logs, fit_summary
 
         fit = fit_steering_logs(
-            [Path(p) for p in args.logs], out, base=args.base, fit_vehicle=args.fit_vehicle,
+            [Path(p) for p in args.logs], out, base=args.base,
+            fit_vehicle=True if args.fit_vehicle else None,  # None: fitted where there is no Ay
             report_dir=report_dir, show_progress=not args.json, sources=Sources(*sources_of(args)),
             drift_s=args.drift, holdout=args.holdout,
         )  # fmt: skip
@@ -201,11 +203,17 @@ def _validate(args: argparse.Namespace) -> int:
             )
         else:
             figures = validate(args.preset, logs, folder, Sources(*sources_of(args)), args.drift)
+    comparison = figures.pop("comparison", None)
     if args.json:
-        print(to_json(figures))
+        print(to_json({**figures, **({"comparison": comparison} if comparison else {})}))
     else:
         for name, values in figures.items():
             print(f"{name}: " + ", ".join(f"{k} {v:.4g}" for k, v in values.items()))
+        if comparison:
+            from carfeel.identification.workflows import comparison_lines
+
+            split = comparison.pop("split")
+            print("\n".join(comparison_lines(comparison, split)).lstrip())
         if args.report is not None:
             print(f"wrote {Path(args.report) / 'index.html'}")
     for name, values in figures.items():  # as the fit warns: a figure that says "do not trust"

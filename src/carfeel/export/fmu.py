@@ -471,7 +471,7 @@ def steering_spec(preset: Preset[SteeringCar]) -> ModelSpec:
                      enumerate(zip(AY_SOURCES, _AY_DOCS, strict=True))), 0,
                  low=0, high=len(AY_SOURCES) - 1),
         _model_step(STEERING_MAX_STEP_S, "the car's trapezoidal step (with ay_source vehicle or "
-                    "front_axle); the law itself has no state"),
+                    "front_axle) and the friction's memory (torque.k10_Nm > 0)"),
         Variable("torque_Nm", "output", "continuous", real, "torque_Nm",
                  "Steering wheel torque tau = tau0 + tau1 + tau2 + tau3, Nm: the torque the "
                  "driver applies, positive counter-clockwise; each term resists the driver "
@@ -481,7 +481,8 @@ def steering_spec(preset: Preset[SteeringCar]) -> ModelSpec:
         Variable("torque_tire_spin_Nm", "output", "continuous", real, "torque_tire_spin_Nm",
                  "tau1 = atan(rate/K6)/(K4 + K5*|Vx|), the tire spin term, Nm", unit="Nm"),
         Variable("torque_friction_Nm", "output", "continuous", real, "torque_friction_Nm",
-                 "tau2 = K7*atan(rate/K8), the friction term, Nm", unit="Nm"),
+                 "tau2 = K7*atan(rate/K8) + K10*z, the friction term and its memory z (a Dahl "
+                 "element over K11 rad of steering; off with K10 = 0), Nm", unit="Nm"),
         Variable("torque_damping_Nm", "output", "continuous", real, "torque_damping_Nm",
                  "tau3 = K9*rate, the damping term, Nm", unit="Nm"),
         Variable("model_lateral_accel_m_s2", "output", "continuous", real,

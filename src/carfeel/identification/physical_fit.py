@@ -58,6 +58,7 @@ from carfeel.identification.steering_fit import (
     _check_units,
     _sandwich,
     lowpass,
+    minimize_delay,
     offset_basis,
 )
 from carfeel.models.steering import physical
@@ -667,6 +668,7 @@ def fit_physical(
             "samples": float(len(log.time_s)),
             "offset_Nm": float(np.mean(offset_values[rows])) if len(rows) else math.nan,
             "offset_range_Nm": float(np.ptp(offset_values[rows])) if len(rows) else 0.0,
+            "offset_end_Nm": float(offset_values[rows][-1]) if len(rows) else math.nan,
         }
     rms, r2 = rms_r2(data.torque_Nm, model)
     if not r2 > 0.5:
@@ -711,8 +713,6 @@ def _scan_delay(data: _Data, grids: Sequence[FloatArray], x: FloatArray) -> floa
     """The torque's delay (s) that fits best with the model held (its simulated torque shifted):
     a grid over +-MAX_DELAY_S, then a bounded search around the best point; the soft_l1 cost
     with each trial's offsets refitted."""
-    from scipy.optimize import minimize_scalar
-
     point = [g[:1] for g in grids]
     n_par = len(PARAMETERS)
     r0 = data.predict(point, float(x[n_par]))[0] + data.offsets @ x[n_par + 1 :] - data.torque_Nm
@@ -724,14 +724,7 @@ def _scan_delay(data: _Data, grids: Sequence[FloatArray], x: FloatArray) -> floa
         z = ((rest - data.offsets @ offsets) / scale) ** 2
         return float(np.mean(np.sqrt(1.0 + z)))
 
-    grid = np.linspace(-MAX_DELAY_S, MAX_DELAY_S, 21)
-    best = float(grid[int(np.argmin([cost(float(d)) for d in grid]))])
-    step = float(grid[1] - grid[0])
-    found = minimize_scalar(
-        cost, bounds=(max(best - step, -MAX_DELAY_S), min(best + step, MAX_DELAY_S)),
-        method="bounded", options={"xatol": 1e-4},
-    )  # fmt: skip
-    return float(found.x) if found.fun <= cost(best) else best
+    return minimize_delay(cost)
 
 
 def _evaluate(

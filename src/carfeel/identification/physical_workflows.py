@@ -23,6 +23,7 @@ from carfeel.identification.workflows import (
     _own_offset,
     feel_table,
     load_logs,
+    part_name,
 )
 from carfeel.io import report
 from carfeel.io.outputs import Outputs
@@ -49,10 +50,13 @@ def physical_car(preset: str, role: str) -> tuple[str, SteeringCar]:
 
 
 def _figures(
-    car: SteeringCar, log: SteeringLog, drift_s: float | None, delay_s: float
-) -> tuple[dict[str, float], np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """A log's figures against the model (scored samples: past each stretch's first SETTLE_S),
-    and the model's Ay, its torque with the log's own offset, that offset and the scored mask."""
+    car: SteeringCar, log: SteeringLog, drift_s: float | None, delay_s: float,
+    applied: float = 0.0,
+) -> tuple[dict[str, float], np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """A log's figures against the model (scored samples: past each stretch's first SETTLE_S):
+    the headline with the offset `applied` (the fit's for its own logs and their held-out parts,
+    none for a preset on its own), the log's own offset removed beside it; and the model's Ay,
+    its torque with the headline's offset, the log's own offset and the scored mask."""
     ay, model, scored = simulate_log(car, log, delay_s)
     residual = np.where(scored, log.torque_Nm - model, 0.0)
     offset = np.zeros_like(model)
@@ -61,16 +65,17 @@ def _figures(
         offset[scored] = _own_offset(part, residual[scored], drift_s)
         offset[~scored] = float(np.mean(offset[scored]))
     measured, raw = log.torque_Nm[scored], model[scored]
-    raw_rms, _ = rms_r2(measured, raw)
-    rms, r2 = rms_r2(measured, raw + offset[scored])
+    rms, r2 = rms_r2(measured, raw + applied)
+    rms_o, r2_o = rms_r2(measured, raw + offset[scored])
     figures = {
-        "rms_error_Nm": rms, "r2": r2, "offset_Nm": float(np.mean(offset[scored])),
-        "offset_range_Nm": float(np.ptp(offset[scored])), "rms_error_without_offset_Nm": raw_rms,
+        "rms_error_Nm": rms, "r2": r2, "rms_error_offset_removed_Nm": rms_o,
+        "r2_offset_removed": r2_o, "offset_Nm": float(np.mean(offset[scored])),
+        "offset_range_Nm": float(np.ptp(offset[scored])),
     }  # fmt: skip
     if log.lateral_accel_m_s2 is not None:
         figures["rms_lateral_accel_error_m_s2"] = rms_r2(log.lateral_accel_m_s2[scored],
                                                          ay[scored])[0]  # fmt: skip
-    return figures, ay, model + offset, offset, scored
+    return figures, ay, model + applied, offset, scored
 
 
 def physical_sections(
@@ -81,14 +86,17 @@ def physical_sections(
     drift_s: float | None = None,
     delay_s: float = 0.0,
     first: int = 1,
+    offsets: dict[str, float] | None = None,
 ) -> tuple[list[report.Section], dict[str, dict[str, float]]]:
-    """Per log: overlays, residuals and the feel metrics measured vs model; and the figures."""
+    """Per log: overlays, residuals and the feel metrics measured vs model; and the figures
+    (the headline with `offsets[name]`, 0 for a log not in it)."""
     from carfeel.io.plots import plot_torque_validation
 
     sections, figures = [], {}
     ratio, base = car.vehicle.steering_ratio, car.vehicle.wheelbase_m
     for i, log in enumerate(logs, start=first - 1):
-        values, ay, model, _, scored = _figures(car, log, drift_s, delay_s)
+        applied = (offsets or {}).get(log.name, 0.0)
+        values, ay, model, own, scored = _figures(car, log, drift_s, delay_s, applied)
         figures[log.name] = values
         measured_ay = log.lateral_accel_m_s2 if log.lateral_accel_m_s2 is not None else ay
         figure = plot_torque_validation(
@@ -100,7 +108,7 @@ def physical_sections(
         measured_feel, model_feel = (
             steering_feel(log.time_s[keep], log.speed_m_s[keep], log.angle_rad[keep],
                           a[keep], torque[keep], steering_ratio=ratio, wheelbase_m=base)
-            for a, torque in ((measured_ay, log.torque_Nm), (ay, model))
+            for a, torque in ((measured_ay, log.torque_Nm), (ay, model - applied + own))
         )  # fmt: skip
         table, missing = feel_table(measured_feel, model_feel)
         source = "measured" if log.lateral_accel_m_s2 is not None else "the model's (none logged)"
@@ -110,10 +118,12 @@ def physical_sections(
             ay_line = f"; the model's Ay against the logged one: rms {error:.3g} m/s^2"
         sections.append(report.Section(
             f"Log {i + 1}: {log.name}",
-            [f"rms error {values['rms_error_Nm']:.4g} Nm, r2 {values['r2']:.4f}, with the log's "
-             f"own torque offset (mean {values['offset_Nm']:.3g} Nm, range "
-             f"{values['offset_range_Nm']:.3g} Nm) removed; "
-             f"{values['rms_error_without_offset_Nm']:.4g} Nm without it; {int(scored.sum())} "
+            [f"rms error {values['rms_error_Nm']:.4g} Nm, r2 {values['r2']:.4f} with "
+             f"{'the fit' + chr(39) + 's own' if applied else 'no'} torque offset "
+             f"({applied:.3g} Nm); with the log's own offset (mean {values['offset_Nm']:.3g} "
+             f"Nm, range {values['offset_range_Nm']:.3g} Nm) removed, which no prediction "
+             f"knows: {values['rms_error_offset_removed_Nm']:.4g} Nm, r2 "
+             f"{values['r2_offset_removed']:.4f}; {int(scored.sum())} "
              f"of {len(log.time_s)} samples scored (each stretch's first {SETTLE_S:g} s is the "
              f"model's start); Ay for the measured metrics {source}{ay_line}. The model is "
              "driven by the logged rim angle and rate and the logged speed.", *missing],
@@ -172,15 +182,19 @@ def _fit_physical_logs(
     held_figures: dict[str, dict[str, float]] = {}
     held_sections: list[report.Section] = []
     if held:
+        ends = {
+            part_name(n): v.get("offset_end_Nm", v["offset_Nm"]) for n, v in fit.per_log.items()
+        }
+        carried = {log.name: ends.get(part_name(log.name), 0.0) for log in held}
         if folder is not None:
             held_sections, held_figures = physical_sections(
                 fit.car, held, folder, drift_s=drift_s, delay_s=fit.torque_delay_s,
-                first=len(logs) + 1,
+                first=len(logs) + 1, offsets=carried,
             )  # fmt: skip
         else:
             held_figures = {
-                log.name: {k: v for k, v in _figures(fit.car, log, drift_s, fit.torque_delay_s)[
-                    0].items() if k in ("rms_error_Nm", "r2")}
+                log.name: _figures(fit.car, log, drift_s, fit.torque_delay_s,
+                                   carried[log.name])[0]
                 for log in held
             }  # fmt: skip
         fit = dataclasses.replace(fit, holdout={"fit": fit.per_log, "held_out": held_figures})
@@ -234,16 +248,18 @@ def _fit_report(
         sections.append(report.Section(
             "Cross-validation: the fitted part and the held-out part of each log",
             ["Each log's last part was left out of the fit; the preset is validated on it "
-             "(simulated from its own start). Figures with each part's own torque offset "
-             "removed."],
-            [["log", "fit rms (Nm)", "fit r2", "held-out rms (Nm)", "held-out r2"]]
-            + [[a.removesuffix(" (fit part)"), report.number(fa["rms_error_Nm"]),
+             "(simulated from its own start) with the torque offset its fitted part ended with "
+             "(the headline), and with the held-out part's own offset removed beside it."],
+            [["log", "fit rms (Nm)", "fit r2", "held-out rms (Nm)", "held-out r2",
+              "held-out r2, its offset removed"]]
+            + [[part_name(a), report.number(fa["rms_error_Nm"]),
                 report.number(fa["r2"]), report.number(fb["rms_error_Nm"]),
-                report.number(fb["r2"])]
+                report.number(fb["r2"]), report.number(fb["r2_offset_removed"])]
                for (a, fa), fb in zip(fit.per_log.items(), held_figures.values(), strict=True)],
         ))  # fmt: skip
+    own = {log.name: fit.per_log[log.name]["offset_Nm"] for log in logs}
     log_sections, _ = physical_sections(fit.car, logs, folder, drift_s=drift_s,
-                                        delay_s=fit.torque_delay_s)  # fmt: skip
+                                        delay_s=fit.torque_delay_s, offsets=own)  # fmt: skip
     report.write(folder, f"Physical steering fit: {out.name}",
                  [*sections, *log_sections, *held_sections])  # fmt: skip
 

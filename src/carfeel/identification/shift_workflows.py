@@ -9,9 +9,10 @@ from pathlib import Path
 from typing import Any
 
 from carfeel import __version__
+from carfeel.errors import InputError
 from carfeel.identification import rms_r2
 from carfeel.identification.common import Progress, read_results, write_checked_preset
-from carfeel.identification.shift_fit import checked_columns, fit_shift, resimulate
+from carfeel.identification.shift_fit import MIN_R2, checked_columns, fit_shift, resimulate
 from carfeel.io import report
 from carfeel.io.outputs import Outputs
 from carfeel.io.presets import load_shift, to_toml
@@ -110,6 +111,13 @@ def fit_shift_traces(
         )  # fmt: skip
 
 
+def _fit_warnings(warnings: Sequence[str]) -> str:
+    """The fit's own warnings, other than its traces' r2 (named already), for a refusal: what
+    the fit found odd (a force in kgf) is often why its model cannot follow the traces."""
+    said = [w for w in warnings if "under the" not in w or "of a model that follows" not in w]
+    return f"The fit warned: {'; '.join(said)}. " if said else ""
+
+
 def _fit_shift_traces(
     paths: Sequence[Path],
     out: Path,
@@ -126,6 +134,21 @@ def _fit_shift_traces(
     progress = Progress("fitting the shift", show_progress)
     fit = fit_shift(traces, preset.params, progress=progress)
     progress.done()
+    r2 = fit.figures.get("r2", math.nan)
+    if not r2 > MIN_R2:
+        chamfer = preset.params.gearbox.chamfer
+        raise InputError(
+            f"the fitted shift model follows the traces with r2 {r2:.4g}, under the {MIN_R2:g} "
+            f"a preset needs, so {out} is not written; worst: {'; '.join(fit.departures[:3])}. "
+            f"{_fit_warnings(fit.warnings)}The "
+            "model is driven by each trace's recorded force from its arrival at the synchro "
+            "ring: a knob that goes where the model does not means a mechanism the base preset "
+            f"{preset.name} lacks or has otherwise (its chamfers: gear inertia "
+            f"{chamfer.gear_inertia_kg_m2:g} kg m^2, drag {chamfer.drag_torque_Nm:g} Nm), a "
+            "force or position in other units or of the other sign, or pushes the segmentation "
+            "did not see; fit with --base a preset of this gearbox, or check the traces' "
+            "channels (carfeel channels FILE)"
+        )
     params = fit.params
     lines = [
         f"Fitted by carfeel {__version__} to {', '.join(Path(p).name for p in paths)}, from "

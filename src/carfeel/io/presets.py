@@ -103,6 +103,8 @@ RANGES: dict[str, tuple[float, float, bool, bool]] = {
     "k7_Nm": (0.0, 100.0, True, True),
     "k8_rad_s": (0.0, 100.0, False, True),
     "k9_Nm_s_rad": (0.0, 100.0, True, True),
+    "k10_Nm": (0.0, 100.0, True, True),  # the friction with memory's level (0: off)
+    "k11_rad": (0.0, 10.0, False, True),  # its presliding angle
     # hpattern: layout
     "planes_y_m": (-0.2, 0.2, True, True),
     "centre_plane": (0.0, 20.0, True, True),

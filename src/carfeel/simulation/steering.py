@@ -19,7 +19,11 @@ from carfeel.models.steering.physical import (
     SystemParams,
     TyreParams,
 )
-from carfeel.models.steering.torque import SteeringTorqueParams, torque_terms
+from carfeel.models.steering.torque import (
+    SteeringTorqueParams,
+    friction_memory_series,
+    torque_terms,
+)
 from carfeel.models.vehicle import single_track
 from carfeel.models.vehicle.single_track import VehicleInputs, VehicleParams, VehicleState
 from carfeel.simulation.manoeuvres import Manoeuvre
@@ -316,8 +320,24 @@ def simulate_steering(
             )  # fmt: skip
         else:  # pragma: no cover - a Segment is built with one or the other
             raise ValueError(f"segment {segment.label} has neither steering nor path")
-        parts.append(result)
+        parts.append(_with_friction_memory(result, car.torque, dt_s))
     return _concatenate(parts, [s.label for s in manoeuvre.segments], metadata)
+
+
+def _with_friction_memory(result: Result, torque: SteeringTorqueParams, dt_s: float) -> Result:
+    """The run with the law's friction memory (K10 z, `torque.friction_memory_step`) in
+    torque_Nm and torque_friction_Nm: the torque does not act on the car, so z follows the
+    run's rate step by step (dt_s each) from 0 at its start. Unchanged when K10 = 0 (the
+    default)."""
+    if torque.k10_Nm == 0.0:
+        return result
+    rates = result["steering_rate_rad_s"].tolist()
+    z = np.asarray(friction_memory_series(rates, [dt_s] * len(rates), torque))
+    memory = torque.k10_Nm * z
+    signals = dict(result.signals)
+    signals["torque_Nm"] = result["torque_Nm"] + memory
+    signals["torque_friction_Nm"] = result["torque_friction_Nm"] + memory
+    return Result(result.time_s, signals, result.metadata)
 
 
 def _simulate_physical(

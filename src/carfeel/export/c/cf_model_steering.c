@@ -30,6 +30,11 @@ static void evaluate(cf_model *m) {
     }
     double terms[5];
     cf_torque_terms(m->speed_m_s, m->steering_rate_rad_s, ay, &m->torque, terms);
+    if (m->torque.k10_Nm != 0.0) { /* torque.torque: the friction's memory */
+        double memory = m->torque.k10_Nm * m->friction_memory;
+        terms[0] = terms[0] + memory;
+        terms[3] = terms[3] + memory;
+    }
     m->torque_Nm = terms[0];
     m->torque_aligning_Nm = terms[1];
     m->torque_tire_spin_Nm = terms[2];
@@ -42,6 +47,7 @@ static void evaluate(cf_model *m) {
 
 void cf_model_start(cf_model *m) {
     cf_vehicle_initial_state(&m->car, 0.0, 0.0, 0.0);
+    m->friction_memory = 0.0;
     evaluate(m);
 }
 
@@ -49,5 +55,7 @@ void cf_model_step(cf_model *m, double dt_s) {
     if (m->ay_source == CF_AY_VEHICLE || m->ay_source == CF_AY_FRONT_AXLE) {
         cf_vehicle_step(&m->car, m->speed_m_s, m->steering_angle_rad, &m->vehicle, dt_s);
     }
+    m->friction_memory =
+        cf_friction_memory_step(m->friction_memory, m->steering_rate_rad_s, dt_s, &m->torque);
     evaluate(m);
 }

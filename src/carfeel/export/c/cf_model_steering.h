@@ -1,5 +1,5 @@
 /* carfeel FMU "steering": the paper's torque law (cf_steering.h) as an FMU's model, its Ay from
- * the importer or from the single-track car. */
+ * the importer or from the single-track car; its friction's memory (k10, k11) steps with it. */
 #ifndef CF_MODEL_STEERING_H
 #define CF_MODEL_STEERING_H
 
@@ -26,6 +26,7 @@ struct cf_model {
     double steering_angle_rad;
     double steering_rate_rad_s;
     cf_vehicle_state car;
+    double friction_memory;    /* the law's state: z of its friction with memory */
     double torque_Nm;          /* outputs */
     double torque_aligning_Nm;
     double torque_tire_spin_Nm;

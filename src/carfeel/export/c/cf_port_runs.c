@@ -39,6 +39,17 @@ CF_EXPORT void cf_torque_run(const double *speed_m_s, const double *rate_rad_s,
     }
 }
 
+/* The law's friction memory over n steps from z = 0: z[k] after step k (rate[k] held over
+ * dt[k]). */
+CF_EXPORT void cf_friction_memory_run(const double *rate_rad_s, const double *dt_s, size_t n,
+                                      const cf_torque_params *params, double *z) {
+    double state = 0.0;
+    for (size_t k = 0; k < n; ++k) {
+        state = cf_friction_memory_step(state, rate_rad_s[k], dt_s[k], params);
+        z[k] = state;
+    }
+}
+
 /* The single-track car over n steps from *state: states[k] after step k, and the front axle's
  * Ay (single_track.aligning_lateral_accel) after it in aligning[k] (may be NULL). */
 CF_EXPORT void cf_vehicle_run(cf_vehicle_state *state, const double *speed_m_s,

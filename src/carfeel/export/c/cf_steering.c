@@ -21,6 +21,16 @@ void cf_torque_terms(double speed_m_s, double steering_rate_rad_s, double latera
     terms[4] = damping;
 }
 
+double cf_friction_memory_step(double z, double steering_rate_rad_s, double dt_s,
+                               const cf_torque_params *p) {
+    double turned = fabs(steering_rate_rad_s) * dt_s;
+    if (turned == 0.0) {
+        return z;
+    }
+    double target = steering_rate_rad_s > 0.0 ? 1.0 : -1.0;
+    return target + (z - target) * exp(-turned / p->k11_rad);
+}
+
 /* VehicleParams.cg_to_rear_axle_m */
 static double rear(const cf_vehicle_params *p) { return p->wheelbase_m - p->cg_to_front_axle_m; }
 

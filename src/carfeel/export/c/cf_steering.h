@@ -21,6 +21,8 @@ typedef struct {
     double k7_Nm;
     double k8_rad_s;
     double k9_Nm_s_rad;
+    double k10_Nm;  /* the friction with memory: level (0: off) */
+    double k11_rad; /* and the angle it builds over after a reversal */
 } cf_torque_params;
 
 typedef struct {
@@ -50,6 +52,11 @@ typedef struct {
  * tau3 (damping), Nm. */
 void cf_torque_terms(double speed_m_s, double steering_rate_rad_s, double lateral_accel_m_s2,
                      const cf_torque_params *params, double terms[5]);
+
+/* torque.friction_memory_step: the friction memory z after dt_s with the rate held (the Dahl
+ * element, exact); the torque adds k10_Nm * z to tau2 and tau. */
+double cf_friction_memory_step(double z, double steering_rate_rad_s, double dt_s,
+                               const cf_torque_params *params);
 
 /* single_track.initial_state: driving straight at the pose. */
 void cf_vehicle_initial_state(cf_vehicle_state *state, double x_m, double y_m, double yaw_rad);
