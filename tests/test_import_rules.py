@@ -104,3 +104,37 @@ def test_the_cli_only_assembles_the_command_families():
     imported = carfeel_imports(PACKAGE / "cli.py", module_level_only=False)
     allowed = ("carfeel.commands", "carfeel.errors", "carfeel.__version__")
     assert {m for m in imported if not m.startswith(allowed) and m != "carfeel"} == set()
+
+
+def package_graph() -> dict[str, set[str]]:
+    """Which of carfeel's packages (carfeel.X) import which, lazily or not."""
+    graph: dict[str, set[str]] = {}
+    for name, targets in import_graph(module_level_only=False).items():
+        top = ".".join(name.split(".")[:2])
+        graph.setdefault(top, set()).update(
+            ".".join(t.split(".")[:2]) for t in targets if not t.startswith(top)
+        )
+    return graph
+
+
+def test_no_two_packages_import_each_other_even_lazily():
+    """Issue 28: `telemetry` imported `realtime` (a device sample) while `realtime` imports
+    `telemetry`; the type both need lives in `carfeel.contracts`. A lazy import counts: it is the
+    same dependency, only later."""
+    assert cycles(package_graph()) == []
+
+
+def test_only_the_command_line_imports_the_commands():
+    """`carfeel.commands` is the CLI over the library: the panel imported its helpers (JSON, a
+    gear sequence), which made the library depend on its own command line."""
+    importers = {
+        package
+        for package, targets in package_graph().items()
+        if "carfeel.commands" in targets
+    }
+    assert importers <= {"carfeel.cli", "carfeel.__main__"}
+
+
+def test_nothing_below_the_panel_imports_it():
+    importers = {p for p, targets in package_graph().items() if "carfeel.panel" in targets}
+    assert importers <= {"carfeel.cli", "carfeel.commands"}

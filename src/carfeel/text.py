@@ -4,6 +4,7 @@ same way): a count with its noun in the right number, a value in a sane width wh
 
 from __future__ import annotations
 
+import json
 import math
 
 
@@ -18,3 +19,24 @@ def number(value: float | None, digits: int = 4) -> str:
     if value is None or (isinstance(value, float) and math.isnan(value)):
         return "n/a"
     return f"{value:.{digits}g}"
+
+
+def shown(text: str, limit: int = 40) -> str:
+    """A user's argument as a message echoes it: shortened when it is long (a 300-digit number)."""
+    return text if len(text) <= limit else f"{text[: limit - 12]}...{text[-9:]}"
+
+
+def finite(value: object) -> object:
+    """NaN and infinities as null (JSON has no NaN), through dicts, lists and tuples."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: finite(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [finite(v) for v in value]
+    return value
+
+
+def to_json(value: object) -> str:
+    """Strict JSON (RFC 8259) of a result: what a script reading `--json` can parse."""
+    return json.dumps(finite(value), allow_nan=False)

@@ -3,15 +3,16 @@
 from __future__ import annotations
 
 import argparse
-import json
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
 from carfeel.io.outputs import Outputs, check_writable
+from carfeel.models.rng import MAX_SEED
+from carfeel.text import finite, shown, to_json
 
 __all__ = [
     "EXIT_FAULT",
+    "MAX_SEED",
     "check_writable",
     "finite",
     "outputs_of",
@@ -46,10 +47,6 @@ def positive_int(text: str) -> int:
     return value
 
 
-MAX_SEED = 2**64 - 1
-"""Seeds are the 64-bit state of SplitMix64: a larger one would alias a smaller one."""
-
-
 def seed_arg(text: str) -> int:
     try:
         value = int(text)
@@ -60,27 +57,6 @@ def seed_arg(text: str) -> int:
             f"expected a whole number from 0 to 2^64 - 1, got '{shown(text)}'"
         )
     return value
-
-
-def shown(text: str, limit: int = 40) -> str:
-    """A user's argument as a message echoes it: shortened when it is long (a 300-digit number)."""
-    return text if len(text) <= limit else f"{text[: limit - 12]}...{text[-9:]}"
-
-
-def finite(value: object) -> object:
-    """NaN and infinities as null (JSON has no NaN), through dicts, lists and tuples."""
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, dict):
-        return {k: finite(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [finite(v) for v in value]
-    return value
-
-
-def to_json(value: object) -> str:
-    """Strict JSON (RFC 8259) of a result: what a script reading `--json` can parse."""
-    return json.dumps(finite(value), allow_nan=False)
 
 
 @dataclass

@@ -8,6 +8,9 @@ from __future__ import annotations
 
 _MASK64 = (1 << 64) - 1
 
+MAX_SEED = _MASK64
+"""Seeds are the 64-bit state of SplitMix64: a larger one would alias a smaller one."""
+
 
 def seed_state(seed: int) -> int:
     """The generator state for a seed (any int)."""

@@ -48,9 +48,10 @@ from starlette.routing import Mount, Route, WebSocketRoute
 from starlette.staticfiles import StaticFiles
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
-from carfeel.commands.common import MAX_SEED, finite, shown
 from carfeel.errors import CarfeelError, InputError
+from carfeel.models.rng import MAX_SEED
 from carfeel.panel import plotting, ring, tuning
+from carfeel.text import finite, shown
 
 STATIC = Path(__file__).parent / "static"
 STREAM_HZ = 30.0
@@ -608,7 +609,7 @@ class Panel:
 
     def run_of(self, body: dict[str, Any]) -> dict[str, Any]:
         """The request's session as RealtimeRun keyword arguments, checked as `carfeel run`'s."""
-        from carfeel.commands.simulate import parse_sequence
+        from carfeel.simulation.sequence import parse_sequence
         from carfeel.realtime.session import MODELS, RealtimeRun, _check
 
         allowed = {"model", "preset", "device", "mode", "speed_kmh", "hand", "clock", "sequence",

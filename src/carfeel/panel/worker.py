@@ -362,6 +362,6 @@ def raise_priority() -> str:
 
 
 def _plain(value: Any) -> Any:
-    from carfeel.commands.common import finite
+    from carfeel.text import finite
 
     return finite(value)

@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from carfeel.realtime.devices.base import DeviceSample
+from carfeel.contracts import DeviceSample
 from carfeel.telemetry.gearout import GearDriver
 from carfeel.telemetry.source import VehicleSource
 from carfeel.telemetry.state import VehicleState

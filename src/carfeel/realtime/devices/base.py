@@ -14,8 +14,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from types import TracebackType
-from typing import NamedTuple, Protocol
+from typing import Protocol
 
+from carfeel.contracts import DeviceSample as DeviceSample  # where the devices take it from
 from carfeel.errors import CarfeelError
 
 
@@ -79,14 +80,6 @@ class DeviceInfo:
         """Round trip from a movement to the force that answers it: both delays and, on
         average, half a report period."""
         return self.command_delay_s + self.reading_delay_s + 0.5 / self.report_hz
-
-
-class DeviceSample(NamedTuple):
-    time_s: float
-    positions: tuple[float, ...]
-    """Per axis, m or rad, positive as the commands."""
-    forces: tuple[float, ...] | None
-    """The hand's force per axis if the device measures it (N or Nm), else None."""
 
 
 class Device(Protocol):
