@@ -156,9 +156,9 @@ def _with_accept(telemetry: str | None, accept_from: str | None) -> str | None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from carfeel.simulation.sequence import parse_sequence
     from carfeel.io.outputs import Outputs
     from carfeel.realtime.session import RealtimeRun, run_realtime
+    from carfeel.simulation.sequence import parse_sequence
 
     outputs = Outputs()
     record = Path(args.record) if args.record else None

@@ -609,8 +609,8 @@ class Panel:
 
     def run_of(self, body: dict[str, Any]) -> dict[str, Any]:
         """The request's session as RealtimeRun keyword arguments, checked as `carfeel run`'s."""
-        from carfeel.simulation.sequence import parse_sequence
         from carfeel.realtime.session import MODELS, RealtimeRun, _check
+        from carfeel.simulation.sequence import parse_sequence
 
         allowed = {"model", "preset", "device", "mode", "speed_kmh", "hand", "clock", "sequence",
                    "duration_s", "seed", "telemetry", "synchronizer", "rate_hz", "force",
