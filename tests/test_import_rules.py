@@ -128,9 +128,7 @@ def test_only_the_command_line_imports_the_commands():
     """`carfeel.commands` is the CLI over the library: the panel imported its helpers (JSON, a
     gear sequence), which made the library depend on its own command line."""
     importers = {
-        package
-        for package, targets in package_graph().items()
-        if "carfeel.commands" in targets
+        package for package, targets in package_graph().items() if "carfeel.commands" in targets
     }
     assert importers <= {"carfeel.cli", "carfeel.__main__"}
 
