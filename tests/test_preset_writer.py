@@ -155,8 +155,12 @@ def test_nesting_and_parts_inside_strings_and_comments_are_not_counted() -> None
 def test_limits_on_names_and_sources() -> None:
     car = load_steering("b-segment").params
     tables = {"vehicle": car.vehicle, "torque": car.torque, "driver": car.driver}
-    with pytest.raises(PresetError, match="name: 201 characters; at most 200"):
-        from_toml("steering", "long", to_toml("n" * 201, "s", tables))
+    from carfeel.io.presets import MAX_NAME_CHARS
+
+    long = MAX_NAME_CHARS + 1
+    with pytest.raises(PresetError, match=f"name: {long} characters; at most {MAX_NAME_CHARS}"):
+        from_toml("steering", "long", to_toml("n" * long, "s", tables))
+    assert from_toml("steering", "at", to_toml("n" * MAX_NAME_CHARS, "s", tables)).name
     with pytest.raises(PresetError, match="source: 70000 characters"):
         from_toml("steering", "long", to_toml("n", "s" * 70_000, tables))
 

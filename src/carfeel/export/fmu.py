@@ -43,6 +43,7 @@ from typing import Any
 from carfeel import __version__
 from carfeel.errors import CarfeelError, InputError
 from carfeel.io.force_profile import MAX_FORCE_N
+from carfeel.io.presets import MAX_NAME_CHARS as PRESET_NAME_CHARS
 from carfeel.io.presets import RANGES, Preset, range_key, unit_of
 from carfeel.io.presets import STEERING_STEP_S as PHYSICAL_MAX_STEP_S
 from carfeel.models.gearshift.engagement import (
@@ -105,7 +106,7 @@ class ExportError(CarfeelError):
     """An FMU cannot be built here: a missing compiler or extra, an unsupported platform."""
 
 
-MAX_NAME_CHARS = 1000
+MAX_NAME_CHARS = PRESET_NAME_CHARS
 """The longest preset name an FMU carries (in its model name, its description and a C string:
 a name is a label, and a longer one is refused before anything is written)."""
 

@@ -269,7 +269,9 @@ nests 3 deep; 100k deep made tomllib overflow Python's stack)."""
 MAX_KEY_PARTS = 16
 """Parts of one dotted key (a.b.c is 3): tomllib's memory grows as their square (10k parts
 took 400 MB), so a longer key is refused before parsing."""
-MAX_NAME_CHARS = 200
+MAX_NAME_CHARS = 1000
+"""A preset's name (and engagement) is a label: bounded, and the same bound the FMU carries (a
+hostile name of a few hundred characters must still be data an FMU can hold, issue 24)."""
 MAX_SOURCE_CHARS = 64 * 1024
 MAX_PROBLEMS = 40
 """Problems listed in one error (a file of 100k unknown keys gives a readable message)."""
