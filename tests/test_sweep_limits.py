@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import json
 import random
-import subprocess
 import sys
 import tracemalloc
 from pathlib import Path
@@ -21,6 +20,7 @@ import pytest
 
 from carfeel.cli import main
 from carfeel.sweep import results, runner, spec, tasks
+from tests.memory import carfeel_peak
 
 UNIFORM = '"driver.push_force_N" = { distribution = "uniform", low = 60, high = 100 }'
 TOO_MANY = {
@@ -39,19 +39,6 @@ TOO_MANY = {
 }
 
 
-PEAK = (
-    "import atexit, sys\n"
-    "def peak():\n"
-    "    hwm = [l for l in open('/proc/self/status') if l.startswith('VmHWM:')]\n"
-    "    sys.stderr.write('peak ' + hwm[0].split()[1] + ' kB\\n')\n"
-    "atexit.register(peak)\n"
-    "from carfeel.cli import main\n"
-    "sys.exit(main(sys.argv[1:]))\n"
-)
-"""`carfeel ARGS` that says its peak memory as it exits: VmHWM, the process's own (a child's
-ru_maxrss counts its parent's memory at the fork, pytest's hundreds of MB after Dask)."""
-
-
 @pytest.mark.skipif(sys.platform != "linux", reason="/proc/self/status")
 @pytest.mark.parametrize("name", TOO_MANY)
 def test_too_many_cases_are_refused_before_any_is_made(tmp_path, name):
@@ -59,14 +46,10 @@ def test_too_many_cases_are_refused_before_any_is_made(tmp_path, name):
     traceback, no file, and never the gigabytes of the old check."""
     path = tmp_path / "big.toml"
     path.write_text(TOO_MANY[name])
-    done = subprocess.run(
-        [sys.executable, "-c", PEAK, "sweep", str(path), "--out", str(tmp_path / "r.csv")],
-        capture_output=True, text=True, timeout=120, check=False,
-    )  # fmt: skip
+    done, peak_kb = carfeel_peak(["sweep", str(path), "--out", str(tmp_path / "r.csv")], 120)
     assert done.returncode == 2, done.stderr
     assert "at most 1e+07" in done.stderr and "Traceback" not in done.stderr
     # Python, numpy and carfeel's imports are about 40 MB here; 200 MB is the issue's bound.
-    peak_kb = int(done.stderr.rsplit("peak ", 1)[1].split()[0])
     assert peak_kb < 200 * 1024, peak_kb
     assert [p.name for p in tmp_path.iterdir()] == ["big.toml"]
 
