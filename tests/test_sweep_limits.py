@@ -8,7 +8,6 @@ from there, in order, to the results.
 
 from __future__ import annotations
 
-import json
 import random
 import sys
 import tracemalloc
@@ -146,13 +145,13 @@ def test_rows_come_out_in_order_whatever_order_the_tasks_finished_in(tmp_path):
     sweep = spec.from_toml('model = "shift"\nseeds = 300\ncases_per_task = 200\n')
     part = runner.PartFile(tmp_path / "r.part.jsonl", sweep)
     part.open(keep=False)
-    done_before = [c for c in spec.cases(sweep) if 100 <= c.case_id < 200]
-    part.append(_fast(tasks.Task(sweep, tuple(done_before))))
+    part.append(_fast(tasks.Task(sweep, 100, 200)))
     part.close()
     done, tally = part.scan()
     assert int(done.sum()) == 100 and tally.counts == {"ok": 100}
     todo = list(runner.iter_tasks(sweep, done))
-    assert [(t.cases[0].case_id, t.cases[-1].case_id) for t in todo] == [(0, 99), (200, 299)]
+    assert [(t.start, t.stop) for t in todo] == [(0, 100), (200, 300)]
+    assert [c.case_id for c in todo[1].cases] == list(range(200, 300))
     part.open(keep=True)
     chunks = [_fast(t) for t in todo]
     random.Random(1).shuffle(chunks)
@@ -161,28 +160,21 @@ def test_rows_come_out_in_order_whatever_order_the_tasks_finished_in(tmp_path):
     part.close()
     assert [r["case_id"] for r in part.rows_in_order()] == list(range(300))
     assert [r["case_id"] for r in part.rows_in_order(every=50)] == [0, 50, 100, 150, 200, 250]
-    # A line of an older run that mixes cases is cut into runs when the file is opened again.
-    with part.path.open("a") as handle:
-        handle.write("\n")
-    mixed = runner.PartFile(tmp_path / "mixed.part.jsonl", sweep)
-    mixed.open(keep=False)
-    rows = _fast(tasks.Task(sweep, tuple(spec.cases(sweep))))
-    mixed.append(rows[250:] + rows[:250])
-    mixed.close()
-    mixed.open(keep=True)
-    mixed.close()
-    lines = mixed.path.read_text().splitlines()[1:]
-    assert [json.loads(line)["rows"][0]["case_id"] for line in lines] == [0]
-    assert [r["case_id"] for r in mixed.rows_in_order()] == list(range(300))
+    # A chunk is consecutive cases: rows that are not cannot be appended as one.
+    rows = _fast(tasks.Task(sweep, 0, 300))
+    part.open(keep=True)
+    with pytest.raises(ValueError, match="consecutive"):
+        part.append(rows[250:] + rows[:250])
+    part.close()
+    assert [r["case_id"] for r in part.rows_in_order()] == list(range(300))
 
 
 def test_a_missing_case_is_an_error_not_a_short_file(tmp_path):
     sweep = spec.from_toml('model = "shift"\nseeds = 10\n')
     part = runner.PartFile(tmp_path / "r.part.jsonl", sweep)
     part.open(keep=False)
-    cases = spec.cases(sweep)
-    part.append(_fast(tasks.Task(sweep, tuple(cases[:4]))))
-    part.append(_fast(tasks.Task(sweep, tuple(cases[5:]))))
+    part.append(_fast(tasks.Task(sweep, 0, 4)))
+    part.append(_fast(tasks.Task(sweep, 5, 10)))
     part.close()
     with pytest.raises(Exception, match="case 4 is missing"):
         list(part.rows_in_order())
