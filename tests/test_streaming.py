@@ -130,6 +130,45 @@ def test_a_failed_run_leaves_the_file_that_was_there(tmp_path):
     assert target.read_text() == "precious\n"
 
 
+def test_the_csv_is_staged_beside_its_target_as_name_part_csv(tmp_path):
+    """As `Outputs` stages a file written as it goes: while the run goes its samples are in
+    run.part.csv (readable if the run is killed), the user's run.csv untouched; renamed over
+    it on success. A path `Outputs` already staged (stage=False) is written as it is."""
+    target = tmp_path / "run.csv"
+    target.write_text("precious\n")
+    with stream.CsvWriter(target) as csv:
+        csv.write(shift_run(0))
+        csv._handle.flush()  # what a killed run leaves on disk
+        part = tmp_path / "run.part.csv"
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["run.csv", "run.part.csv"]
+        assert part.read_text().startswith("time_s,") and target.read_text() == "precious\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.csv"]
+    assert target.read_text().startswith("time_s,")
+    staged = tmp_path / "out.part.csv"
+    with stream.CsvWriter(staged, stage=False) as csv:
+        csv.write(shift_run(0))
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["out.part.csv", "run.csv"]
+    assert staged.read_bytes() == target.read_bytes()
+
+
+def test_simulate_stages_its_csv_once_as_out_part_csv(tmp_path, monkeypatch):
+    """The command's --out is staged by `Outputs` (OUT.part.csv), and the CSV writer writes that
+    file itself: no OUT.part.part.csv, no hidden temporary, during the run or after it."""
+    seen: list[list[str]] = []
+    real = stream.CsvWriter.write
+
+    def write(self, block):
+        real(self, block)
+        seen.append(sorted(p.name for p in tmp_path.iterdir()))
+
+    monkeypatch.setattr(stream.CsvWriter, "write", write)
+    out = tmp_path / "run.csv"
+    assert main(["simulate", "shift", "--out", str(out)]) == 0
+    assert seen and all(names == ["run.part.csv", "run.part.json"] or names == ["run.part.csv"]
+                        for names in seen), seen  # fmt: skip
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.csv", "run.json"]
+
+
 def test_a_non_finite_sample_stops_the_run_at_once_naming_it_and_its_time(tmp_path):
     """The check runs on each block as it comes: the run ends within a block of the NaN, its
     CSV is never written."""

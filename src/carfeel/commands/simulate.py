@@ -56,7 +56,7 @@ DEFAULT_SHIFT_DURATION_S = 1.2
 DEFAULT_SHIFT_PULL_OUT_DURATION_S = 2.0
 
 
-MAX_SAMPLES = 50_000_000  # a bound on memory: 50 M samples of 7 signals is several GB
+MAX_SAMPLES = 50_000_000  # a bound on time, not memory (streamed): 50 M steps are hours of CPU
 
 
 MIN_DT_S = 1e-6
@@ -138,8 +138,13 @@ class ShiftSummary:
         return "\n".join(lines)
 
 
-def run_shift(config: ShiftRun, csv_path: Path, plot_path: Path | None = None) -> ShiftSummary:
-    """Simulate one engagement, write CSV (+ .json metadata beside it) and optionally the plot."""
+def run_shift(
+    config: ShiftRun, csv_path: Path, plot_path: Path | None = None, staged: bool = False
+) -> ShiftSummary:
+    """Simulate one engagement, write CSV (+ .json metadata beside it) and optionally the plot.
+
+    The CSV is written as the run goes, under CSV.part.csv until it has succeeded; `staged`:
+    `csv_path` is already a name `Outputs` staged (the CLI), written as is."""
     preset = load_shift(config.preset)
     duration = config.duration_s
     if duration is None:
@@ -178,7 +183,7 @@ def run_shift(config: ShiftRun, csv_path: Path, plot_path: Path | None = None) -
     if plot_path is not None:
         expected = samples_of(duration, config.dt_s)
         plot = Envelope(every_for(expected), "force_N", ("position_m", "force_N", "stage"))
-    with CsvWriter(csv_path) as csv:
+    with CsvWriter(csv_path, stage=not staged) as csv:
         sink = Tee(FiniteCheck("shift"), csv, features, *([plot] if plot else []))
         if profile is not None:
             stream_force_profile(
@@ -264,9 +269,12 @@ class SteeringSummary:
 
 
 def run_steering(
-    config: SteeringRun, csv_path: Path, plot_path: Path | None = None
+    config: SteeringRun, csv_path: Path, plot_path: Path | None = None, staged: bool = False
 ) -> SteeringSummary:
-    """Simulate one steering manoeuvre, write CSV (+ .json metadata) and optionally the plot."""
+    """Simulate one steering manoeuvre, write CSV (+ .json metadata) and optionally the plot.
+
+    The CSV is written as the run goes, under CSV.part.csv until it has succeeded; `staged`:
+    `csv_path` is already a name `Outputs` staged (the CLI), written as is."""
     preset = load_steering(config.preset)
     car = preset.params
     manoeuvre = manoeuvres.build(config.manoeuvre, car.vehicle, config.speed_kmh)
@@ -304,7 +312,7 @@ def run_steering(
     plot = None
     if plot_path is not None:
         plot = Envelope(every_for(samples_of(duration, config.dt_s)), "torque_Nm")
-    with CsvWriter(csv_path) as csv:
+    with CsvWriter(csv_path, stage=not staged) as csv:
         sink = Tee(
             FiniteCheck("steering"), csv, kept, *([sliding] if physical else []),
             *([plot] if plot else []),
@@ -482,9 +490,12 @@ def parse_sequence(text: str) -> tuple[str, ...]:
 
 
 def run_hpattern(
-    config: HPatternRunConfig, csv_path: Path, plot_path: Path | None = None
+    config: HPatternRunConfig, csv_path: Path, plot_path: Path | None = None, staged: bool = False
 ) -> HPatternSummary:
-    """Drive a gear sequence through the H-pattern; write CSV (+ .json metadata) and the plot."""
+    """Drive a gear sequence through the H-pattern; write CSV (+ .json metadata) and the plot.
+
+    The CSV is written as the run goes, under CSV.part.csv until it has succeeded; `staged`:
+    `csv_path` is already a name `Outputs` staged (the CLI), written as is."""
     preset = load_hpattern(config.layout)
     layout = preset.setup.layout
     names = [g.name for g in layout.gears]
@@ -562,7 +573,7 @@ def run_hpattern(
         )  # fmt: skip
         loops = EngagementLoops()
         sinks += [plot, loops]
-    with CsvWriter(csv_path) as csv:
+    with CsvWriter(csv_path, stage=not staged) as csv:
         stream_hpattern(
             run_params, Tee(FiniteCheck("hpattern"), csv, *sinks), seed=config.seed,
             max_duration_s=duration, dt_s=config.dt_s, substeps=config.substeps,
@@ -825,7 +836,7 @@ def _simulate_shift(args: argparse.Namespace) -> int:
         force_profile=Path(args.force_profile) if args.force_profile else None,
     )
     with staging.outputs:
-        summary = run_shift(config, staging.out, staging.plot)
+        summary = run_shift(config, staging.out, staging.plot, staged=True)
     print(staging.text(summary.text()))
     return 0
 
@@ -842,7 +853,7 @@ def _simulate_steering(args: argparse.Namespace) -> int:
         road=args.road,
     )
     with staging.outputs:
-        summary = run_steering(config, staging.out, staging.plot)
+        summary = run_steering(config, staging.out, staging.plot, staged=True)
     print(staging.text(summary.text()))
     return 0
 
@@ -879,6 +890,6 @@ def _simulate_hpattern(args: argparse.Namespace) -> int:
         substeps=args.substeps,
     )
     with staging.outputs:
-        summary = run_hpattern(config, staging.out, staging.plot)
+        summary = run_hpattern(config, staging.out, staging.plot, staged=True)
     print(staging.text(summary.text()))
     return 0

@@ -13,7 +13,6 @@ from __future__ import annotations
 import csv
 import math
 import os
-import tempfile
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from types import TracebackType
@@ -110,28 +109,31 @@ class FiniteCheck:
 
 
 class CsvWriter:
-    """The run's CSV written a block at a time (a header of names, one row per sample), under a
-    temporary name beside `path`, renamed over it only when the `with` block succeeds: a reader
-    never sees a half-written file and a file already there survives a failed run."""
+    """The run's CSV written a block at a time (a header of names, one row per sample), under
+    NAME.part.csv beside `path` (as `io.outputs.Outputs` stages a file written as it goes: a
+    killed run leaves the samples so far readable, under a name that says they are not the
+    run), renamed over `path` only when the `with` block succeeds: a reader of `path` never
+    sees a half-written file and a file already there survives a failed run.
 
-    def __init__(self, path: str | os.PathLike[str]) -> None:
+    `stage=False` writes `path` itself: a path `Outputs` has already staged (the CLI's --out),
+    which `Outputs` commits or discards with the command's other files."""
+
+    def __init__(self, path: str | os.PathLike[str], stage: bool = True) -> None:
         self.path = Path(path)
         directory = self.path.parent if str(self.path.parent) else Path(".")
         if not directory.is_dir():
             raise InputError(f"cannot write {self.path}: folder {directory} does not exist")
-        self._directory = directory
-        self._tmp: Path | None = None
+        self.staged = (
+            self.path.with_name(f"{self.path.stem}.part{self.path.suffix}") if stage else self.path
+        )
+        self._stage = stage
         self._handle: Any = None
         self._writer: Any = None
         self._names: list[str] | None = None
         self.samples = 0
 
     def __enter__(self) -> CsvWriter:
-        fd, name = tempfile.mkstemp(
-            dir=self._directory, prefix=f".{self.path.name}.", suffix=".tmp"
-        )
-        self._tmp = Path(name)
-        self._handle = os.fdopen(fd, "w", newline="")
+        self._handle = self.staged.open("w", newline="")
         self._writer = csv.writer(self._handle)
         return self
 
@@ -152,16 +154,20 @@ class CsvWriter:
         exc: BaseException | None,
         traceback: TracebackType | None,
     ) -> None:
-        assert self._tmp is not None and self._handle is not None
+        assert self._handle is not None
+        done = False
         try:
             self._handle.close()
             if exc_type is None:
                 if self._names is None:
                     raise ValueError(f"{self.path}: the run gave no sample to write")
-                os.replace(self._tmp, self.path)
+                if self._stage:
+                    os.replace(self.staged, self.path)
+                done = True
         finally:
-            self._tmp.unlink(missing_ok=True)
             self._writer = None
+            if not done and self._stage:  # an unstaged path is its Outputs' to discard
+                self.staged.unlink(missing_ok=True)
 
 
 def every_for(samples: int, limit: int | None = None) -> int:
