@@ -187,3 +187,33 @@ def test_the_clients_memory_does_not_grow_with_the_cases_on_dask(tmp_path):
         peaks.append(int(done.stdout.split()[-1]))
         assert sum(1 for _ in (folder / "r.csv").open()) == n + 1
     assert peaks[1] - peaks[0] < 15 * 1024, peaks
+
+
+def test_parquet_is_written_from_the_chunks_as_they_come(tmp_path, monkeypatch):
+    """`write_chunks` draws a row group's chunks, writes them, then draws the next: it held every
+    chunk before writing (`(*chunks, None)`): a 10^6-case sweep's client peaked at 727 MB on
+    --workers 2 (582 MB writing rows made without simulating, 212 MB for 10^5)."""
+    pq = pytest.importorskip("pyarrow.parquet")
+    from carfeel.sweep import results
+
+    sweep = spec.from_toml('model = "shift"\nseeds = 10000\ncases_per_task = 1000\n')
+    monkeypatch.setattr(results, "WRITE_BATCH", 2000)  # two chunks a row group
+    drawn: list[int] = []
+
+    def chunks():
+        for start in range(0, 10_000, 1000):
+            drawn.append(start)
+            yield fast(tasks.Task(sweep, start, start + 1000))
+
+    at_write: list[int] = []
+    real = pq.ParquetWriter.write_table
+
+    def write_table(self, table, *args, **kwargs):
+        at_write.append(len(drawn))
+        return real(self, table, *args, **kwargs)
+
+    monkeypatch.setattr(pq.ParquetWriter, "write_table", write_table)
+    results.write_chunks(chunks(), sweep, tmp_path / "r.parquet", ".parquet")
+    assert at_write == [2, 4, 6, 8, 10], at_write
+    back = pq.read_table(tmp_path / "r.parquet")
+    assert back.num_rows == 10_000 and back.column("case_id").to_pylist() == list(range(10_000))

@@ -119,7 +119,8 @@ def write_chunks(
         schema = pa.schema([(n, arrow[types[n]]) for n in names], metadata=meta)
         held: list[Chunk] = []
         with pa.parquet.ParquetWriter(path, schema) as writer:
-            for chunk in (*chunks, None):
+            # chain, not (*chunks, None): a tuple would hold every chunk of the sweep
+            for chunk in itertools.chain(chunks, [None]):
                 if chunk is not None:
                     held.append(chunk)
                 if held and (chunk is None or sum(map(len, held)) >= WRITE_BATCH):
