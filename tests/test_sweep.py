@@ -182,7 +182,7 @@ def test_a_draw_the_preset_refuses_is_an_invalid_row_naming_it():
         '"gearbox.engagement.sliding_friction_N" = { distribution = "normal", mean = 11.5, '
         "sd = 1.0 }\n"
     )
-    rows = tasks.run_task(tasks.Task(sweep, tuple(spec.cases(sweep))))
+    rows = tasks.run_task(tasks.Task(sweep, 0, sweep.n_cases))
     invalid = [r for r in rows if r["status"] == "invalid"]
     ok = [r for r in rows if r["status"] == "ok"]
     assert invalid and ok  # mean 11.5, sd 1: about 30 % of the draws exceed the static 12 N
@@ -197,9 +197,8 @@ def test_a_draw_the_preset_refuses_is_an_invalid_row_naming_it():
 def test_the_batch_and_the_pure_engine_give_the_same_rows(monkeypatch):
     monkeypatch.setattr(tasks, "BATCH_MIN_LANES", 1)  # batch even 8 lanes
     sweep = spec.from_toml(SMALL)
-    cases = tuple(spec.cases(sweep))
-    batch = tasks.run_task(tasks.Task(sweep, cases))
-    pure = tasks.run_task(tasks.Task(dataclasses.replace(sweep, engine="pure"), cases))
+    batch = tasks.run_task(tasks.Task(sweep, 0, sweep.n_cases))
+    pure = tasks.run_task(tasks.Task(dataclasses.replace(sweep, engine="pure"), 0, sweep.n_cases))
     assert _same_rows(batch, pure)
     assert all(r["status"] == "ok" and r["balked"] is False for r in batch)
     # The metrics move as the physics says: a heavier gear to index, a higher engagement peak.
@@ -333,16 +332,16 @@ def test_the_local_cluster_refuses_clients_without_its_credentials():
 class Interrupt:
     """A task runner that is interrupted (Ctrl-C) when it starts its task number `at`."""
 
-    real = staticmethod(tasks.run_task)
+    real = staticmethod(tasks.run_chunk)
 
     def __init__(self, at: int | None) -> None:
         self.at = at
         self.ran: list[int] = []
 
-    def __call__(self, task: tasks.Task) -> list[dict[str, object]]:
-        if self.at is not None and len(self.ran) // len(task.cases) >= self.at:
+    def __call__(self, task: tasks.Task) -> tasks.Chunk:
+        if self.at is not None and len(self.ran) // len(task) >= self.at:
             raise KeyboardInterrupt
-        self.ran.extend(c.case_id for c in task.cases)
+        self.ran.extend(range(task.start, task.stop))
         return self.real(task)
 
 
@@ -351,7 +350,7 @@ def test_an_interrupted_sweep_resumes_without_redoing_finished_cases(tmp_path, m
     out = tmp_path / "r.csv"
     out.write_text("old results\n")
     first = Interrupt(at=3)
-    monkeypatch.setattr(tasks, "run_task", first)
+    monkeypatch.setattr(tasks, "run_chunk", first)
     assert main(["sweep", str(path), "--out", str(out)]) == 130
     assert "run the same command again to resume" in capsys.readouterr().err
     assert out.read_text() == "old results\n"  # nothing written over
@@ -360,7 +359,7 @@ def test_an_interrupted_sweep_resumes_without_redoing_finished_cases(tmp_path, m
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".r.")]  # no staged files
 
     second = Interrupt(at=None)
-    monkeypatch.setattr(tasks, "run_task", second)
+    monkeypatch.setattr(tasks, "run_chunk", second)
     assert main(["sweep", str(path), "--out", str(out)]) == 0
     assert "6 kept from the interrupted run" in capsys.readouterr().out
     assert second.ran == [6, 7]  # only what was not finished
@@ -376,11 +375,11 @@ def test_a_part_file_cut_by_a_kill_keeps_the_rows_before_the_cut(tmp_path):
     sweep = spec.from_toml(SMALL)
     part = runner.PartFile(tmp_path / "r.part.jsonl", sweep)
     part.open(keep=False)
-    rows = tasks.run_task(tasks.Task(sweep, tuple(spec.cases(sweep)[:2])))
+    rows = tasks.run_task(tasks.Task(sweep, 0, 2))
     part.append(rows)
     part.close()
     with part.path.open("a") as handle:
-        handle.write('{"rows": [{"case_id": 2, "sam')  # the kill came in the middle of a line
+        handle.write('{"start": 2, "columns": {"case_id": [2, 3], "sam')  # killed mid-line
     kept = part.load()
     assert sorted(kept) == [0, 1] and _same_rows([kept[0], kept[1]], rows)
 
@@ -388,7 +387,7 @@ def test_a_part_file_cut_by_a_kill_keeps_the_rows_before_the_cut(tmp_path):
 def test_a_part_file_of_another_spec_is_refused_unless_restarted(tmp_path, monkeypatch, capsys):
     path = _write(tmp_path, SMALL)
     out = tmp_path / "r.parquet"
-    monkeypatch.setattr(tasks, "run_task", Interrupt(at=1))
+    monkeypatch.setattr(tasks, "run_chunk", Interrupt(at=1))
     assert main(["sweep", str(path), "--out", str(out)]) == 130
     monkeypatch.undo()
     capsys.readouterr()
@@ -398,7 +397,7 @@ def test_a_part_file_of_another_spec_is_refused_unless_restarted(tmp_path, monke
     assert "another sweep spec" in err and "--restart" in err
     assert not out.exists()
     counted = Interrupt(at=None)
-    monkeypatch.setattr(tasks, "run_task", counted)
+    monkeypatch.setattr(tasks, "run_chunk", counted)
     assert main(["sweep", str(path), "--out", str(out), "--restart"]) == 0
     assert counted.ran == list(range(8))
 
@@ -552,8 +551,7 @@ def test_a_run_that_ends_in_the_synchronization_has_no_synchronization_time():
     )
     for engine in ("batch", "pure"):
         short, full = (
-            tasks.run_task(tasks.Task(dataclasses.replace(sweep, engine=engine),
-                                      tuple(spec.cases(sweep))))[0]
+            tasks.run_task(tasks.Task(dataclasses.replace(sweep, engine=engine), 0, 1))[0]
             for sweep in (spec.from_toml(text.replace("DURATION", d)) for d in ("0.2", "1.2"))
         )  # fmt: skip
         assert math.isnan(short["synchronization_time_s"]) and short["balked"] is True

@@ -6,6 +6,7 @@ import argparse
 import json
 import math
 import re
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -13,7 +14,8 @@ from typing import Any
 import numpy as np
 
 from carfeel import __version__
-from carfeel.analysis.shift_features import ShiftFeatures, shift_features
+from carfeel.analysis.hpattern_features import EngagementFigures, EngagementStream
+from carfeel.analysis.shift_features import ShiftFeatures, ShiftFeatureStream
 from carfeel.analysis.steering_feel import SteeringFeel
 from carfeel.commands.common import (
     outputs_of,
@@ -23,7 +25,7 @@ from carfeel.commands.common import (
     shown,
 )
 from carfeel.commands.metrics import feel_lines, feel_of
-from carfeel.errors import CarfeelError, InputError
+from carfeel.errors import InputError
 from carfeel.io.force_profile import read_force_profile
 from carfeel.io.presets import load_hpattern, load_shift, load_steering
 from carfeel.models.drivers.hpattern import Script
@@ -31,12 +33,22 @@ from carfeel.models.gearshift.hpattern import NEUTRAL_GEAR, Layout
 from carfeel.models.steering.physical import SLIDING_GRIP
 from carfeel.simulation import manoeuvres
 from carfeel.simulation.hpattern import MAX_STEP_S as HPATTERN_MAX_STEP_S
-from carfeel.simulation.hpattern import HPatternRun, simulate_hpattern
+from carfeel.simulation.hpattern import HPatternRun, stream_hpattern
 from carfeel.simulation.manoeuvres import MANOEUVRES
 from carfeel.simulation.result import Result
-from carfeel.simulation.shift import MAX_STEP_S, simulate_force_profile, simulate_shift
-from carfeel.simulation.steering import LINEAR_TYRE_LIMIT_G, simulate_steering
+from carfeel.simulation.runner import samples_of
+from carfeel.simulation.shift import MAX_STEP_S, stream_force_profile, stream_shift
+from carfeel.simulation.steering import LINEAR_TYRE_LIMIT_G, stream_steering
 from carfeel.simulation.steering import MAX_STEP_S as STEERING_MAX_STEP_S
+from carfeel.simulation.stream import (
+    Columns,
+    CsvWriter,
+    Envelope,
+    FiniteCheck,
+    Sink,
+    Tee,
+    every_for,
+)
 
 DEFAULT_SHIFT_DURATION_S = 1.2
 
@@ -44,7 +56,9 @@ DEFAULT_SHIFT_DURATION_S = 1.2
 DEFAULT_SHIFT_PULL_OUT_DURATION_S = 2.0
 
 
-MAX_SAMPLES = 50_000_000  # a bound on memory: 50 M samples of 7 signals is several GB
+MAX_SAMPLES = 50_000_000
+"""A bound on a run's time and CSV, not its memory (streamed): 50 M H-pattern steps are about
+25 min and 6 GB of CSV here (bench_simulate.py: 1 M in 30 s, 127 MB)."""
 
 
 MIN_DT_S = 1e-6
@@ -72,13 +86,8 @@ def check_steps(duration_s: float, dt_s: float, substeps: int, max_step_s: float
 
 
 def check_finite(result: Result, what: str) -> None:
-    for name in result.names:
-        values = result[name]
-        if values.dtype.kind == "f" and not np.all(np.isfinite(values)):
-            raise CarfeelError(
-                f"the {what} simulation produced non-finite {name}; this is a bug or a preset at "
-                "the edge of its ranges: please report it with the preset and options used"
-            )
+    """CarfeelError naming the first non-finite signal of a run in memory (`FiniteCheck`)."""
+    FiniteCheck(what).write(result)
 
 
 @dataclass(frozen=True, slots=True)
@@ -131,8 +140,13 @@ class ShiftSummary:
         return "\n".join(lines)
 
 
-def run_shift(config: ShiftRun, csv_path: Path, plot_path: Path | None = None) -> ShiftSummary:
-    """Simulate one engagement, write CSV (+ .json metadata beside it) and optionally the plot."""
+def run_shift(
+    config: ShiftRun, csv_path: Path, plot_path: Path | None = None, staged: bool = False
+) -> ShiftSummary:
+    """Simulate one engagement, write CSV (+ .json metadata beside it) and optionally the plot.
+
+    The CSV is written as the run goes, under CSV.part.csv until it has succeeded; `staged`:
+    `csv_path` is already a name `Outputs` staged (the CLI), written as is."""
     preset = load_shift(config.preset)
     duration = config.duration_s
     if duration is None:
@@ -166,39 +180,43 @@ def run_shift(config: ShiftRun, csv_path: Path, plot_path: Path | None = None) -
     }
     if profile is not None:
         metadata["force_profile"] = str(config.force_profile)
-        result = simulate_force_profile(
-            params.gearbox,
-            *profile,
-            seed=config.seed,
-            duration_s=duration,
-            dt_s=config.dt_s,
-            substeps=config.substeps,
-            metadata=metadata,
-        )
-    else:
-        result = simulate_shift(
-            params,
-            seed=config.seed,
-            duration_s=duration,
-            dt_s=config.dt_s,
-            substeps=config.substeps,
-            metadata=metadata,
-        )
-    check_finite(result, "shift")
-    features = shift_features(result, params.gearbox.in_gear_position_m)
-    result.to_csv(csv_path)
-    write_metadata(result, csv_path)
+    features = ShiftFeatureStream(params.gearbox.in_gear_position_m)
+    plot = None
     if plot_path is not None:
+        expected = samples_of(duration, config.dt_s)
+        plot = Envelope(every_for(expected), "force_N", ("position_m", "force_N", "stage"))
+    with CsvWriter(csv_path, stage=not staged) as csv:
+        sink = Tee(FiniteCheck("shift"), csv, features, *([plot] if plot else []))
+        if profile is not None:
+            stream_force_profile(
+                params.gearbox, *profile, sink, seed=config.seed, duration_s=duration,
+                dt_s=config.dt_s, substeps=config.substeps,
+            )  # fmt: skip
+        else:
+            stream_shift(
+                params, sink, seed=config.seed, duration_s=duration, dt_s=config.dt_s,
+                substeps=config.substeps,
+            )  # fmt: skip
+    write_metadata({"seed": str(config.seed), **metadata}, csv_path)  # seed first, as before
+    if plot_path is not None and plot is not None:
         from carfeel.io.plots import plot_shift
 
-        plot_shift(result, plot_path, title=f"{preset.name}, seed {config.seed}")
-    return ShiftSummary(preset.name, config.seed, features, csv_path, plot_path)
+        plot_shift(
+            plot.result(), plot_path, title=titled(f"{preset.name}, seed {config.seed}", plot)
+        )
+    return ShiftSummary(preset.name, config.seed, features.features(), csv_path, plot_path)
 
 
-def write_metadata(result: Result, csv_path: Path) -> Path:
-    """Write the run's metadata as JSON beside its CSV (FILE.csv -> FILE.json)."""
+def titled(title: str, plot: Envelope) -> str:
+    """A plot's title, saying how a long run was drawn."""
+    note = plot.note()
+    return f"{title} ({note})" if note else title
+
+
+def write_metadata(metadata: Mapping[str, str], csv_path: Path) -> Path:
+    """Write a run's metadata as JSON beside its CSV (FILE.csv -> FILE.json)."""
     target = csv_path.with_suffix(".json")
-    clean = {k: _typed(v) for k, v in result.metadata.items()}
+    clean = {k: _typed(v) for k, v in metadata.items()}
     target.write_text(json.dumps(clean, indent=2) + "\n", encoding="utf-8")
     return target
 
@@ -253,9 +271,12 @@ class SteeringSummary:
 
 
 def run_steering(
-    config: SteeringRun, csv_path: Path, plot_path: Path | None = None
+    config: SteeringRun, csv_path: Path, plot_path: Path | None = None, staged: bool = False
 ) -> SteeringSummary:
-    """Simulate one steering manoeuvre, write CSV (+ .json metadata) and optionally the plot."""
+    """Simulate one steering manoeuvre, write CSV (+ .json metadata) and optionally the plot.
+
+    The CSV is written as the run goes, under CSV.part.csv until it has succeeded; `staged`:
+    `csv_path` is already a name `Outputs` staged (the CLI), written as is."""
     preset = load_steering(config.preset)
     car = preset.params
     manoeuvre = manoeuvres.build(config.manoeuvre, car.vehicle, config.speed_kmh)
@@ -288,29 +309,41 @@ def run_steering(
         params = car.physical(config.road)
         metadata["road"] = config.road or "the preset's"
         metadata["friction_coefficient"] = repr(params.tyres.friction_coefficient)
-    result = simulate_steering(
-        car, manoeuvre, dt_s=config.dt_s, substeps=config.substeps, metadata=metadata,
-        model=config.steering_model, road=config.road if physical else None,
-    )  # fmt: skip
-    check_finite(result, "steering")
-    feel = feel_of(result, car.vehicle.steering_ratio, car.vehicle.wheelbase_m)
-    result.to_csv(csv_path)
-    write_metadata(result, csv_path)
+    kept = Columns(FEEL_COLUMNS)
+    sliding = Sliding()
+    plot = None
     if plot_path is not None:
+        plot = Envelope(every_for(samples_of(duration, config.dt_s)), "torque_Nm")
+    with CsvWriter(csv_path, stage=not staged) as csv:
+        sink = Tee(
+            FiniteCheck("steering"), csv, kept, *([sliding] if physical else []),
+            *([plot] if plot else []),
+        )  # fmt: skip
+        stream_steering(
+            car, manoeuvre, sink, dt_s=config.dt_s, substeps=config.substeps,
+            model=config.steering_model, road=config.road if physical else None,
+        )  # fmt: skip
+    write_metadata(metadata, csv_path)
+    if plot_path is not None and plot is not None:
         from carfeel.io.plots import plot_steering
 
-        plot_steering(result, plot_path, f"{preset.name}: {manoeuvre.description}", manoeuvre.lanes)
-    ay = result["lateral_accel_m_s2"]
+        plot_steering(
+            plot.result(), plot_path, titled(f"{preset.name}: {manoeuvre.description}", plot),
+            manoeuvre.lanes,
+        )  # fmt: skip
+    series = kept.result()
+    feel = feel_of(series, car.vehicle.steering_ratio, car.vehicle.wheelbase_m)
+    ay = series["lateral_accel_m_s2"]
     peak_g = float(abs(ay).max()) / 9.80665
     if physical:
-        sliding = np.maximum(result["front_grip_used"], result["rear_grip_used"]) > SLIDING_GRIP
-        if sliding.any():
+        if sliding.count:
             feel = replace(
                 feel,
                 notes=(
                     *feel.notes,
                     f"the car slides: an axle uses over {SLIDING_GRIP:.0%} of its grip for "
-                    f"{float(sliding.mean()) * 100:.0f} % of the run (Ay peaks at {peak_g:.2f} g)",
+                    f"{sliding.count / sliding.samples * 100:.0f} % of the run (Ay peaks at "
+                    f"{peak_g:.2f} g)",
                 ),
             )
     elif peak_g > LINEAR_TYRE_LIMIT_G:
@@ -326,11 +359,29 @@ def run_steering(
         preset.name,
         manoeuvre.description,
         feel,
-        float(abs(result["torque_Nm"]).max()),
+        float(abs(series["torque_Nm"]).max()),
         float(math.sqrt(float((ay**2).mean())) / 9.80665),
         csv_path,
         plot_path,
     )
+
+
+FEEL_COLUMNS = ("speed_m_s", "steering_angle_rad", "lateral_accel_m_s2", "torque_Nm")
+"""What the steering feel metrics read of a run (with its time): 40 bytes a sample kept."""
+
+
+class Sliding:
+    """Counts the samples where an axle of the physical model uses over SLIDING_GRIP of its
+    grip (a sink of `carfeel.simulation.stream`)."""
+
+    def __init__(self) -> None:
+        self.count = 0
+        self.samples = 0
+
+    def write(self, block: Result) -> None:
+        used = np.maximum(block["front_grip_used"], block["rear_grip_used"])
+        self.count += int(np.count_nonzero(used > SLIDING_GRIP))
+        self.samples += len(block)
 
 
 @dataclass(frozen=True, slots=True)
@@ -353,14 +404,8 @@ class HPatternRunConfig:
     """None: 3 s per entry of the sequence and 5 s more (a balked run ends there)."""
 
 
-@dataclass(frozen=True, slots=True)
-class Engagement:
-    """One gear going in: what a report quotes of it."""
-
-    gear: str
-    synchronization_s: float
-    plateau_N: float
-    engagement_peak_N: float
+Engagement = EngagementFigures
+"""One gear going in: what a report quotes of it."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -384,15 +429,25 @@ class HPatternSummary:
     def text(self) -> str:
         lines = [
             f"layout {self.layout}, synchronizer {self.mode}: sequence "
-            f"{','.join(self.requested)} in {self.duration_s:.2f} s",
-            f"  gears engaged    {' '.join(self.engaged) or 'none'}; now in {self.final_gear}",
+            f"{_listed(self.requested, ',')} in {self.duration_s:.2f} s",
+            f"  gears engaged    {_listed(self.engaged, ' ') or 'none'}; now in {self.final_gear}",
         ]
-        for e in self.engagements:
-            lines.append(
-                f"  into {e.gear:2s}         synchronization "
-                f"{e.synchronization_s * 1e3:4.0f} ms at {e.plateau_N:5.1f} N, "
-                f"tooth peak {e.engagement_peak_N:5.1f} N"
-            )
+        if len(self.engagements) <= MAX_LISTED:
+            for e in self.engagements:
+                lines.append(
+                    f"  into {e.gear:2s}         synchronization "
+                    f"{e.synchronization_s * 1e3:4.0f} ms at {e.plateau_N:5.1f} N, "
+                    f"tooth peak {e.engagement_peak_N:5.1f} N"
+                )
+        else:  # a long run: each gear's figures over its engagements, not a line each
+            for gear in dict.fromkeys(e.gear for e in self.engagements):
+                into = [e for e in self.engagements if e.gear == gear]
+                lines.append(
+                    f"  into {gear:2s} x{len(into):<5d}  synchronization "
+                    f"{_spread([e.synchronization_s * 1e3 for e in into], '.0f')} ms at "
+                    f"{_spread([e.plateau_N for e in into], '.1f')} N, tooth peak "
+                    f"{_spread([e.engagement_peak_N for e in into], '.1f')} N"
+                )
         lines.append(f"  off the paths    at most {self.outside_max_m * 1e3:.2f} mm (into a wall)")
         if not self.followed:
             lines.append(
@@ -406,6 +461,29 @@ class HPatternSummary:
         return "\n".join(lines)
 
 
+MAX_LISTED = 12
+"""Engagements a summary lists one by one; a longer run is summed up per gear."""
+
+
+def _listed(items: tuple[str, ...], separator: str, most: int = 24) -> str:
+    """Items joined; a long list as its first and last ones and their count."""
+    if len(items) <= most:
+        return separator.join(items)
+    return (
+        f"{separator.join(items[:12])}{separator}...{separator}{separator.join(items[-3:])} "
+        f"({len(items)})"
+    )
+
+
+def _spread(values: list[float], spec: str) -> str:
+    """The range of `values` (NaN left out), or the one value they all have."""
+    finite = [v for v in values if math.isfinite(v)]
+    if not finite:
+        return "nan"
+    low, high = format(min(finite), spec), format(max(finite), spec)
+    return low if low == high else f"{low}-{high}"
+
+
 def parse_sequence(text: str) -> tuple[str, ...]:
     gears = tuple(part.strip().upper() for part in text.split(","))
     if not gears or any(not g for g in gears):
@@ -414,9 +492,12 @@ def parse_sequence(text: str) -> tuple[str, ...]:
 
 
 def run_hpattern(
-    config: HPatternRunConfig, csv_path: Path, plot_path: Path | None = None
+    config: HPatternRunConfig, csv_path: Path, plot_path: Path | None = None, staged: bool = False
 ) -> HPatternSummary:
-    """Drive a gear sequence through the H-pattern; write CSV (+ .json metadata) and the plot."""
+    """Drive a gear sequence through the H-pattern; write CSV (+ .json metadata) and the plot.
+
+    The CSV is written as the run goes, under CSV.part.csv until it has succeeded; `staged`:
+    `csv_path` is already a name `Outputs` staged (the CLI), written as is."""
     preset = load_hpattern(config.layout)
     layout = preset.setup.layout
     names = [g.name for g in layout.gears]
@@ -481,53 +562,68 @@ def run_hpattern(
         "dt_s": repr(config.dt_s),
         "substeps": str(config.substeps),
     }
-    result = simulate_hpattern(
-        run_params, seed=config.seed, max_duration_s=duration, dt_s=config.dt_s,
-        substeps=config.substeps, metadata=metadata,
-    )  # fmt: skip
-    check_finite(result, "hpattern")
-    result.to_csv(csv_path)
-    write_metadata(result, csv_path)
+    figures = EngagementStream()
+    outside = OutsideDistance(layout)
+    sinks: list[Sink] = [figures, outside]
+    plot = loops = None
     if plot_path is not None:
+        from carfeel.io.plots import EngagementLoops
+
+        plot = Envelope(
+            every_for(samples_of(duration, config.dt_s)), _force_magnitude,
+            ("x_m", "y_m", "force_x_N", "force_y_N"),
+        )  # fmt: skip
+        loops = EngagementLoops()
+        sinks += [plot, loops]
+    with CsvWriter(csv_path, stage=not staged) as csv:
+        stream_hpattern(
+            run_params, Tee(FiniteCheck("hpattern"), csv, *sinks), seed=config.seed,
+            max_duration_s=duration, dt_s=config.dt_s, substeps=config.substeps,
+        )  # fmt: skip
+    write_metadata({"seed": str(config.seed), **metadata}, csv_path)
+    if plot_path is not None and plot is not None:
         from carfeel.io.plots import plot_hpattern
 
-        plot_hpattern(result, layout, plot_path, f"{preset.name}, synchronizer {mode}")
+        title = titled(f"{preset.name}, synchronizer {mode}", plot)
+        plot_hpattern(plot.result(), layout, plot_path, title, loops)
+    engagements = tuple(figures.figures())
     return HPatternSummary(
         preset.name,
         mode,
         config.sequence,
-        tuple(e.split()[1] for e in result["event"] if e.startswith("engage")),
-        engagements_of(result),
-        str(result["gear"][-1]),
-        float(outside_distance(result, layout).max()),
-        float(abs(result["grind_N"]).max()),
-        float(result.time_s[-1]),
+        tuple(e.gear for e in engagements),
+        engagements,
+        figures.final_gear,
+        outside.max_m,
+        figures.peak_grind_N,
+        figures.final_time_s,
         csv_path,
         plot_path,
     )
 
 
+def _force_magnitude(block: Result) -> np.ndarray:
+    magnitude: np.ndarray = np.hypot(block["force_x_N"], block["force_y_N"])
+    return magnitude
+
+
 def engagements_of(result: Result) -> tuple[Engagement, ...]:
     """Each push that reached a gear: its synchronization time and plateau, its tooth peak."""
-    dt = float(result.time_s[1] - result.time_s[0])
-    stages, events, force_x = result["stage"], result["event"], result["force_x_N"]
-    engaged = [i for i, e in enumerate(events) if e.startswith("engage")]
-    out, start = [], 0
-    for i in engaged:
-        window = slice(start, i + 1)
-        sync = stages[window] == "synchronization"
-        teeth = stages[window] == "engagement"
-        force = np.abs(force_x[window])
-        out.append(
-            Engagement(
-                events[i].split()[1],
-                float(sync.sum() * dt),
-                float(np.median(force[sync])) if sync.any() else math.nan,
-                float(force[teeth].max()) if teeth.any() else math.nan,
-            )
-        )
-        start = i + 1
-    return tuple(out)
+    figures = EngagementStream()
+    figures.write(result)
+    return tuple(figures.figures())
+
+
+class OutsideDistance:
+    """The farthest the knob went outside the legal paths, m (a sink of
+    `carfeel.simulation.stream`; `outside_distance` of each block)."""
+
+    def __init__(self, layout: Layout) -> None:
+        self.layout = layout
+        self.max_m = 0.0
+
+    def write(self, block: Result) -> None:
+        self.max_m = max(self.max_m, float(outside_distance(block, self.layout).max()))
 
 
 def outside_distance(result: Result, layout: Layout) -> np.ndarray:
@@ -742,7 +838,7 @@ def _simulate_shift(args: argparse.Namespace) -> int:
         force_profile=Path(args.force_profile) if args.force_profile else None,
     )
     with staging.outputs:
-        summary = run_shift(config, staging.out, staging.plot)
+        summary = run_shift(config, staging.out, staging.plot, staged=True)
     print(staging.text(summary.text()))
     return 0
 
@@ -759,7 +855,7 @@ def _simulate_steering(args: argparse.Namespace) -> int:
         road=args.road,
     )
     with staging.outputs:
-        summary = run_steering(config, staging.out, staging.plot)
+        summary = run_steering(config, staging.out, staging.plot, staged=True)
     print(staging.text(summary.text()))
     return 0
 
@@ -796,6 +892,6 @@ def _simulate_hpattern(args: argparse.Namespace) -> int:
         substeps=args.substeps,
     )
     with staging.outputs:
-        summary = run_hpattern(config, staging.out, staging.plot)
+        summary = run_hpattern(config, staging.out, staging.plot, staged=True)
     print(staging.text(summary.text()))
     return 0

@@ -94,10 +94,10 @@ def run_sweep(
             progress=progress, keep_rows=False,
         )  # fmt: skip
         with outputs:
-            results.write_rows(part.rows_in_order(), sweep, staged_out, fmt, sidecar)
+            results.write_chunks(part.chunks_in_order(), sweep, staged_out, fmt, sidecar)
             if plot is not None:
                 every = plots.every_for(sweep.n_cases)
-                columns, meta = results.columns_from(part.rows_in_order(every), sweep)
+                columns, meta = results.columns_of_chunks(part.chunks_in_order(every), sweep)
                 if every > 1:
                     meta["carfeel_plotted"] = plots.sampled_note(every, sweep.n_cases)
                 plots.write(columns, meta, staged_plots, Path(sweep.label).stem)

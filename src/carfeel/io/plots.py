@@ -6,6 +6,7 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -13,6 +14,9 @@ import numpy as np
 
 from carfeel.errors import InputError
 from carfeel.simulation.result import Result
+
+MAX_LOOPS = 24
+"""Engagements an H-pattern plot draws at most (its legend in two columns stays readable)."""
 
 # One colour per stage, the same in every plot.
 STAGE_COLOURS = {
@@ -297,9 +301,18 @@ def _split_segments(result: Result) -> Result:
     return Result(time, signals, result.metadata)
 
 
-def plot_hpattern(result: Result, layout: Any, path: str | Path, title: str = "H-pattern") -> Path:
+def plot_hpattern(
+    result: Result,
+    layout: Any,
+    path: str | Path,
+    title: str = "H-pattern",
+    loops: EngagementLoops | None = None,
+) -> Path:
     """Write a PNG of an H-pattern run: the pattern with the knob's path coloured by the force,
-    and the force-position loop of each engagement along its slot (as the paper's Fig. 11)."""
+    and the force-position loop of each engagement along its slot (as the paper's Fig. 11).
+
+    `result` may be the run's `Envelope` (a long run's path); `loops` its `EngagementLoops`,
+    else they are taken from `result` (every sample of the run, then)."""
     plt = _pyplot()
     from matplotlib.collections import LineCollection
     from matplotlib.patches import Rectangle
@@ -339,29 +352,122 @@ def plot_hpattern(result: Result, layout: Any, path: str | Path, title: str = "H
     ax_p.set_ylabel("engage x [mm] (forward up)")
     ax_p.set_title("the pattern and the knob's path")
 
-    events, phases, targets = result["event"], result["driver_phase"], result["target"]
-    start = 0
-    previous = "N"
-    for i, event in enumerate(events):
-        if not event.startswith("engage"):
-            continue
-        gear = layout.gear(event.split()[1])
-        window = np.arange(start, min(i + 400, len(events)))
-        window = window[(phases[window] == "push") | (window > i)]
-        window = window[targets[window] == gear.name]
-        s = gear.direction * x_mm[window]
-        f = gear.direction * result["force_x_N"][window]
+    if loops is None:
+        loops = EngagementLoops()
+        loops.write(result)
+    for loop in loops.loops:
+        gear = layout.gear(loop.gear)
         # Up and down shifts into the same gear told apart by where they came from.
-        ax_l.plot(s, f, lw=1.3, label=f"{previous} \u2192 {gear.name}")
-        previous = gear.name
-        start = i + 1
+        ax_l.plot(gear.direction * loop.x_m * 1e3, gear.direction * loop.force_x_N, lw=1.3,
+                  label=loop.label)  # fmt: skip
+    shown_loops = f"the first {len(loops.loops)} of {loops.count}, " if loops.more else ""
     ax_l.set_xlabel("travel along the slot [mm]")
     ax_l.set_ylabel("force along the slot [N]")
-    ax_l.set_title("force vs position of each engagement (cf. paper Fig. 11)")
+    ax_l.set_title(f"force vs position of each engagement ({shown_loops}cf. paper Fig. 11)")
     ax_l.grid(alpha=0.3)
-    if any(e.startswith("engage") for e in events):
+    if loops.loops:
         ax_l.legend(fontsize=8, ncols=2)
     return _save(fig, plt, path)
+
+
+@dataclass(frozen=True, slots=True)
+class Loop:
+    """One engagement's force along the slot against its travel, for the H-pattern plot."""
+
+    gear: str
+    label: str
+    x_m: np.ndarray
+    force_x_N: np.ndarray
+
+
+class EngagementLoops:
+    """A sink of `carfeel.simulation.stream`: the samples of the first `max_loops` engagements
+    of an H-pattern run that its plot draws, at full rate: the driver's push that ends in the
+    engage event and the `after` samples that follow it (the stop), those aimed at that gear.
+    The run's other samples are not kept; a push longer than `max_push` samples keeps its last
+    ones."""
+
+    def __init__(
+        self, max_loops: int = MAX_LOOPS, after: int = 400, max_push: int = 60_000
+    ) -> None:
+        self.max_loops, self.after, self.max_push = max_loops, after, max_push
+        self.loops: list[Loop] = []
+        self.count = 0
+        self._previous = "N"
+        self._push: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        self._tails: list[list[Any]] = []  # [loop index, samples still to take]
+        self._parts: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
+
+    @property
+    def more(self) -> bool:
+        """Whether the run had engagements beyond those drawn."""
+        return self.count > len(self.loops)
+
+    def write(self, block: Result) -> None:
+        x, force, targets = block["x_m"], block["force_x_N"], block["target"]
+        phases, events = block["driver_phase"], block["event"]
+        start = 0
+        engaged = np.flatnonzero(np.char.startswith(events.astype(str), "engage")).tolist()
+        for i in [*engaged, None]:
+            stop = len(block) if i is None else i + 1
+            piece = slice(start, stop)
+            self._feed_tails(x[piece], force[piece], targets[piece])
+            if (targets[piece] == "N").any():  # through neutral: 1 -> N -> 1 is "N -> 1"
+                self._previous = "N"
+            if len(self.loops) < self.max_loops:
+                # The push that ends in this engagement: the samples since the driver last did
+                # anything else (the previous push's hold at the stop is not this one's).
+                other = np.flatnonzero(phases[piece] != "push")
+                if other.size:
+                    self._push = []
+                    piece = slice(start + int(other[-1]) + 1, stop)
+                self._push.append((x[piece], force[piece], targets[piece]))
+                self._trim_push()
+            if i is not None:
+                self._engaged(str(events[i]).split()[1])
+            start = stop
+        self._finish()
+
+    def _trim_push(self) -> None:
+        held = sum(len(p[0]) for p in self._push)
+        while held > self.max_push and self._push:
+            drop = min(held - self.max_push, len(self._push[0][0]))
+            first = self._push[0]
+            self._push[0] = (first[0][drop:], first[1][drop:], first[2][drop:])
+            if not len(self._push[0][0]):
+                self._push.pop(0)
+            held -= drop
+
+    def _feed_tails(self, x: np.ndarray, force: np.ndarray, targets: np.ndarray) -> None:
+        for tail in self._tails:
+            index, left = tail
+            taken = slice(0, min(left, len(x)))
+            aimed = targets[taken] == self.loops[index].gear
+            self._parts[index].append((x[taken][aimed], force[taken][aimed]))
+            tail[1] = left - (taken.stop or 0)
+        self._tails = [t for t in self._tails if t[1] > 0]
+
+    def _engaged(self, gear: str) -> None:
+        self.count += 1
+        label = f"{self._previous} \u2192 {gear}"
+        self._previous = gear
+        if len(self.loops) < self.max_loops:
+            index = len(self.loops)
+            self.loops.append(Loop(gear, label, np.empty(0), np.empty(0)))
+            self._parts[index] = [(px[pt == gear], pf[pt == gear]) for px, pf, pt in self._push]
+            self._tails.append([index, self.after - 1])
+        self._push = []
+
+    def _finish(self) -> None:
+        """Each loop's pieces so far put together (they are few: one per block and push)."""
+        for index, parts in self._parts.items():
+            loop = self.loops[index]
+            self.loops[index] = Loop(
+                loop.gear, loop.label,
+                np.concatenate([loop.x_m, *(p[0] for p in parts)]),
+                np.concatenate([loop.force_x_N, *(p[1] for p in parts)]),
+            )  # fmt: skip
+        self._parts = {i: [] for i, _ in self._tails}
 
 
 def plot_recording(result: Result, path: str | Path, title: str = "Real-time run") -> Path:

@@ -12,7 +12,8 @@ from carfeel.models.gearshift import hpattern
 from carfeel.models.gearshift.hpattern import HPatternInputs, HPatternParams
 from carfeel.models.gearshift.synchronizer import SynchronizerParams
 from carfeel.simulation.result import Result
-from carfeel.simulation.runner import run
+from carfeel.simulation.runner import stream
+from carfeel.simulation.stream import Collector, Sink
 
 MAX_STEP_S = 1e-3
 """Longest model step: the hand's grip is coupled one step late, as in the 1-DOF shift, and the
@@ -105,6 +106,34 @@ def finished(state: LoopState) -> bool:
     return state.driver.phase is driver.Phase.DONE
 
 
+def stream_hpattern(
+    params: HPatternRun,
+    sink: Sink,
+    *,
+    seed: int = 0,
+    max_duration_s: float = 60.0,
+    dt_s: float = 1e-3,
+    substeps: int = 1,
+    settle_s: float = 0.3,
+) -> int:
+    """Drive through the script's sequence, the samples to `sink` as the run goes; stop
+    `settle_s` after the driver is done. Returns the number of samples."""
+    done_for = 0
+
+    def stop_when(state: LoopState) -> bool:
+        nonlocal done_for
+        if finished(state):
+            done_for += 1
+            return done_for * dt_s >= settle_s
+        return False
+
+    _, n = stream(
+        step, initial_state(params, seed), params, sink, duration_s=max_duration_s, dt_s=dt_s,
+        substeps=substeps, stop_when=stop_when,
+    )  # fmt: skip
+    return n
+
+
 def simulate_hpattern(
     params: HPatternRun,
     *,
@@ -115,26 +144,13 @@ def simulate_hpattern(
     settle_s: float = 0.3,
     metadata: Mapping[str, str] | None = None,
 ) -> Result:
-    """Drive through the script's sequence; stop `settle_s` after the driver is done."""
-    done_at: list[float] = []
-
-    def stop_when(state: LoopState) -> bool:
-        if finished(state):
-            done_at.append(dt_s)
-            return len(done_at) * dt_s >= settle_s
-        return False
-
-    result, _ = run(
-        step,
-        initial_state(params, seed),
-        params,
-        duration_s=max_duration_s,
-        dt_s=dt_s,
-        substeps=substeps,
-        metadata={"seed": str(seed), **(metadata or {})},
-        stop_when=stop_when,
-    )
-    return result
+    """`stream_hpattern` into memory: the whole run as one Result."""
+    kept = Collector()
+    stream_hpattern(
+        params, kept, seed=seed, max_duration_s=max_duration_s, dt_s=dt_s, substeps=substeps,
+        settle_s=settle_s,
+    )  # fmt: skip
+    return kept.result({"seed": str(seed), **(metadata or {})})
 
 
 @dataclass(frozen=True, slots=True)

@@ -57,7 +57,7 @@ class Result:
     @classmethod
     def from_rows(
         cls,
-        time_s: Sequence[float],
+        time_s: Sequence[float] | npt.NDArray[np.float64],
         names: Sequence[str],
         rows: Sequence[Sequence[object]],
         metadata: Mapping[str, str] | None = None,
@@ -72,6 +72,29 @@ class Result:
                 signals[name] = np.array(column, dtype=float)
         return cls(np.asarray(time_s, dtype=float), signals, dict(metadata or {}))
 
+    @classmethod
+    def concatenate(
+        cls, parts: Sequence[Result], metadata: Mapping[str, str] | None = None
+    ) -> Result:
+        """The samples of `parts` (blocks of one run, with the same signals) one after another."""
+        if not parts:
+            raise ValueError("no samples to put together")
+        if len(parts) == 1:
+            only = parts[0]
+            return cls(only.time_s, dict(only.signals), dict(metadata or only.metadata))
+        names = list(parts[0].signals)
+        signals = {n: np.concatenate([p.signals[n] for p in parts]) for n in names}
+        time = np.concatenate([p.time_s for p in parts])
+        return cls(time, signals, dict(metadata or parts[0].metadata))
+
+    def take(self, indices: npt.NDArray[np.intp]) -> Result:
+        """The samples at `indices` (in the order given)."""
+        return Result(
+            self.time_s[indices],
+            {n: v[indices] for n, v in self.signals.items()},
+            self.metadata,
+        )
+
     def to_csv(self, path: str | os.PathLike[str]) -> Path:
         """Write all samples as CSV (header row of names, then one row per sample).
 
@@ -82,14 +105,14 @@ class Result:
         directory = target.parent if str(target.parent) else Path(".")
         if not directory.is_dir():
             raise InputError(f"cannot write {target}: folder {directory} does not exist")
-        columns = [self.time_s, *self.signals.values()]
         fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{target.name}.", suffix=".tmp")
         try:
             with os.fdopen(fd, "w", newline="") as handle:
                 writer = csv.writer(handle)
                 writer.writerow(self.names)
-                formatted = [_format_column(c) for c in columns]
-                writer.writerows(zip(*formatted, strict=True))
+                for start in range(0, len(self), 4096):  # a block's strings at a time
+                    stop = min(start + 4096, len(self))
+                    writer.writerows(csv_rows(self.take(np.arange(start, stop))))
             os.replace(tmp, target)
         except BaseException:
             Path(tmp).unlink(missing_ok=True)
@@ -162,10 +185,16 @@ def read_csv_text(source: Path) -> str:
     return text
 
 
+def csv_rows(block: Result) -> zip[tuple[str, ...]]:
+    """A block's samples as CSV rows of text: numbers to 10 significant digits."""
+    columns = [block.time_s, *block.signals.values()]
+    return zip(*[_format_column(c) for c in columns], strict=True)
+
+
 def _format_column(values: np.ndarray) -> list[str]:
     if values.dtype.kind in "fi":
-        return [format(float(v), ".10g") for v in values]
-    return [str(v) for v in values]
+        return [format(v, ".10g") for v in values.astype(float).tolist()]
+    return [str(v) for v in values.tolist()]
 
 
 def _parse_column(column: list[str]) -> np.ndarray:

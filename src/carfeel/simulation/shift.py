@@ -11,7 +11,8 @@ import numpy as np
 from carfeel.models.drivers import shift as driver
 from carfeel.models.gearshift import engagement
 from carfeel.simulation.result import Result
-from carfeel.simulation.runner import run
+from carfeel.simulation.runner import stream
+from carfeel.simulation.stream import Collector, Sink
 
 MAX_STEP_S = 2e-3
 """Longest model step (dt / substeps) for which the driver-lever loop stays accurate."""
@@ -67,6 +68,24 @@ def step(
     )
 
 
+def stream_shift(
+    params: ShiftParams,
+    sink: Sink,
+    *,
+    seed: int = 0,
+    duration_s: float = 1.2,
+    dt_s: float = 1e-3,
+    substeps: int = 1,
+) -> int:
+    """A push from neutral into the gear (and back, if the driver pulls out), its samples to
+    `sink` as the run goes (`carfeel.simulation.stream`); returns the number of samples."""
+    _, n = stream(
+        step, initial_state(seed), params, sink, duration_s=duration_s, dt_s=dt_s,
+        substeps=substeps,
+    )  # fmt: skip
+    return n
+
+
 def simulate_shift(
     params: ShiftParams,
     *,
@@ -76,17 +95,37 @@ def simulate_shift(
     substeps: int = 1,
     metadata: dict[str, str] | None = None,
 ) -> Result:
-    """Simulate a push from neutral into the gear (and back, if the driver pulls out)."""
-    result, _ = run(
-        step,
-        initial_state(seed),
-        params,
-        duration_s=duration_s,
-        dt_s=dt_s,
-        substeps=substeps,
-        metadata={"seed": str(seed), **(metadata or {})},
-    )
-    return result
+    """`stream_shift` into memory: the whole run as one Result."""
+    kept = Collector()
+    stream_shift(params, kept, seed=seed, duration_s=duration_s, dt_s=dt_s, substeps=substeps)
+    return kept.result({"seed": str(seed), **(metadata or {})})
+
+
+def stream_force_profile(
+    gearbox: engagement.EngagementParams,
+    time_s: Sequence[float],
+    force_N: Sequence[float],
+    sink: Sink,
+    *,
+    seed: int = 0,
+    duration_s: float,
+    dt_s: float = 1e-3,
+    substeps: int = 1,
+) -> int:
+    """The lever driven open loop by a knob force (N) given at `time_s` (s), interpolated
+    linearly (held before the first and after the last sample): a measured force replayed, its
+    samples to `sink`; returns the number of samples."""
+    times = np.asarray(time_s, dtype=float)
+    forces = np.asarray(force_N, dtype=float)
+
+    def inputs(t: float) -> engagement.EngagementInputs:
+        return engagement.EngagementInputs(float(np.interp(t, times, forces)))
+
+    _, n = stream(
+        engagement.step, engagement.initial_state(seed), gearbox, sink, duration_s=duration_s,
+        dt_s=dt_s, substeps=substeps, inputs=inputs,
+    )  # fmt: skip
+    return n
 
 
 def simulate_force_profile(
@@ -100,22 +139,10 @@ def simulate_force_profile(
     substeps: int = 1,
     metadata: dict[str, str] | None = None,
 ) -> Result:
-    """The lever driven open loop by a knob force (N) given at `time_s` (s), interpolated
-    linearly (held before the first and after the last sample): a measured force replayed."""
-    times = np.asarray(time_s, dtype=float)
-    forces = np.asarray(force_N, dtype=float)
-
-    def inputs(t: float) -> engagement.EngagementInputs:
-        return engagement.EngagementInputs(float(np.interp(t, times, forces)))
-
-    result, _ = run(
-        engagement.step,
-        engagement.initial_state(seed),
-        gearbox,
-        duration_s=duration_s,
-        dt_s=dt_s,
+    """`stream_force_profile` into memory: the whole run as one Result."""
+    kept = Collector()
+    stream_force_profile(
+        gearbox, time_s, force_N, kept, seed=seed, duration_s=duration_s, dt_s=dt_s,
         substeps=substeps,
-        inputs=inputs,
-        metadata={"seed": str(seed), **(metadata or {})},
-    )
-    return result
+    )  # fmt: skip
+    return kept.result({"seed": str(seed), **(metadata or {})})

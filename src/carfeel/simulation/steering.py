@@ -28,7 +28,8 @@ from carfeel.models.vehicle import single_track
 from carfeel.models.vehicle.single_track import VehicleInputs, VehicleParams, VehicleState
 from carfeel.simulation.manoeuvres import Manoeuvre
 from carfeel.simulation.result import Result
-from carfeel.simulation.runner import run
+from carfeel.simulation.runner import stream
+from carfeel.simulation.stream import Collector, Sink
 
 MAX_STEP_S = 5e-3
 """Longest model step: the path driver's lag (at least 20 ms, see the presets' ranges) is
@@ -272,6 +273,109 @@ def physical_start(
     )
 
 
+def stream_steering(
+    car: SteeringCar,
+    manoeuvre: Manoeuvre,
+    sink: Sink,
+    *,
+    dt_s: float = 1e-3,
+    substeps: int = 1,
+    model: str = "paper",
+    road: str | None = None,
+) -> int:
+    """Run every segment of a manoeuvre, time running on across segments, the samples to
+    `sink` as the run goes; returns the number of samples.
+
+    The column `segment` names the segment of each sample (e.g. left / right for ISO 4138).
+    `model` is one of STEERING_MODELS; `road` (physical model only) a ROAD_FRICTION key.
+    """
+    if model not in STEERING_MODELS:
+        raise ValueError(f"unknown steering model {model!r}; one of {STEERING_MODELS}")
+    physical_params = car.physical(road) if model == "physical" else None
+    memory = car.torque if physical_params is None and car.torque.k10_Nm != 0.0 else None
+    labelled = _Segments(sink, memory, dt_s)
+    for segment in manoeuvre.segments:
+        labelled.label = segment.label
+        labelled.z = 0.0  # the law's friction memory starts each segment from rest
+        x0, y0, yaw0 = segment.start_pose
+        speed = segment.speed
+        if segment.steering is not None:
+            steering = segment.steering
+
+            def inputs(t: float) -> ImposedInputs:
+                angle, rate = steering(t)  # noqa: B023 - used within this iteration only
+                return ImposedInputs(speed(t), angle, rate)  # noqa: B023
+
+            if physical_params is None:
+                _, n = stream(
+                    imposed_step, single_track.initial_state(x0, y0, yaw0), car, labelled,
+                    duration_s=segment.duration_s, dt_s=dt_s, substeps=substeps, inputs=inputs,
+                )  # fmt: skip
+            else:
+                start = physical_start(
+                    physical_params, speed(0.0), steering(0.0)[0], segment.start_pose
+                )
+                _, n = stream(
+                    physical_imposed_step, start, physical_params, labelled,
+                    duration_s=segment.duration_s, dt_s=dt_s, substeps=substeps, inputs=inputs,
+                )  # fmt: skip
+        elif segment.path is not None:
+            following = PathFollowing(car.driver, car.vehicle, segment.path)
+            driver = path_driver.initial_state(segment.start_steering_rad)
+            if physical_params is None:
+                # Start in steady state on the path's first heading at the starting steering.
+                vehicle = single_track.steady_state(
+                    speed(0.0), segment.start_steering_rad, car.vehicle, x0, y0, yaw0
+                )
+                _, n = stream(
+                    path_step, PathState(vehicle, driver), PathRun(car, following), labelled,
+                    duration_s=segment.duration_s, dt_s=dt_s, substeps=substeps, inputs=speed,
+                )  # fmt: skip
+            else:
+                start = physical_start(
+                    physical_params, speed(0.0), segment.start_steering_rad, segment.start_pose
+                )
+                _, n = stream(
+                    physical_path_step, PhysicalPathState(start, driver),
+                    PhysicalPathRun(physical_params, following), labelled,
+                    duration_s=segment.duration_s, dt_s=dt_s, substeps=substeps, inputs=speed,
+                )  # fmt: skip
+        else:  # pragma: no cover - a Segment is built with one or the other
+            raise ValueError(f"segment {segment.label} has neither steering nor path")
+        labelled.offset += n * dt_s  # the segment's last time, as its samples were stamped
+        labelled.samples += n
+    return labelled.samples
+
+
+class _Segments:
+    """A sink that stamps each block with its segment's label and time since the run began,
+    and adds the law's friction memory (K10 z, `torque.friction_memory_step`) to torque_Nm and
+    torque_friction_Nm where the preset has one: the law's torque does not act on the car, so z
+    follows the run's rate step by step (dt_s each), carried from block to block."""
+
+    def __init__(self, sink: Sink, memory: SteeringTorqueParams | None, dt_s: float) -> None:
+        self.sink = sink
+        self.memory = memory
+        self.dt_s = dt_s
+        self.label = ""
+        self.offset = 0.0
+        self.samples = 0
+        self.z = 0.0
+
+    def write(self, block: Result) -> None:
+        signals = dict(block.signals)
+        signals["segment"] = np.full(len(block), self.label)
+        if self.memory is not None:
+            rates = block["steering_rate_rad_s"].tolist()
+            zs = friction_memory_series(rates, [self.dt_s] * len(rates), self.memory, self.z)
+            if zs:
+                self.z = zs[-1]
+            added = self.memory.k10_Nm * np.asarray(zs)
+            signals["torque_Nm"] = block["torque_Nm"] + added
+            signals["torque_friction_Nm"] = block["torque_friction_Nm"] + added
+        self.sink.write(Result(block.time_s + self.offset, signals))
+
+
 def simulate_steering(
     car: SteeringCar,
     manoeuvre: Manoeuvre,
@@ -282,113 +386,7 @@ def simulate_steering(
     model: str = "paper",
     road: str | None = None,
 ) -> Result:
-    """Run every segment of a manoeuvre; one Result, time running on across segments.
-
-    The column `segment` names the segment of each sample (e.g. left / right for ISO 4138).
-    `model` is one of STEERING_MODELS; `road` (physical model only) a ROAD_FRICTION key.
-    """
-    if model == "physical":
-        return _simulate_physical(car.physical(road), car, manoeuvre, dt_s, substeps, metadata)
-    if model != "paper":
-        raise ValueError(f"unknown steering model {model!r}; one of {STEERING_MODELS}")
-    parts: list[Result] = []
-    for segment in manoeuvre.segments:
-        x0, y0, yaw0 = segment.start_pose
-        vehicle = single_track.initial_state(x0, y0, yaw0)
-        if segment.steering is not None:
-            steering = segment.steering
-            speed = segment.speed
-
-            def inputs(t: float) -> ImposedInputs:
-                angle, rate = steering(t)  # noqa: B023 - used within this iteration only
-                return ImposedInputs(speed(t), angle, rate)  # noqa: B023
-
-            result, _ = run(
-                imposed_step, vehicle, car, duration_s=segment.duration_s, dt_s=dt_s,
-                substeps=substeps, inputs=inputs,
-            )  # fmt: skip
-        elif segment.path is not None:
-            # Start in steady state on the path's first heading at the starting steering.
-            vehicle = single_track.steady_state(
-                segment.speed(0.0), segment.start_steering_rad, car.vehicle, x0, y0, yaw0
-            )
-            following = PathFollowing(car.driver, car.vehicle, segment.path)
-            state = PathState(vehicle, path_driver.initial_state(segment.start_steering_rad))
-            result, _ = run(
-                path_step, state, PathRun(car, following), duration_s=segment.duration_s,
-                dt_s=dt_s, substeps=substeps, inputs=segment.speed,
-            )  # fmt: skip
-        else:  # pragma: no cover - a Segment is built with one or the other
-            raise ValueError(f"segment {segment.label} has neither steering nor path")
-        parts.append(_with_friction_memory(result, car.torque, dt_s))
-    return _concatenate(parts, [s.label for s in manoeuvre.segments], metadata)
-
-
-def _with_friction_memory(result: Result, torque: SteeringTorqueParams, dt_s: float) -> Result:
-    """The run with the law's friction memory (K10 z, `torque.friction_memory_step`) in
-    torque_Nm and torque_friction_Nm: the torque does not act on the car, so z follows the
-    run's rate step by step (dt_s each) from 0 at its start. Unchanged when K10 = 0 (the
-    default)."""
-    if torque.k10_Nm == 0.0:
-        return result
-    rates = result["steering_rate_rad_s"].tolist()
-    z = np.asarray(friction_memory_series(rates, [dt_s] * len(rates), torque))
-    memory = torque.k10_Nm * z
-    signals = dict(result.signals)
-    signals["torque_Nm"] = result["torque_Nm"] + memory
-    signals["torque_friction_Nm"] = result["torque_friction_Nm"] + memory
-    return Result(result.time_s, signals, result.metadata)
-
-
-def _simulate_physical(
-    params: PhysicalParams,
-    car: SteeringCar,
-    manoeuvre: Manoeuvre,
-    dt_s: float,
-    substeps: int,
-    metadata: Mapping[str, str] | None,
-) -> Result:
-    parts: list[Result] = []
-    for segment in manoeuvre.segments:
-        speed = segment.speed
-        if segment.steering is not None:
-            steering = segment.steering
-            angle0 = steering(0.0)[0]
-
-            def inputs(t: float) -> ImposedInputs:
-                angle, rate = steering(t)  # noqa: B023 - used within this iteration only
-                return ImposedInputs(speed(t), angle, rate)  # noqa: B023
-
-            start = physical_start(params, speed(0.0), angle0, segment.start_pose)
-            result, _ = run(
-                physical_imposed_step, start, params, duration_s=segment.duration_s, dt_s=dt_s,
-                substeps=substeps, inputs=inputs,
-            )  # fmt: skip
-        elif segment.path is not None:
-            start = physical_start(
-                params, speed(0.0), segment.start_steering_rad, segment.start_pose
-            )
-            following = PathFollowing(car.driver, car.vehicle, segment.path)
-            state = PhysicalPathState(start, path_driver.initial_state(segment.start_steering_rad))
-            result, _ = run(
-                physical_path_step, state, PhysicalPathRun(params, following),
-                duration_s=segment.duration_s, dt_s=dt_s, substeps=substeps, inputs=speed,
-            )  # fmt: skip
-        else:  # pragma: no cover - a Segment is built with one or the other
-            raise ValueError(f"segment {segment.label} has neither steering nor path")
-        parts.append(result)
-    return _concatenate(parts, [s.label for s in manoeuvre.segments], metadata)
-
-
-def _concatenate(
-    parts: list[Result], labels: list[str], metadata: Mapping[str, str] | None
-) -> Result:
-    times, offset = [], 0.0
-    for part in parts:
-        times.append(part.time_s + offset)
-        offset += float(part.time_s[-1])
-    signals = {name: np.concatenate([part[name] for part in parts]) for name in parts[0].signals}
-    signals["segment"] = np.concatenate(
-        [np.full(len(part), label) for part, label in zip(parts, labels, strict=True)]
-    )
-    return Result(np.concatenate(times), signals, dict(metadata or {}))
+    """`stream_steering` into memory: the whole run as one Result."""
+    kept = Collector()
+    stream_steering(car, manoeuvre, kept, dt_s=dt_s, substeps=substeps, model=model, road=road)
+    return kept.result(dict(metadata or {}))

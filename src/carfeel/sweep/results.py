@@ -17,6 +17,7 @@ from typing import Any
 from carfeel import __version__
 from carfeel.errors import InputError
 from carfeel.sweep.spec import SweepSpec, base_params, field_type, metric_names
+from carfeel.sweep.tasks import Chunk
 
 Row = dict[str, Any]
 BOOL_METRICS = ("balked", "engaged", "ground")
@@ -103,6 +104,56 @@ def write_rows(
     sidecar.write_text(json.dumps({**meta, "columns": types}, indent=2) + "\n", encoding="utf-8")
 
 
+def write_chunks(
+    chunks: Iterable[Chunk], spec: SweepSpec, path: Path, fmt: str, sidecar: Path | None = None
+) -> None:
+    """`write_rows` of chunks that come in case order (a part file's): Parquet in row groups
+    of about WRITE_BATCH rows (whole chunks), made from the columns as they are; CSV a chunk
+    at a time."""
+    types = column_types(spec)
+    names = list(types)
+    meta = metadata(spec)
+    if fmt == ".parquet":
+        pa = pyarrow()
+        arrow = {"int": pa.int64(), "float": pa.float64(), "bool": pa.bool_(), "str": pa.string()}
+        schema = pa.schema([(n, arrow[types[n]]) for n in names], metadata=meta)
+        held: list[Chunk] = []
+        with pa.parquet.ParquetWriter(path, schema) as writer:
+            # chain, not (*chunks, None): a tuple would hold every chunk of the sweep
+            for chunk in itertools.chain(chunks, [None]):
+                if chunk is not None:
+                    held.append(chunk)
+                if held and (chunk is None or sum(map(len, held)) >= WRITE_BATCH):
+                    columns = {
+                        n: pa.array(_joined(held, n, types[n]), type=arrow[types[n]]) for n in names
+                    }
+                    writer.write_table(pa.Table.from_pydict(columns, schema=schema))
+                    held = []
+        return
+    with path.open("w", newline="", encoding="utf-8") as handle:
+        out = csv.writer(handle)
+        out.writerow(names)
+        for chunk in chunks:
+            cells = [[_cell(v, types[n]) for v in _column(chunk, n)] for n in names]
+            out.writerows(zip(*cells, strict=True))
+    sidecar = sidecar if sidecar is not None else path.with_suffix(".json")
+    sidecar.write_text(json.dumps({**meta, "columns": types}, indent=2) + "\n", encoding="utf-8")
+
+
+def _column(chunk: Chunk, name: str) -> list[Any]:
+    """A chunk's column (None for each row of a column it lacks)."""
+    values = chunk.columns.get(name)
+    return values if values is not None else [None] * len(chunk)
+
+
+def _joined(chunks: Sequence[Chunk], name: str, kind: str) -> list[Any]:
+    """A column of several chunks, typed (a JSON integer of a float column as a float)."""
+    values = [v for chunk in chunks for v in _column(chunk, name)]
+    if kind == "float":
+        return [None if v is None else float(v) for v in values]
+    return values
+
+
 def _batches(rows: Iterable[Row], size: int) -> Iterator[list[Row]]:
     """Lists of `size` rows (the last shorter): itertools.batched, which Python 3.11 lacks."""
     iterator = iter(rows)
@@ -124,6 +175,18 @@ def columns_from(
     for r in rows:
         for n, kind in types.items():
             columns[n].append(_typed(r.get(n), kind))
+    return columns, metadata(spec)
+
+
+def columns_of_chunks(
+    chunks: Iterable[Chunk], spec: SweepSpec
+) -> tuple[dict[str, list[Any]], dict[str, str]]:
+    """`columns_from` of chunks that come in order."""
+    types = column_types(spec)
+    columns: dict[str, list[Any]] = {n: [] for n in types}
+    for chunk in chunks:
+        for n, kind in types.items():
+            columns[n].extend(_typed(v, kind) for v in _column(chunk, n))
     return columns, metadata(spec)
 
 

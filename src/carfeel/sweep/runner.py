@@ -1,22 +1,25 @@
 """Run a sweep: its tasks serially, on a LocalCluster, or on an existing Dask cluster.
 
 Rows stream as tasks finish into a part file beside the output (NAME.part.jsonl: a header with
-the spec's hash, then one line of rows per finished task, flushed and synced), so an interrupted
-sweep (Ctrl-C, a kill, a lost machine) resumes where it stopped: finished cases are read back,
-not simulated again. The part file belongs to one spec: another spec (its hash differs) is
-refused unless told to start again. The part file is the one output that `io.outputs.Outputs`
-does not stage: it must outlive a failed run. The results file is written only once every case
-is done, through `Outputs`, and then the part file is removed.
+the spec's hash, then one line per finished task: its chunk of rows by column, flushed and
+synced), so an interrupted sweep (Ctrl-C, a kill, a lost machine) resumes where it stopped:
+finished cases are read back, not simulated again. The part file belongs to one spec: another
+spec (its hash differs) is refused unless told to start again. The part file is the one output
+that `io.outputs.Outputs` does not stage: it must outlive a failed run. The results file is
+written only once every case is done, through `Outputs`, and then the part file is removed.
 
 Dask: `dask[distributed]`, the extra `carfeel[batch]`, imported only here and only when asked
 for. carfeel handles what Dask asks of its user: workers with one thread each (the models hold
-the GIL) and BLAS/OpenMP threads at 1; and a LocalCluster's worker processes are spawned without
+the GIL) and BLAS/OpenMP threads at 1; a LocalCluster's worker processes are spawned without
 importing the caller's `__main__` again, so a script that calls `run_sweep` needs no
-`if __name__ == "__main__":` guard (carfeel's own command line has one).
+`if __name__ == "__main__":` guard (carfeel's own command line has one); tasks are seconds of
+work each (thousands of batched shifts), travel as the spec and two case numbers, and come back
+as columns; at most two a worker are in flight, the next submitted as one finishes.
 """
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import itertools
 import json
@@ -34,10 +37,11 @@ import numpy as np
 
 from carfeel.errors import InputError
 from carfeel.sweep import tasks
-from carfeel.sweep.spec import Case, SpecError, SweepSpec, iter_cases
-from carfeel.sweep.tasks import Row, Task
+from carfeel.sweep.spec import SpecError, SweepSpec
+from carfeel.sweep.tasks import Chunk, Row, Task, as_chunk
 
-PART_VERSION = 1
+PART_VERSION = 2
+"""1: a line of rows as dicts; 2: a line of a chunk's columns (issue 27)."""
 THREAD_VARIABLES = (
     "OMP_NUM_THREADS",
     "OPENBLAS_NUM_THREADS",
@@ -61,9 +65,9 @@ class PartFile:
         self.spec = spec
         self._handle: TextIO | None = None
 
-    def _lines(self, restart: bool) -> Iterator[list[Row]] | None:
-        """The row chunks of an earlier run of this spec (a line cut by a kill ends them);
-        None when there is no part file of this spec to resume (or `restart`)."""
+    def _lines(self, restart: bool) -> Iterator[Chunk] | None:
+        """The chunks of an earlier run of this spec (a line cut by a kill ends them); None
+        when there is no part file of this spec to resume (or `restart`)."""
         if restart or not self.path.exists():  # --restart discards whatever is there
             return None
         try:
@@ -74,7 +78,11 @@ class PartFile:
                 f"{self.path} (an interrupted sweep's rows) cannot be read: {exc}; "
                 "delete it or pass --restart"
             ) from None
-        if not isinstance(header, dict) or header.get("spec_hash") != self.spec.hash:
+        if (
+            not isinstance(header, dict)
+            or header.get("spec_hash") != self.spec.hash
+            or header.get("carfeel_sweep_part") != PART_VERSION
+        ):
             handle.close()
             raise SpecError(
                 f"{self.path} holds the finished cases of another sweep spec (or of another "
@@ -82,14 +90,14 @@ class PartFile:
                 "--restart to discard those rows and start anew"
             )
 
-        def chunks() -> Iterator[list[Row]]:
+        def chunks() -> Iterator[Chunk]:
             with handle:
                 for line in handle:
                     try:
-                        chunk = json.loads(line)
-                    except ValueError:
+                        chunk = _chunk_of(json.loads(line))
+                    except (ValueError, KeyError, TypeError):
                         return  # a line cut short by a kill: the rows after it were never written
-                    yield list(chunk["rows"])
+                    yield chunk
 
         return chunks()
 
@@ -97,7 +105,7 @@ class PartFile:
         """The rows finished by an earlier run of this spec, in memory ({} if none): for small
         sweeps and tests; the runner uses `scan`."""
         lines = self._lines(restart)
-        return {int(r["case_id"]): r for chunk in lines or () for r in chunk}
+        return {int(r["case_id"]): r for chunk in lines or () for r in chunk.rows()}
 
     def scan(self, restart: bool = False) -> tuple[np.ndarray, Tally]:
         """Which cases an earlier run of this spec finished (a bitmap, one byte per case) and
@@ -105,20 +113,21 @@ class PartFile:
         done = np.zeros(self.spec.n_cases, dtype=bool)
         tally = Tally()
         for chunk in self._lines(restart) or ():
-            ids = [int(r["case_id"]) for r in chunk]
-            if any(not 0 <= i < self.spec.n_cases for i in ids) or done[ids].any():
+            if (
+                not 0 <= chunk.start < chunk.stop <= self.spec.n_cases
+                or done[chunk.start : chunk.stop].any()
+            ):
                 raise InputError(
                     f"{self.path} holds a case twice or one the spec does not have: delete it "
                     "or pass --restart"
                 )
-            done[ids] = True
+            done[chunk.start : chunk.stop] = True
             tally.add(chunk)
         return done, tally
 
     def open(self, keep: bool = True) -> None:
-        """Start the file anew with the finished rows kept (`keep`), copied a line at a time:
-        no cut line stays, and each line holds one run of consecutive cases (what
-        `rows_in_order` needs)."""
+        """Start the file anew with the finished chunks kept (`keep`), copied a line at a time:
+        no cut line stays."""
         staged = self.path.with_name(f".{self.path.name}.tmp")
         old = self._lines(restart=False) if keep else None
         with staged.open("w", encoding="utf-8") as handle:
@@ -130,14 +139,14 @@ class PartFile:
             }
             handle.write(json.dumps(header) + "\n")
             for chunk in old or ():
-                for run in _consecutive(chunk):
-                    handle.write(json.dumps({"rows": run}) + "\n")
+                handle.write(_line(chunk))
         os.replace(staged, self.path)
         self._handle = self.path.open("a", encoding="utf-8")
 
-    def append(self, rows: Sequence[Row]) -> None:
+    def append(self, rows: Chunk | Sequence[Row]) -> None:
+        """One task's rows (a chunk, or rows of consecutive cases), flushed and synced."""
         assert self._handle is not None
-        self._handle.write(json.dumps({"rows": list(rows)}) + "\n")
+        self._handle.write(_line(as_chunk(rows)))
         self._handle.flush()
         os.fsync(self._handle.fileno())
 
@@ -151,10 +160,10 @@ class PartFile:
         with contextlib.suppress(FileNotFoundError):
             self.path.unlink()
 
-    def rows_in_order(self, every: int = 1) -> Iterator[Row]:
-        """Every row, by case, read from the file (two passes: where each line starts, then
-        the lines in order); `every`: only each case_id divisible by it. Each line is a run of
-        consecutive cases, so the lines' order is the rows'. InputError if a case is missing."""
+    def chunks_in_order(self, every: int = 1) -> Iterator[Chunk]:
+        """Every chunk, by case, read from the file (two passes: where each line starts, then
+        the lines in order); `every`: only the rows whose case_id is divisible by it.
+        InputError if a case is missing."""
         starts: list[tuple[int, int]] = []
         with self.path.open("rb") as handle:
             handle.readline()
@@ -164,37 +173,46 @@ class PartFile:
                 if not line:
                     break
                 try:
-                    first = json.loads(line)["rows"][0]["case_id"]
-                except (ValueError, KeyError, IndexError):
+                    first = _chunk_of(json.loads(line)).start
+                except (ValueError, KeyError, TypeError):
                     break  # cut by a kill
-                starts.append((int(first), offset))
+                starts.append((first, offset))
             starts.sort()
             expected = 0
-            for _, offset in starts:
+            for first, offset in starts:
+                if first != expected:
+                    raise InputError(
+                        f"{self.path}: case {expected} is missing (found {first}): run the "
+                        "sweep again to finish it"
+                    )
                 handle.seek(offset)
-                for row in json.loads(handle.readline())["rows"]:
-                    if int(row["case_id"]) != expected:
-                        raise InputError(
-                            f"{self.path}: case {expected} is missing (found "
-                            f"{row['case_id']}): run the sweep again to finish it"
-                        )
-                    expected += 1
-                    if row["case_id"] % every == 0:
-                        yield row
+                chunk = _chunk_of(json.loads(handle.readline()))
+                expected = chunk.stop
+                picked = chunk if every == 1 else chunk.every(every)
+                if picked is not None:
+                    yield picked
         if expected != self.spec.n_cases:
             raise InputError(f"{self.path}: {expected} of {self.spec.n_cases} cases are done")
 
+    def rows_in_order(self, every: int = 1) -> Iterator[Row]:
+        """Every row, by case (`chunks_in_order` a row at a time)."""
+        for chunk in self.chunks_in_order(every):
+            yield from chunk.rows()
 
-def _consecutive(rows: Sequence[Row]) -> Iterator[list[Row]]:
-    """`rows` sorted by case and cut into runs of consecutive cases."""
-    run: list[Row] = []
-    for row in sorted(rows, key=lambda r: int(r["case_id"])):
-        if run and int(row["case_id"]) != int(run[-1]["case_id"]) + 1:
-            yield run
-            run = []
-        run.append(row)
-    if run:
-        yield run
+
+def _line(chunk: Chunk) -> str:
+    return json.dumps({"start": chunk.start, "columns": chunk.columns}) + "\n"
+
+
+def _chunk_of(line: Any) -> Chunk:
+    """A part file's line as a chunk: its columns all as long, its case ids from `start`."""
+    start, columns = int(line["start"]), line["columns"]
+    ids = columns["case_id"]
+    if not ids or any(len(v) != len(ids) for v in columns.values()):
+        raise ValueError("columns of unequal lengths")
+    if ids[0] != start or ids[-1] != start + len(ids) - 1:
+        raise ValueError("case ids that are not the chunk's")
+    return Chunk(start, columns)
 
 
 @dataclass
@@ -204,18 +222,22 @@ class Tally:
     counts: dict[str, int] = field(default_factory=dict)
     first_invalid: Row | None = None
 
-    def add(self, rows: Sequence[Row]) -> None:
-        for row in rows:
-            status = str(row["status"])
-            self.counts[status] = self.counts.get(status, 0) + 1
-            if status == "invalid" and (
-                self.first_invalid is None or row["case_id"] < self.first_invalid["case_id"]
-            ):
-                self.first_invalid = row
+    def add(self, rows: Chunk | Sequence[Row]) -> None:
+        chunk = as_chunk(rows)
+        for status, n in chunk.statuses().items():
+            self.counts[status] = self.counts.get(status, 0) + n
+        if "invalid" in chunk.columns["status"]:
+            i = chunk.columns["status"].index("invalid")
+            if self.first_invalid is None or chunk.start + i < self.first_invalid["case_id"]:
+                self.first_invalid = {n: v[i] for n, v in chunk.columns.items()}
 
 
 class Progress:
-    """A one-line bar on a terminal (stderr); nothing at all when it is not one."""
+    """A one-line bar on a terminal (stderr): cases done, cases per second over the last
+    half minute (the rate now, not the start-up's), the time left; nothing when stderr is not
+    a terminal."""
+
+    WINDOW_S = 30.0
 
     def __init__(self, total: int, done: int, stream: TextIO | None = None) -> None:
         self.stream = stream if stream is not None else sys.stderr
@@ -223,20 +245,31 @@ class Progress:
         self.total, self.done, self.start_done = total, done, done
         self.started = time.monotonic()
         self._shown = 0.0
+        self._history: collections.deque[tuple[float, int]] = collections.deque()
+        self._history.append((self.started, done))
+
+    def rate(self, now: float) -> float:
+        """Cases per second over the last WINDOW_S (since the start, before that)."""
+        while len(self._history) > 1 and now - self._history[1][0] > self.WINDOW_S:
+            self._history.popleft()
+        then, done_then = self._history[0]
+        return (self.done - done_then) / (now - then) if now > then else 0.0
 
     def update(self, n: int) -> None:
         self.done += n
         now = time.monotonic()
+        self._history.append((now, self.done))
         if self.enabled and (now - self._shown > 0.1 or self.done >= self.total):
             self._shown = now
             fraction = self.done / self.total if self.total else 1.0
             width = 30
             bar = "#" * int(fraction * width) + "." * (width - int(fraction * width))
-            elapsed = now - self.started
-            rate = (self.done - self.start_done) / elapsed if elapsed > 0 else 0.0
+            rate = self.rate(now)
             left = (self.total - self.done) / rate if rate > 0 else math.nan
             eta = f"{left:.0f} s left" if math.isfinite(left) else ""
-            self.stream.write(f"\r[{bar}] {self.done}/{self.total} cases, {rate:.1f}/s {eta}   ")
+            self.stream.write(
+                f"\r[{bar}] {self.done}/{self.total} cases, {rate:.1f} cases/s {eta}   "
+            )
             self.stream.flush()
 
     def close(self) -> None:
@@ -245,35 +278,30 @@ class Progress:
             self.stream.flush()
 
 
-def tasks_of(spec: SweepSpec, todo: Sequence[Case], workers: int = 1) -> list[Task]:
-    """The cases left, in tasks of `cases_per_task` (fewer, so that every worker gets some)."""
-    size = spec.cases_per_task
-    if workers > 1 and todo:
-        size = min(size, math.ceil(len(todo) / workers))
-    return [Task(spec, tuple(todo[i : i + size])) for i in range(0, len(todo), size)]
-
-
 def iter_tasks(spec: SweepSpec, done: np.ndarray, workers: int = 1) -> Iterator[Task]:
-    """The cases not `done`, in tasks made as they are asked for: `cases_per_task` (fewer, so
-    that every worker gets some), each a run of consecutive cases (a task ends where a finished
-    case lies between), so that the part file's lines keep the cases' order."""
+    """The cases not `done`, in tasks made as they are asked for, each a run of consecutive
+    cases (a task ends where a finished case lies between). A task is `cases_per_task` cases;
+    with several workers at most half of the cases left a worker (but not below a quarter of
+    `cases_per_task`: a batch's steps cost the same whatever its width, 0.3 s for a shift's
+    1200): the last tasks shrink, and the workers finish together instead of one waiting for
+    another's last big task (guided self-scheduling)."""
     size = spec.cases_per_task
+    smallest = max(1, size // 4)
     left = int(spec.n_cases - done.sum())
-    if workers > 1 and left:
-        size = min(size, math.ceil(left / workers))
-    batch: list[Case] = []
-    for case in iter_cases(spec):
-        if done[case.case_id]:
-            if batch:
-                yield Task(spec, tuple(batch))
-                batch = []
-            continue
-        batch.append(case)
-        if len(batch) == size:
-            yield Task(spec, tuple(batch))
-            batch = []
-    if batch:
-        yield Task(spec, tuple(batch))
+    for first, stop in _runs(done):
+        while first < stop:
+            n = size if workers <= 1 else min(size, max(smallest, math.ceil(left / (2 * workers))))
+            n = min(n, stop - first)
+            yield Task(spec, first, first + n)
+            first += n
+            left -= n
+
+
+def _runs(done: np.ndarray) -> Iterator[tuple[int, int]]:
+    """(first, stop) of each run of cases not done, in order (from the bitmap, by numpy)."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[True], done, [True]]).astype(np.int8)))
+    for first, stop in zip(edges[::2], edges[1::2], strict=True):
+        yield int(first), int(stop)
 
 
 @dataclass(frozen=True)
@@ -303,17 +331,17 @@ def run_cases(
     scheduler: str | None = None,
     restart: bool = False,
     progress: TextIO | None = None,
-    execute: Callable[[Task], list[Row]] | None = None,
+    execute: Callable[[Task], Chunk | list[Row]] | None = None,
     keep_rows: bool = True,
 ) -> SweepRun:
     """Every case of `spec`, the finished ones from `part` (if given) and the rest simulated,
     serially or on Dask; the part file is kept up to date as tasks finish. `execute` runs one
-    task (default `tasks.run_task`). With `keep_rows` False (and a part file) no row is held:
-    they are on disk, read back by `PartFile.rows_in_order`; memory stays the same whatever
-    the number of cases."""
+    task (default `tasks.run_chunk`; rows of its cases in order will do). With `keep_rows`
+    False (and a part file) no row is held: they are on disk, read back by
+    `PartFile.chunks_in_order`; memory stays the same whatever the number of cases."""
     if not keep_rows and part is None:
         raise ValueError("rows not kept need a part file to go to")
-    execute = execute if execute is not None else tasks.run_task
+    execute = execute if execute is not None else tasks.run_chunk
     started = time.monotonic()
     if part is not None:
         done, tally = part.scan(restart)
@@ -334,9 +362,10 @@ def run_cases(
         bar = Progress(spec.n_cases, resumed, progress)
         stack.callback(bar.close)
 
-        def finished(chunk: list[Row]) -> None:
+        def finished(result: Chunk | list[Row]) -> None:
+            chunk = as_chunk(result)
             if keep_rows:
-                for row in chunk:
+                for row in chunk.rows():
                     rows[int(row["case_id"])] = row
             tally.add(chunk)
             if part is not None:
@@ -359,8 +388,8 @@ def run_cases(
 def _on_dask(
     client: Any,
     tasks: Iterator[Task],
-    finished: Callable[[list[Row]], None],
-    execute: Callable[[Task], list[Row]],
+    finished: Callable[[Any], None],
+    execute: Callable[[Task], Any],
     in_flight: int,
 ) -> None:
     """The tasks on the cluster, at most `in_flight` submitted at a time (a new one as each
@@ -368,7 +397,7 @@ def _on_dask(
     as_completed: Any = dask_modules().as_completed
 
     def submit(task: Task) -> Any:
-        key = f"carfeel-sweep-{task.spec.hash[:12]}-{task.cases[0].case_id}"
+        key = f"carfeel-sweep-{task.spec.hash[:12]}-{task.start}"
         return client.submit(execute, task, key=key, pure=False)
 
     running = {submit(task) for task in itertools.islice(tasks, in_flight)}
@@ -376,7 +405,9 @@ def _on_dask(
     try:
         for future in queue:
             running.discard(future)
-            finished(future.result())
+            result = future.result()
+            future.release()  # the scheduler forgets the task and its result at once
+            finished(result)
             following = next(tasks, None)
             if following is not None:
                 new = submit(following)

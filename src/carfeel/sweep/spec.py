@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import itertools
 import json
 import math
 import re
@@ -142,7 +141,7 @@ RUN_RANGES = {
 """Run settings a sweep may vary (`run.NAME`), with their allowed range."""
 MAX_STEP_S = {"shift": 2e-3, "hpattern": 1e-3, "steering": 1e-3}
 """Longest model step of each model (simulation.*.MAX_STEP_S)."""
-DEFAULT_CASES_PER_TASK = {"batch": 4096, "shift": 200, "hpattern": 8, "steering": 8}
+DEFAULT_CASES_PER_TASK = {"batch": 8192, "shift": 200, "hpattern": 8, "steering": 8}
 """About seconds of work per task on one core."""
 MAX_CASES = 10_000_000
 """The most cases a sweep may ask for (seeds included), checked before any is made."""
@@ -627,6 +626,21 @@ def field_type(model: str, base: Any, path: str) -> tuple[Any, Any]:
     return kind, value
 
 
+_KINDS: dict[tuple[str, int, str], tuple[Any, Any]] = {}
+
+
+def _kind(model: str, base: Any, path: str) -> Any:
+    """`field_type`'s type, kept per preset and path (the entry holds its preset: an id is
+    never another preset's while it is kept)."""
+    key = (model, id(base), path)
+    entry = _KINDS.get(key)
+    if entry is None or entry[0] is not base:
+        if len(_KINDS) > 4096:
+            _KINDS.clear()
+        entry = _KINDS[key] = (base, field_type(model, base, path)[0])
+    return entry[1]
+
+
 @cache
 def _hints(cls: type[Any]) -> dict[str, Any]:
     """The fields' types of a parameter dataclass (typing.get_type_hints: slow, so kept)."""
@@ -648,10 +662,13 @@ def _range_text(path: str) -> str:
     return presets.describe_range(key) if key in presets.RANGES else "any number"
 
 
-def value_problem(model: str, base: Any, path: str, value: Value) -> str | None:
-    """What is wrong with `value` at `path` (its type, its range), or None."""
+def value_problem(
+    model: str, base: Any, path: str, value: Value, kinds: bool = False
+) -> str | None:
+    """What is wrong with `value` at `path` (its type, its range), or None. `kinds`: the
+    field's type looked up once per preset and path (a sweep's cases all ask the same)."""
     try:
-        kind, _ = field_type(model, base, path)
+        kind = _kind(model, base, path) if kinds else field_type(model, base, path)[0]
     except KeyError as exc:
         return f"{path}: unknown parameter: {exc.args[0]}"
     if kind is bool:
@@ -953,16 +970,35 @@ class Draws:
 def iter_parameter_sets(spec: SweepSpec) -> Iterator[dict[str, Value]]:
     """Every parameter set, in order, made as it is asked for: the grid's product (spec order,
     the last key fastest) times the draws (the same `samples` draws at every grid point)."""
+    for _, values in _parameter_sets(spec, 0, spec.n_sets):
+        yield dict(values)
+
+
+def _parameter_sets(
+    spec: SweepSpec, first: int, stop: int
+) -> Iterator[tuple[int, tuple[tuple[str, Value], ...]]]:
+    """(index, values in the spec's order) of the parameter sets first..stop-1, made as they
+    are asked for: each grid point's draws a block at a time (the blocks of DRAW_BLOCK samples
+    the whole sweep draws, so a run of sets anywhere equals the same sets of the whole)."""
     grid = [v for v in spec.vary if v.values]
-    draws = Draws(spec)
-    for point in itertools.product(*(v.values for v in grid)):
-        fixed: dict[str, Value] = dict(zip((v.path for v in grid), point, strict=True))
-        for start in range(0, spec.samples, DRAW_BLOCK):
-            stop = min(start + DRAW_BLOCK, spec.samples)
-            drawn = draws.block(start, stop)
-            for s in range(stop - start):
-                values = fixed | {path: float(column[s]) for path, column in drawn.items()}
-                yield {v.path: values[v.path] for v in spec.vary}
+    sizes = [len(v.values) for v in grid]
+    draws = draws_of(spec)
+    index = first
+    while index < stop:
+        point, sample = divmod(index, spec.samples)
+        fixed: dict[str, Value] = {}
+        rest = point
+        for v, size in zip(reversed(grid), reversed(sizes), strict=True):  # the last fastest
+            rest, at = divmod(rest, size)
+            fixed[v.path] = v.values[at]
+        block = sample // DRAW_BLOCK * DRAW_BLOCK
+        drawn = draws.block(block, min(block + DRAW_BLOCK, spec.samples))
+        end = min(stop, point * spec.samples + min(block + DRAW_BLOCK, spec.samples))
+        for i in range(index, end):
+            s = i - point * spec.samples - block
+            values = fixed | {path: float(column[s]) for path, column in drawn.items()}
+            yield i, tuple((v.path, values[v.path]) for v in spec.vary)
+        index = end
 
 
 def parameter_sets(spec: SweepSpec) -> list[dict[str, Value]]:
@@ -971,15 +1007,19 @@ def parameter_sets(spec: SweepSpec) -> list[dict[str, Value]]:
     return list(iter_parameter_sets(spec))
 
 
-def iter_cases(spec: SweepSpec) -> Iterator[Case]:
-    """Every case of the sweep (parameter set x seed), numbered from 0, made as it is asked
-    for (a sweep of 10^7 cases never holds them)."""
-    case_id = 0
-    for index, values in enumerate(iter_parameter_sets(spec)):
-        items = tuple(values.items())
-        for seed in spec.seeds:
-            yield Case(case_id, index, seed, items)
-            case_id += 1
+def iter_cases(spec: SweepSpec, start: int = 0, stop: int | None = None) -> Iterator[Case]:
+    """The cases start..stop-1 of the sweep (parameter set x seed, numbered from 0; all of
+    them by default), made as they are asked for (a sweep of 10^7 cases never holds them; a
+    task of a worker makes its own)."""
+    stop = spec.n_cases if stop is None else stop
+    if not 0 <= start <= stop <= spec.n_cases:
+        raise ValueError(f"cases {start}..{stop} of a sweep of {spec.n_cases}")
+    n_seeds = len(spec.seeds)
+    if start == stop:
+        return
+    for index, items in _parameter_sets(spec, start // n_seeds, (stop - 1) // n_seeds + 1):
+        for k in range(max(start - index * n_seeds, 0), min(stop - index * n_seeds, n_seeds)):
+            yield Case(index * n_seeds + k, index, spec.seeds[k], items)
 
 
 def cases(spec: SweepSpec) -> list[Case]:
@@ -987,30 +1027,55 @@ def cases(spec: SweepSpec) -> list[Case]:
     return list(iter_cases(spec))
 
 
+_DRAWS: dict[str, Draws] = {}
+
+
+def draws_of(spec: SweepSpec) -> Draws:
+    """The spec's Draws, made once per process (a worker's tasks of one sweep share them: a
+    Latin hypercube's permutations of 10^7 strata take a second)."""
+    draws = _DRAWS.get(spec.hash)
+    if draws is None:
+        _DRAWS.clear()  # one sweep at a time: the strata are 4 bytes a sample and parameter
+        draws = _DRAWS[spec.hash] = Draws(spec)
+    return draws
+
+
 def apply(base: Any, values: Mapping[str, Value]) -> Any:
-    """`base` with each key path (not `run.`) set to its value (dataclasses.replace)."""
+    """`base` with each key path (not `run.`) set to its value: one `dataclasses.replace` per
+    table changed, with all of its changes (a path at a time replaced each table on the way
+    once per path: half of a batched shift's time went to checking and applying its case)."""
+    tree: dict[str, Any] = {}
     for path, value in values.items():
-        if not path.startswith("run."):
-            base = _replace(base, path.split("."), value)
-    return base
+        if path.startswith("run."):
+            continue
+        node = tree
+        *tables, leaf = path.split(".")
+        for part in tables:
+            node = node.setdefault(part, {})
+        node[leaf] = value
+    return _apply(base, tree) if tree else base
 
 
-def _replace(obj: Any, parts: list[str], value: Value) -> Any:
-    match = _SEGMENT.fullmatch(parts[0])
-    assert match is not None  # checked by field_type
-    name, index = match.group(1), match.group(2)
-    current = getattr(obj, name)
-    if index is not None:
-        items = list(current)
-        i = int(index)
-        items[i] = _replace(items[i], parts[1:], value) if parts[1:] else value
-        new: Any = tuple(items)
-    elif parts[1:]:
-        new = _replace(current, parts[1:], value)
-    else:
-        kind = type(current)
-        new = kind(value) if kind in (int, float) and not isinstance(value, bool) else value
-    return dataclasses.replace(obj, **{name: new})
+def _apply(obj: Any, tree: Mapping[str, Any]) -> Any:
+    changes: dict[str, Any] = {}
+    for part, change in tree.items():
+        match = _SEGMENT.fullmatch(part)
+        assert match is not None  # checked by field_type
+        name, index = match.group(1), match.group(2)
+        current = changes.get(name, getattr(obj, name))
+        if index is not None:
+            items = list(current)
+            i = int(index)
+            items[i] = _apply(items[i], change) if isinstance(change, dict) else change
+            changes[name] = tuple(items)
+        elif isinstance(change, dict):
+            changes[name] = _apply(current, change)
+        else:
+            kind = type(current)
+            changes[name] = (
+                kind(change) if kind in (int, float) and not isinstance(change, bool) else change
+            )
+    return dataclasses.replace(obj, **changes)
 
 
 def case_problems(model: str, base: Any, values: Mapping[str, Value]) -> list[str]:
@@ -1021,7 +1086,9 @@ def case_problems(model: str, base: Any, values: Mapping[str, Value]) -> list[st
 
 def checked_case(model: str, base: Any, values: Mapping[str, Value]) -> tuple[Any, list[str]]:
     """(the case's parameters, or None, and its problems) after the preset validation."""
-    problems = [p for path, v in values.items() if (p := value_problem(model, base, path, v))]
+    problems = [
+        p for path, v in values.items() if (p := value_problem(model, base, path, v, kinds=True))
+    ]
     if problems:
         return None, problems
     params = apply(base, values)

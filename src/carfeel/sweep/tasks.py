@@ -1,13 +1,17 @@
-"""One task of a sweep: many cases simulated in one call, returned as rows of plain values.
+"""One task of a sweep: a run of consecutive cases simulated in one call, returned as a chunk
+of rows by column.
 
-A task is what a Dask worker (or the serial loop) runs: a few seconds of work, no files, no
-shared state; its rows are dicts of int, float, bool and str, so they pickle and serialize as
-they are. Each case goes through the preset validation first; a case that fails it, or whose
-simulation fails, is a row with its status and problem, not an exception.
+A task is what a Dask worker (or the serial loop, or a multiprocessing pool) runs: seconds of
+work, no files, no shared state. It travels as the spec and two case numbers (a few kilobytes,
+whatever its size: the worker makes its cases itself, as `spec.iter_cases` makes them anywhere);
+its chunk holds lists of int, float, bool, str and None by column, so it pickles and writes as
+JSON in a few milliseconds. Each case goes through the preset validation first; a case that
+fails it, or whose simulation fails, is a row with its status and problem, not an exception.
 """
 
 from __future__ import annotations
 
+import collections
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -15,10 +19,11 @@ from typing import Any
 
 import numpy as np
 
-from carfeel.analysis.shift_features import ShiftFeatures, shift_features
+from carfeel.analysis.hpattern_features import EngagementStream
+from carfeel.analysis.shift_features import ShiftFeatures, ShiftFeatureStream
 from carfeel.errors import CarfeelError
-from carfeel.simulation.result import Result
-from carfeel.sweep.spec import Case, SweepSpec, base_params, checked_case, gears_of
+from carfeel.simulation.stream import Columns, FiniteCheck, Tee
+from carfeel.sweep.spec import Case, SweepSpec, base_params, checked_case, gears_of, iter_cases
 
 Row = dict[str, Any]
 
@@ -30,18 +35,86 @@ the same rows, bit for bit (tests/test_batch_engagement.py)."""
 
 @dataclass(frozen=True)
 class Task:
+    """The cases start..stop-1 of a sweep."""
+
     spec: SweepSpec
-    cases: tuple[Case, ...]
+    start: int
+    stop: int
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.start < self.stop <= self.spec.n_cases:
+            raise ValueError(
+                f"a task of cases {self.start}..{self.stop - 1} of {self.spec.n_cases}"
+            )
+
+    def __len__(self) -> int:
+        return self.stop - self.start
+
+    @property
+    def cases(self) -> tuple[Case, ...]:
+        return tuple(iter_cases(self.spec, self.start, self.stop))
+
+
+@dataclass(frozen=True)
+class Chunk:
+    """The rows of consecutive cases from `start`, by column (every column the same length)."""
+
+    start: int
+    columns: dict[str, list[Any]]
+
+    def __len__(self) -> int:
+        return len(self.columns["case_id"])
+
+    @property
+    def stop(self) -> int:
+        return self.start + len(self)
+
+    def rows(self) -> list[Row]:
+        names = list(self.columns)
+        columns = self.columns.values()
+        return [dict(zip(names, values, strict=True)) for values in zip(*columns, strict=True)]
+
+    def statuses(self) -> collections.Counter[str]:
+        return collections.Counter(self.columns["status"])
+
+    @classmethod
+    def of(cls, rows: Sequence[Row]) -> Chunk:
+        """The chunk of rows of consecutive cases, in order (ValueError if they are not)."""
+        if not rows:
+            raise ValueError("a chunk has at least one row")
+        start = int(rows[0]["case_id"])
+        if any(int(r["case_id"]) != start + i for i, r in enumerate(rows)):
+            raise ValueError("a chunk's rows are consecutive cases, in order")
+        names = list(rows[0])
+        return cls(start, {n: [r.get(n) for r in rows] for n in names})
+
+    def every(self, k: int) -> Chunk | None:
+        """The rows whose case number is a multiple of `k` (None if none is)."""
+        first = (-self.start) % k
+        if first >= len(self):
+            return None
+        return Chunk(self.start + first, {n: v[first::k] for n, v in self.columns.items()})
+
+
+def as_chunk(result: Chunk | Sequence[Row]) -> Chunk:
+    """A task's result as a chunk (a task run by someone else's `execute` may give rows)."""
+    return result if isinstance(result, Chunk) else Chunk.of(result)
 
 
 def run_task(task: Task) -> list[Row]:
-    """Simulate every case of `task`; one row per case, in the task's order."""
+    """Simulate every case of `task`; one row per case, in order (`run_chunk` as rows)."""
+    return run_chunk(task).rows()
+
+
+def run_chunk(task: Task) -> Chunk:
+    """Simulate every case of `task`: its rows by column."""
     spec = task.spec
     base = base_params(spec.model, spec.preset_text, spec.engagement_text)
     fixed = dict(spec.fixed)
     valid: list[tuple[Case, Any, dict[str, Any]]] = []
     rows: dict[int, Row] = {}
-    for case in task.cases:
+    cases = task.cases
+    for case in cases:
         values = {**fixed, **dict(case.values)}
         params, problems = checked_case(spec.model, base, values)
         if problems:
@@ -59,7 +132,7 @@ def run_task(task: Task) -> list[Row]:
                 rows[case.case_id] = _row(spec, case, {}, "failed", str(exc))
                 continue
             rows[case.case_id] = _row(spec, case, metrics, "ok", "")
-    return [rows[case.case_id] for case in task.cases]
+    return Chunk.of([rows[case.case_id] for case in cases])
 
 
 def _settings(spec: SweepSpec, values: dict[str, Any]) -> dict[str, Any]:
@@ -104,21 +177,32 @@ def shift_metrics(features: ShiftFeatures, time_to_stop_s: float) -> dict[str, A
 
 
 def _shift_pure(params: Any, seed: int, settings: dict[str, Any]) -> dict[str, Any]:
-    from carfeel.simulation.shift import simulate_shift
+    from carfeel.simulation.shift import stream_shift
 
-    result = simulate_shift(
+    features = ShiftFeatureStream(params.gearbox.in_gear_position_m)
+    stream_shift(
         params,
+        Tee(_Finite("non-finite position or force", ("position_m", "force_N")), features),
         seed=seed,
         duration_s=shift_duration_s(settings, params.driver.pull_out),
         dt_s=settings.get("dt_s", 1e-3),
         substeps=settings.get("substeps", 1),
     )
-    if not all(np.all(np.isfinite(result[n])) for n in ("position_m", "force_N")):
-        raise ArithmeticError("non-finite position or force")
-    stages = result["stage"]
-    at_stop = np.flatnonzero(stages == "stop")
-    to_stop = float(result.time_s[at_stop[0]]) if at_stop.size else math.nan
-    return shift_metrics(shift_features(result, params.gearbox.in_gear_position_m), to_stop)
+    return shift_metrics(features.features(), features.time_to_stop_s)
+
+
+class _Finite(FiniteCheck):
+    """A case's run stopped at its first non-finite number: the row says `message`."""
+
+    def __init__(self, message: str, names: Sequence[str]) -> None:
+        super().__init__("sweep", names)
+        self.message = message
+
+    def write(self, block: Any) -> None:
+        try:
+            super().write(block)
+        except CarfeelError:
+            raise ArithmeticError(self.message) from None
 
 
 def _shift_batch(
@@ -163,7 +247,7 @@ def _shift_batch(
 
 def _hpattern(params: Any, seed: int, settings: dict[str, Any]) -> dict[str, Any]:
     from carfeel.models.drivers.hpattern import Script
-    from carfeel.simulation.hpattern import HPatternRun, simulate_hpattern
+    from carfeel.simulation.hpattern import HPatternRun, stream_hpattern
     from carfeel.sweep.spec import HPatternCase
 
     assert isinstance(params, HPatternCase)
@@ -191,43 +275,31 @@ def _hpattern(params: Any, seed: int, settings: dict[str, Any]) -> dict[str, Any
         dt,
     )
     duration = float(settings.get("max_duration_s", 3.0 * len(sequence) + 5.0))
-    result = simulate_hpattern(
-        run, seed=seed, max_duration_s=duration, dt_s=dt, substeps=int(settings.get("substeps", 1))
+    figures = EngagementStream()
+    stream_hpattern(
+        run,
+        Tee(_Finite("non-finite knob position or force", ("x_m", "y_m", "force_x_N")), figures),
+        seed=seed,
+        max_duration_s=duration,
+        dt_s=dt,
+        substeps=int(settings.get("substeps", 1)),
     )
-    return hpattern_metrics(result, gears)
+    return hpattern_metrics(figures, gears)
 
 
-def hpattern_metrics(result: Result, gears: Sequence[str]) -> dict[str, Any]:
+def hpattern_metrics(figures: EngagementStream, gears: Sequence[str]) -> dict[str, Any]:
     """Per gear of the sequence (in order) and for the whole sequence."""
-    if not all(np.all(np.isfinite(result[n])) for n in ("x_m", "y_m", "force_x_N")):
-        raise ArithmeticError("non-finite knob position or force")
-    dt = float(result.time_s[1] - result.time_s[0])
-    stages, events, force = result["stage"], result["event"], np.abs(result["force_x_N"])
-    engaged = [i for i, e in enumerate(events) if e.startswith("engage")]
+    engaged = figures.figures()
     out: dict[str, Any] = {}
-    start = 0
     for k, gear in enumerate(gears, start=1):
         prefix = f"shift{k}_{gear}_"
         if k <= len(engaged):
-            end = engaged[k - 1] + 1
-            window = slice(start, end)
-            sync = stages[window] == "synchronization"
-            teeth = stages[window] == "engagement"
-            out[prefix + "synchronization_force_N"] = (
-                float(np.median(force[window][sync])) if sync.any() else math.nan
-            )
-            out[prefix + "synchronization_time_s"] = float(sync.sum() * dt)
-            out[prefix + "engagement_peak_N"] = (
-                float(force[window][teeth].max()) if teeth.any() else math.nan
-            )
-            # The stop comes after the engage event: look up to the next one.
-            after = slice(engaged[k - 1], engaged[k] if k < len(engaged) else len(stages))
-            at_stop = stages[after] == "stop"
-            out[prefix + "stop_peak_N"] = (
-                float(force[after][at_stop].max()) if at_stop.any() else math.nan
-            )
+            e = engaged[k - 1]
+            out[prefix + "synchronization_force_N"] = e.plateau_N
+            out[prefix + "synchronization_time_s"] = e.synchronization_s
+            out[prefix + "engagement_peak_N"] = e.engagement_peak_N
+            out[prefix + "stop_peak_N"] = e.stop_peak_N
             out[prefix + "engaged"] = True
-            start = end
         else:
             for name in (
                 "synchronization_force_N",
@@ -238,18 +310,17 @@ def hpattern_metrics(result: Result, gears: Sequence[str]) -> dict[str, Any]:
                 out[prefix + name] = math.nan
             out[prefix + "engaged"] = False
     complete = len(engaged) >= len(gears)
-    out["total_time_s"] = float(result.time_s[engaged[len(gears) - 1]]) if complete else math.nan
+    out["total_time_s"] = engaged[len(gears) - 1].time_s if complete else math.nan
     out["balked"] = not complete
-    grind = np.abs(result["grind_N"])
-    out["ground"] = bool(grind.max() > 0.0)
-    out["peak_grind_N"] = float(grind.max())
+    out["ground"] = figures.peak_grind_N > 0.0
+    out["peak_grind_N"] = figures.peak_grind_N
     return out
 
 
 def _steering(params: Any, seed: int, settings: dict[str, Any]) -> dict[str, Any]:
     from carfeel.analysis.steering_feel import G, steering_feel
     from carfeel.simulation import manoeuvres
-    from carfeel.simulation.steering import simulate_steering
+    from carfeel.simulation.steering import stream_steering
 
     car = params
     model = settings.get("steering_model", "paper")
@@ -259,17 +330,19 @@ def _steering(params: Any, seed: int, settings: dict[str, Any]) -> dict[str, Any
             "physical steering model needs them"
         )
     manoeuvre = manoeuvres.build(settings["manoeuvre"], car.vehicle, settings.get("speed_kmh"))
-    result = simulate_steering(
+    kept = Columns(("speed_m_s", "steering_angle_rad", "lateral_accel_m_s2", "torque_Nm"))
+    finite = _Finite("non-finite torque or lateral acceleration", kept.names[2:])
+    stream_steering(
         car,
         manoeuvre,
+        Tee(finite, kept),
         dt_s=float(settings.get("dt_s", 1e-3)),
         substeps=int(settings.get("substeps", 1)),
         model=model,
         road=settings.get("road") if model == "physical" else None,
     )
+    result = kept.result()
     torque, ay = result["torque_Nm"], result["lateral_accel_m_s2"]
-    if not (np.all(np.isfinite(torque)) and np.all(np.isfinite(ay))):
-        raise ArithmeticError("non-finite torque or lateral acceleration")
     feel = steering_feel(
         result.time_s,
         result["speed_m_s"],
