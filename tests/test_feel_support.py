@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from carfeel.analysis.steering_feel import is_weave, steering_feel
-from carfeel.commands.simulate import SteeringRun, run_steering
+from carfeel.runs import SteeringRun, run_steering
 from carfeel.simulation.result import Result
 
 

@@ -203,7 +203,9 @@ names = st.one_of(
 @given(name=names, kind=st.sampled_from(KINDS), version=st.sampled_from(fmu.FMI_VERSIONS))
 def test_a_hostile_name_is_data_in_every_generated_file_or_refused(name, kind, version):
     if refused(name):
-        with pytest.raises((InputError, PresetError)) as refusal:  # the preset's reader or the FMU's
+        with pytest.raises(
+            (InputError, PresetError)
+        ) as refusal:  # the preset's reader or the FMU's
             spec_of(kind, name)
         message = str(refusal.value)
         assert "name" in message and ("U+" in message or str(fmu.MAX_NAME_CHARS) in message)

@@ -9,13 +9,13 @@ import math
 import numpy as np
 import pytest
 
-from carfeel.commands.simulate import engagements_of, outside_distance
 from carfeel.errors import PresetError
 from carfeel.io.presets import HPatternPreset, load_hpattern
 from carfeel.models.drivers.hpattern import Script
 from carfeel.models.gearshift import engagement, hpattern, synchronizer
 from carfeel.models.gearshift.hpattern import HPatternInputs
 from carfeel.models.gearshift.synchronizer import SynchronizerInputs
+from carfeel.runs import engagements_of, outside_distance
 from carfeel.simulation.hpattern import HPatternRun, simulate_hpattern
 from carfeel.simulation.result import Result
 from carfeel.simulation.shift import simulate_shift

@@ -60,7 +60,7 @@ def test_the_peak_labels_stand_clear_of_the_force_trace(figures, tmp_path, seed)
 
 def test_the_hpattern_legend_tells_up_and_down_shifts_apart(figures, tmp_path):
     """Issue 11: hpattern.png's legend repeated "into 3", "into 2" for up and down shifts."""
-    from carfeel.commands.simulate import HPatternRunConfig, run_hpattern
+    from carfeel.runs import HPatternRunConfig, run_hpattern
 
     config = HPatternRunConfig(sequence=("N", "1", "2", "3", "2", "N"))
     run_hpattern(config, tmp_path / "hp.csv", tmp_path / "hp.png")
@@ -96,7 +96,7 @@ def test_the_step_plots_legend_leaves_the_torque_visible_and_its_path_is_not_squ
 def test_a_parked_run_plots_the_terms_its_model_has(figures, tmp_path, model):
     """A steer cycle at standstill plots the terms against the wheel angle; the paper's run
     has no physical-model term (it raised KeyError on torque_jacking_Nm)."""
-    from carfeel.commands.simulate import SteeringRun, run_steering
+    from carfeel.runs import SteeringRun, run_steering
 
     run_steering(SteeringRun("steer-cycle", steering_model=model), tmp_path / "p.csv",
                  tmp_path / "p.png")  # fmt: skip

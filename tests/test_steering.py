@@ -11,8 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from carfeel.analysis.steering_feel import steering_feel
-from carfeel.commands.metrics import feel_of
+from carfeel.analysis.steering_feel import feel_of, steering_feel
 from carfeel.io.presets import load_steering
 from carfeel.models.steering.torque import SteeringTorqueParams, torque_terms
 from carfeel.models.vehicle import single_track

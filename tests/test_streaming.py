@@ -21,14 +21,15 @@ import pytest
 from carfeel.analysis.hpattern_features import EngagementStream
 from carfeel.analysis.shift_features import ShiftFeatureStream, shift_features
 from carfeel.cli import main
-from carfeel.commands.simulate import HPatternRunConfig, parse_sequence, run_hpattern
 from carfeel.errors import CarfeelError
 from carfeel.io import plots
 from carfeel.io.presets import load_hpattern, load_steering
 from carfeel.models.drivers.hpattern import Script
+from carfeel.runs import HPatternRunConfig, run_hpattern
 from carfeel.simulation import manoeuvres, runner, stream
 from carfeel.simulation.hpattern import HPatternRun, simulate_hpattern
 from carfeel.simulation.result import Result
+from carfeel.simulation.sequence import parse_sequence
 from carfeel.simulation.shift import initial_state, simulate_force_profile, step
 from carfeel.simulation.steering import simulate_steering
 from tests.conftest import default_params, shift_run

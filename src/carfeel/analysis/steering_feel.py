@@ -37,6 +37,7 @@ import numpy as np
 import numpy.typing as npt
 
 from carfeel.models.vehicle.single_track import STANDARD_GRAVITY_M_S2
+from carfeel.simulation.result import Result
 
 G = STANDARD_GRAVITY_M_S2
 ON_CENTRE_G = 0.1
@@ -276,4 +277,31 @@ def steering_feel(
         )
     return SteeringFeel(
         gradient, torque_01, deadband, hysteresis, sensitivity, understeer, tuple(notes)
+    )
+
+
+def feel_lines(feel: SteeringFeel) -> list[str]:
+    """The metrics as a summary's lines (label, value and unit; n/a where NaN), then the notes."""
+    lines = []
+    for key, value in feel.as_dict().items():
+        label, unit = LABELS[key]
+        shown = "n/a" if math.isnan(value) else f"{value:.3g} {unit}"
+        lines.append(f"  {label:28s} {shown}")
+    lines.extend(f"  note: {note}" for note in feel.notes)
+    return lines
+
+
+def feel_of(
+    result: Result, steering_ratio: float | None, wheelbase_m: float | None
+) -> SteeringFeel:
+    """`steering_feel` of a run or log read into a Result (its time_s, speed_m_s,
+    steering_angle_rad, lateral_accel_m_s2 and torque_Nm)."""
+    return steering_feel(
+        result.time_s,
+        result["speed_m_s"],
+        result["steering_angle_rad"],
+        result["lateral_accel_m_s2"],
+        result["torque_Nm"],
+        steering_ratio=steering_ratio,
+        wheelbase_m=wheelbase_m,
     )

@@ -11,19 +11,19 @@ from typing import Any
 import numpy as np
 
 from carfeel import __version__
-from carfeel.commands.simulate import (
+from carfeel.errors import InputError
+from carfeel.io.presets import load_steering
+from carfeel.runs import (
     HPatternRunConfig,
     ShiftRun,
     SteeringRun,
-    parse_sequence,
     run_hpattern,
     run_shift,
     run_steering,
 )
-from carfeel.errors import InputError
-from carfeel.io.presets import load_steering
 from carfeel.simulation import manoeuvres
 from carfeel.simulation.result import Result
+from carfeel.simulation.sequence import parse_sequence
 from carfeel.simulation.steering import simulate_steering
 
 

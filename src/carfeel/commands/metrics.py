@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from carfeel.analysis.steering_feel import LABELS, SteeringFeel, steering_feel
+from carfeel.analysis.steering_feel import LABELS, SteeringFeel, feel_lines, feel_of
 from carfeel.commands.common import source_options, sources_of, to_json
 from carfeel.errors import InputError
 from carfeel.io.presets import load_steering
@@ -28,30 +28,6 @@ REQUIRED_STEERING_COLUMNS = (
 
 
 FEEL_LABELS = LABELS
-
-
-def feel_lines(feel: SteeringFeel) -> list[str]:
-    lines = []
-    for key, value in feel.as_dict().items():
-        label, unit = FEEL_LABELS[key]
-        shown = "n/a" if math.isnan(value) else f"{value:.3g} {unit}"
-        lines.append(f"  {label:28s} {shown}")
-    lines.extend(f"  note: {note}" for note in feel.notes)
-    return lines
-
-
-def feel_of(
-    result: Result, steering_ratio: float | None, wheelbase_m: float | None
-) -> SteeringFeel:
-    return steering_feel(
-        result.time_s,
-        result["speed_m_s"],
-        result["steering_angle_rad"],
-        result["lateral_accel_m_s2"],
-        result["torque_Nm"],
-        steering_ratio=steering_ratio,
-        wheelbase_m=wheelbase_m,
-    )
 
 
 def steering_metrics(

@@ -12,6 +12,7 @@ import tempfile
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -53,6 +54,24 @@ class Result:
     def names(self) -> list[str]:
         """Column names, time first."""
         return ["time_s", *self.signals]
+
+    def to_pandas(self) -> Any:
+        """The samples as a pandas DataFrame indexed by time_s (s), a column per signal (the
+        arrays are copied, not shared); the metadata in `frame.attrs`. Needs the `pandas`
+        extra (`pip install 'carfeel[pandas]'`)."""
+        try:
+            import pandas as pd
+        except ImportError:
+            from carfeel.errors import InputError
+
+            raise InputError(
+                "Result.to_pandas needs pandas: pip install 'carfeel[pandas]' (or pip install "
+                "pandas)"
+            ) from None
+        frame = pd.DataFrame({name: np.array(v) for name, v in self.signals.items()},
+                             index=pd.Index(np.array(self.time_s), name="time_s"))  # fmt: skip
+        frame.attrs.update(self.metadata)
+        return frame
 
     @classmethod
     def from_rows(
