@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 OUT ?= carfeel-demo
 
-.PHONY: demo test check lint bench mutate clean chromium
+.PHONY: demo test check lint docs bench mutate clean chromium
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -16,7 +16,7 @@ $(VENV)/.installed: pyproject.toml | $(BIN)/python
 	touch $@
 
 $(VENV)/.installed-test: pyproject.toml | $(BIN)/python
-	$(BIN)/python -m pip install --quiet -e '.[test,dev,logs,batch,fmu,panel,pandas]'
+	$(BIN)/python -m pip install --quiet -e '.[test,dev,docs,logs,batch,fmu,panel,pandas]'
 	touch $(VENV)/.installed $@
 
 demo: $(VENV)/.installed
@@ -47,6 +47,10 @@ check: lint
 	command -v cc >/dev/null || (apt-get update && apt-get install -y gcc)
 	command -v cmake >/dev/null || (apt-get update && apt-get install -y cmake)
 	$(BIN)/python -m pytest -m "not slow" -q
+
+# The documentation site (mkdocs.yml, docs/): built offline, every warning an error.
+docs: $(VENV)/.installed-test
+	$(BIN)/mkdocs build --strict -d site
 
 bench: $(VENV)/.installed-test
 	$(BIN)/python benchmarks/bench_engagement_step.py
