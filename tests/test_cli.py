@@ -525,10 +525,10 @@ def test_a_closed_pipe_ends_quietly_with_sigpipe_s_code(tmp_path):
 
 
 def readme_examples(prefix: str) -> list[str]:
-    """The README's example command lines that start with `prefix` (continuations joined)."""
-    from pathlib import Path
+    """The manual's example command lines that start with `prefix` (continuations joined)."""
+    from tests.manual import manual_text
 
-    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    text = manual_text()
     lines = text.replace("\\\n", " ").splitlines()
     return [line.split("  #")[0].strip() for line in lines if line.startswith(prefix)]
 

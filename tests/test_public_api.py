@@ -177,13 +177,13 @@ def test_run_sweep_from_python(tmp_path: Path):
     assert (tmp_path / "out.csv").read_text().count("\n") == 5  # a header and 4 cases
 
 
-def test_the_readmes_python_example_runs_as_written(tmp_path: Path, monkeypatch, capsys):
-    """README, "From Python": the block runs as a user would paste it, and prints what its
-    comments say (the paper's plateau; no safety fault)."""
-    readme = (Path(__file__).parents[1] / "README.md").read_text(encoding="utf-8")
-    section = readme.split("\n## From Python\n", 1)[1]
-    code = section.split("```python\n", 1)[1].split("\n```", 1)[0]
+def test_the_python_pages_example_runs_as_written(tmp_path: Path, monkeypatch, capsys):
+    """docs/how-to/python.md: its first block runs as a user would paste it, and prints what
+    its comments say (the paper's plateau; no safety fault)."""
+    from tests.manual import page
+
+    code = page("how-to/python.md").split("```python\n", 1)[1].split("\n```", 1)[0]
     monkeypatch.chdir(tmp_path)
-    exec(compile(code, "README.md", "exec"), {})
+    exec(compile(code, "docs/how-to/python.md", "exec"), {})
     printed = capsys.readouterr().out.split()
     assert float(printed[0]) == pytest.approx(78.3, abs=0.05) and printed[1] == "[]"

@@ -350,11 +350,12 @@ def test_the_outputs_stage_a_folder_and_discard_it_on_failure(tmp_path):
 
 
 def documented_columns() -> dict[str, set[str]]:
-    """The README's "Recording columns": every model's, then each model's own."""
+    """The manual's "Recording columns": every model's, then each model's own."""
     import re
-    from pathlib import Path
 
-    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    from tests.manual import manual_text
+
+    readme = manual_text()
     start = readme.index("**Recording columns**")
     text = readme[start : readme.index("\n\n", start)]
     common, *bullets = text.split("\n- ")
