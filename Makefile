@@ -23,8 +23,8 @@ demo: $(VENV)/.installed
 	$(BIN)/carfeel demo --out-dir $(OUT)
 
 lint: $(VENV)/.installed-test
-	$(BIN)/ruff check src tests benchmarks
-	$(BIN)/ruff format --check src tests benchmarks
+	$(BIN)/ruff check src tests benchmarks docs examples
+	$(BIN)/ruff format --check src tests benchmarks docs examples
 	$(BIN)/mypy
 
 # The panel's browser tests drive Debian's chromium (Playwright cannot download a browser here).

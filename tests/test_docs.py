@@ -19,6 +19,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
 
+
 @pytest.fixture(scope="module")
 def site(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("site")
@@ -77,7 +78,7 @@ def test_every_preset_field_is_in_the_reference(site: Path):
                     assert key in page, f"{kind} {name}: {key}"
 
 
-def _keys(table: dict, prefix: str) -> list[str]:
+def _keys(table: dict[str, object], prefix: str) -> list[str]:
     keys = []
     for k, v in table.items():
         if isinstance(v, dict):

@@ -125,7 +125,7 @@ def render_cli(parser: argparse.ArgumentParser) -> str:
     ]
     commands = list(walk_commands(parser))
     lines += ["| command | what it does |", "|---|---|"]
-    for path, sub in commands[1:]:
+    for path, _ in commands[1:]:
         parent = dict(commands)[path[:-1]]
         summary = _subcommand_help(parent).get(path[-1], "")
         anchor = _slug(" ".join(path))
@@ -172,7 +172,7 @@ def render_cli(parser: argparse.ArgumentParser) -> str:
     return "\n".join(lines) + "\n"
 
 
-# --- the presets -----------------------------------------------------------------------------------
+# --- the presets ---------------------------------------------------------------------------------
 
 
 @dataclasses.dataclass(frozen=True)

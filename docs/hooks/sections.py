@@ -32,7 +32,7 @@ def section(file: str, heading: str) -> str:
     for line in lines[start + 1 :]:
         if line.startswith("```"):
             fenced = not fenced
-        if not fenced and re.match(r"#{1,%d} " % level, line):
+        if not fenced and re.match(rf"#{{1,{level}}} ", line):
             break
         body.append(line)
     return "\n".join(body).strip("\n")
