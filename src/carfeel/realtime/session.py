@@ -164,7 +164,10 @@ class RealtimeResult:
             f"{s.period_error_max_us:.1f} us",
             f"peak command {s.peak_command:.2f} {self.unit}; scales: force "
             f"{self.scaling.force_scale:.3g}, position {self.scaling.position_scale:.3g}",
-            f"gears engaged: {' '.join(s.gears) or 'none'}; stopped by {s.stopped}",
+            (
+                f"gears engaged: {' '.join(s.gears) or 'none'}; " if self.unit != "Nm" else ""
+            )  # a wheel shifts no gears
+            + f"stopped by {s.stopped}",
             f"time at the force limit {s.time_at_limit_s:.3f} s; largest 2-100 Hz command "
             f"{s.oscillation_rms:.3g} rms; passivity controller active {s.passivity_acted_s:.3f} s",
         ]
@@ -174,7 +177,13 @@ class RealtimeResult:
                 f"sized for this device: stiffness {st['stiffness']:.4g}, damping "
                 f"{st['damping']:.3g} (cap {st['damping_cap']:.3g}), hands-off damping ratio "
                 f"{st['zeta_hands_off']:.2f}, round-trip delay {st['latency_s'] * 1e3:.3g} ms, "
-                f"passivity index {st['passivity_index']:.2g} (below 1: passive for any hand)"
+                f"passivity index {st['passivity_index']:.3g} "
+                + (
+                    "(under 1: passive for any hand)"
+                    if st["passivity_index"] < 1.0
+                    else "(1 or more: not passive for every hand; stable by the sizing above, "
+                    "guarded by the passivity controller)"
+                )
             )
             if "coupling_stiffness" in st:
                 lines.append(
