@@ -575,3 +575,16 @@ def test_an_environment_credential_that_is_too_short_is_refused(tmp_path, capsys
     monkeypatch.setenv("CARFEEL_PANEL_TOKEN", "short")
     assert main(["panel", "--dir", str(tmp_path / "p")]) == 2
     assert "$CARFEEL_PANEL_TOKEN: the credential is 16 to 256" in capsys.readouterr().err
+
+
+def test_a_network_panel_names_an_address_another_machine_reaches():
+    """`panel --host 0.0.0.0` printed only 127.0.0.1 (issue 28): the address it adds is this
+    machine's own (it can be bound here) and not loopback."""
+    import socket
+
+    from carfeel.commands.panel import lan_addresses
+
+    for address in lan_addresses():
+        assert not address.startswith("127.")
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+            s.bind((address, 0))  # an address of this machine's interfaces, or OSError

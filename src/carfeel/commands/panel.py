@@ -197,14 +197,31 @@ def _handle(args: argparse.Namespace) -> int:
     # sessionStorage and removes it from the address bar.
     url = f"http://{url_host}:{port}/#token={token}"
 
+    wide = args.host in ("0.0.0.0", "::")
+    others = [f"http://{a}:{port}/#token={token}" for a in lan_addresses()] if wide else []
+
     def announce() -> None:
         print(f"carfeel panel: {url}  (recordings and presets in {folder}/; Ctrl-C stops)",
               flush=True)  # fmt: skip
+        for other in others:  # --host 0.0.0.0: what another machine types
+            print(f"  from another machine: {other}", flush=True)
         if args.open:
             open_in_browser(url)
 
     _serve(server, sock, announce)
     return 0
+
+
+def lan_addresses() -> list[str]:
+    """This machine's address on its default route (what another machine on the LAN reaches),
+    found by a UDP socket's connect, which sends nothing; none when there is no route."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        try:
+            probe.connect(("10.255.255.255", 9))
+            address = str(probe.getsockname()[0])
+        except OSError:
+            return []
+    return [] if address.startswith("127.") or address == "0.0.0.0" else [address]
 
 
 def listen(host: str, port: int) -> socket.socket:
