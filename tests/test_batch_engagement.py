@@ -15,6 +15,7 @@ import dataclasses
 import math
 
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
@@ -147,6 +148,7 @@ def lanes(draw):
     return params, seeds, step
 
 
+@pytest.mark.slow  # over 8 s here: the full suite (make test) runs it, make check does not
 @settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(lanes())
 def test_random_parameter_sets_and_seeds_equal_the_pure_step_bit_for_bit(case):

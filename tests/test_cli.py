@@ -52,6 +52,7 @@ def test_dt_and_substeps_options(tmp_path):
     assert coarse[1:] != plain[1:]
 
 
+@pytest.mark.slow  # over 8 s here: the full suite (make test) runs it, make check does not
 def test_demo_writes_into_the_folder_it_names(tmp_path, capsys):
     folder = tmp_path / "demo"
     assert main(["demo", "--clock", "simulated", "--out-dir", str(folder)]) == 0

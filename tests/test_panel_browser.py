@@ -116,6 +116,7 @@ def test_the_page_loads_without_console_errors(page: Any) -> None:
     assert page.problems == []
 
 
+@pytest.mark.slow  # over 8 s here: the full suite (make test) runs it, make check does not
 def test_a_session_started_from_the_page(
     page: Any, panel: tuple[str, Path], tmp_path: Path
 ) -> None:

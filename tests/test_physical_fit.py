@@ -194,6 +194,7 @@ def write_logs(folder, names, delay_s=0.0, seed=5):
     return paths
 
 
+@pytest.mark.slow  # over 8 s here: the full suite (make test) runs it, make check does not
 def test_fit_and_validate_the_physical_model_from_the_command_line(tmp_path, capsys):
     """Parking, the weave and the fast sine with the torque logged 40 ms late; fitted on the
     first 70 % of each log, the offset let drift (knots 10 s apart); the preset keeps the base

@@ -358,6 +358,7 @@ def test_no_traces_is_an_error():
         fit_shift([])
 
 
+@pytest.mark.slow  # over 8 s here: the full suite (make test) runs it, make check does not
 def test_fit_and_validate_shift_traces_from_the_command_line(tmp_path, capsys):
     """The CLI round trip: traces on disk -> `fit shift` -> a preset that loads -> `validate`."""
     import json
@@ -502,6 +503,7 @@ def test_a_trace_without_an_engagement_is_still_validated(tmp_path, capsys):
     assert "rms_error_m" in capsys.readouterr().out
 
 
+@pytest.mark.slow  # over 8 s here: the full suite (make test) runs it, make check does not
 def test_a_truth_away_from_the_base_with_a_biased_drifting_force_is_found():
     """The teeth's sliding friction, their spread and the stop's damping of this truth are not
     the base preset's (12 N, 10 N, 40 N*s/m), so a fit that returned the base would fail; the
@@ -537,6 +539,7 @@ def test_a_truth_away_from_the_base_with_a_biased_drifting_force_is_found():
     assert fit.params.driver.push_force_N == pytest.approx(70.0 + 2.5, abs=1.5)
 
 
+@pytest.mark.slow  # over 8 s here: the full suite (make test) runs it, make check does not
 def test_the_lever_mass_from_noise_free_free_travel():
     """The free stretches' output-error fit on traces without noise recovers a lever mass that
     is not the base's (1.6 vs 1.2 kg) within 3 %; with the noise of the other tests it reads
@@ -642,6 +645,7 @@ def chamfered_truth() -> ShiftParams:
                        t.driver)  # fmt: skip
 
 
+@pytest.mark.slow  # over 8 s here: the full suite (make test) runs it, make check does not
 def test_a_quantized_position_and_1_n_of_force_noise_give_the_stages_and_honest_sigmas():
     """Issue 25: 1 N of force noise and a 0.05 mm position resolution gave r2 -0.13 (0.41 here
     with the chamfers on, 12 mm rms), the teeth -23 % at 10-24 sigma and a push force's sigma
@@ -676,6 +680,7 @@ def test_a_quantized_position_and_1_n_of_force_noise_give_the_stages_and_honest_
     assert all("r2" in d and "departing most at" in d for d in fit.departures)
 
 
+@pytest.mark.slow  # over 8 s here: the full suite (make test) runs it, make check does not
 def test_chamfers_the_traces_never_show_are_taken_out():
     """The round trip's truth has no chamfers, the base has them: 6 engagements gap to gap
     would happen with a probability of 0.2^6 under the base's, so the fitted preset has none

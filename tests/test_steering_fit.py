@@ -703,6 +703,7 @@ def test_drift_and_cross_validation_from_the_command_line(tmp_path, capsys):
             assert figures["offset_range_Nm"] > 0.1, name
 
 
+@pytest.mark.slow  # over 8 s here: the full suite (make test) runs it, make check does not
 def test_reported_sigmas_match_the_errors_over_repeated_noisy_fits():
     """Four noise draws of the acceptance logs: the scatter of each estimate against the sigma
     the fit reports (a block sandwich). With 4 draws a sample spread is good to about 40 %, so
@@ -746,6 +747,7 @@ def test_validate_gives_the_models_own_understeer_gradient_not_the_logs(tmp_path
 # ---------------------------------------------------------------- issue 25: a fit to trust
 
 
+@pytest.mark.slow  # over 8 s here: the full suite (make test) runs it, make check does not
 def test_a_law_shape_the_preset_lacks_is_fitted_not_replaced_by_the_base():
     """The Golf-like car (torque = 3.0 Nm x (Ay / 1.375 + 0.202 tanh(rate / 0.05)): linear
     aligning, a friction step, no tyre spin) through the five ISO manoeuvres with noise. The old
@@ -772,6 +774,7 @@ def test_a_law_shape_the_preset_lacks_is_fitted_not_replaced_by_the_base():
     assert k2.status == "fitted" and k2.value < 1e-6 and "at its bound 0" in k2.note
 
 
+@pytest.mark.slow  # over 8 s here: the full suite (make test) runs it, make check does not
 def test_every_fault_of_a_real_cars_sensors_leaves_the_law_within_its_sigmas():
     """Issue 25, point 2: the angle at a 0.1 deg resolution after 0.02 deg of noise and a 0.5
     deg offset, speed, Ay and torque noise and offsets, the torque logged 20 ms late, no rate

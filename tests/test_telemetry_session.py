@@ -120,6 +120,7 @@ def _counts(summary: dict[str, Any]) -> str:
     return str(next(n for n in summary["notes"] if "good packets" in n))
 
 
+@pytest.mark.slow  # over 8 s here: the full suite (make test) runs it, make check does not
 def test_thirty_seconds_of_garbage_between_a_real_capture_changes_nothing_rendered(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
