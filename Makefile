@@ -46,7 +46,7 @@ test: lint chromium
 check: lint
 	command -v cc >/dev/null || (apt-get update && apt-get install -y gcc)
 	command -v cmake >/dev/null || (apt-get update && apt-get install -y cmake)
-	$(BIN)/python -m pytest -m "not slow" -q
+	$(BIN)/python -m pytest -m "not slow" -q -n 2
 
 # The documentation site (mkdocs.yml, docs/): built offline, every warning an error.
 docs: $(VENV)/.installed-test
