@@ -187,3 +187,39 @@ def test_the_python_pages_example_runs_as_written(tmp_path: Path, monkeypatch, c
     exec(compile(code, "docs/how-to/python.md", "exec"), {})
     printed = capsys.readouterr().out.split()
     assert float(printed[0]) == pytest.approx(78.3, abs=0.05) and printed[1] == "[]"
+
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+
+
+def test_fit_and_validate_steering_equal_the_command_line(tmp_path: Path):
+    """The API's fit is the CLI's fit: the same preset bytes from the same logs (examples/, a
+    rig's 200 Hz logs with noise, an offset and a lag), and validate_steering scores them."""
+    from carfeel.cli import main
+
+    logs = [EXAMPLES / "logs" / n for n in ("weave.csv", "lanechange.csv", "park.csv")]
+    (tmp_path / "cli").mkdir()
+    (tmp_path / "api").mkdir()  # one file name in two folders: the preset is named after it
+    cli = tmp_path / "cli" / "mycar.toml"
+    assert main(["fit", "steering", *map(str, logs), "--out", str(cli)]) == 0
+    fit = carfeel.fit_steering(logs, tmp_path / "api" / "mycar.toml")
+    assert (tmp_path / "api" / "mycar.toml").read_bytes() == cli.read_bytes()
+    assert 0.99 < fit.r2 <= 1.0  # the examples' own law under rig noise: nearly all explained
+    checked = carfeel.validate_steering(cli, logs[:1], tmp_path / "check")
+    assert (tmp_path / "check" / "index.html").is_file() and checked
+    with pytest.raises(InputError):  # a log that is not there: the CLI's message, no fit written
+        carfeel.fit_steering([tmp_path / "missing.csv"], tmp_path / "none.toml")
+    assert not (tmp_path / "none.toml").exists()
+
+
+@pytest.mark.slow
+def test_export_fmu_from_python_equals_the_command_line(tmp_path: Path):
+    from carfeel.cli import main
+
+    assert main(["export", "fmu", "shift", "--out", str(tmp_path / "cli.fmu")]) == 0
+    files = carfeel.export_fmu("shift", tmp_path / "api.fmu")
+    assert "modelDescription.xml" in files
+    import zipfile
+
+    with zipfile.ZipFile(tmp_path / "cli.fmu") as a, zipfile.ZipFile(tmp_path / "api.fmu") as b:
+        assert a.read("modelDescription.xml") == b.read("modelDescription.xml")

@@ -229,11 +229,7 @@ def fit_steering(
     it), with a report in `report_dir`. Returns the fit (values, sigmas, r2, warnings)."""
     from carfeel.identification.workflows import fit_steering_logs
 
-    return fit_steering_logs(
-        [Path(p) for p in logs], Path(out), base=base, show_progress=False,
-        report_dir=None if report_dir is None else Path(report_dir),
-        sources=_sources(channels, dbc), holdout=holdout,
-    )  # fmt: skip
+    return _fit_logs(fit_steering_logs, logs, out, base, report_dir, channels, dbc, holdout)
 
 
 def fit_physical(
@@ -250,7 +246,21 @@ def fit_physical(
     `fit_steering`."""
     from carfeel.identification.physical_workflows import fit_physical_logs
 
-    return fit_physical_logs(
+    return _fit_logs(fit_physical_logs, logs, out, base, report_dir, channels, dbc, holdout)
+
+
+def _fit_logs(
+    fitter: Any,
+    logs: Sequence[str | Path],
+    out: str | Path,
+    base: str,
+    report_dir: str | Path | None,
+    channels: str | Path | None,
+    dbc: str | Path | None,
+    holdout: float,
+) -> Any:
+    """A steering fit (the law's or the physical model's) as the command line calls it."""
+    return fitter(
         [Path(p) for p in logs], Path(out), base=base, show_progress=False,
         report_dir=None if report_dir is None else Path(report_dir),
         sources=_sources(channels, dbc), holdout=holdout,
