@@ -223,3 +223,17 @@ def test_export_fmu_from_python_equals_the_command_line(tmp_path: Path):
 
     with zipfile.ZipFile(tmp_path / "cli.fmu") as a, zipfile.ZipFile(tmp_path / "api.fmu") as b:
         assert a.read("modelDescription.xml") == b.read("modelDescription.xml")
+
+
+@pytest.mark.slow  # two shift fits, about 11 s here
+def test_fit_shift_equals_the_command_line(tmp_path: Path):
+    from carfeel.cli import main
+
+    trace = EXAMPLES / "logs" / "first-gear.csv"
+    (tmp_path / "cli").mkdir()
+    (tmp_path / "api").mkdir()
+    cli = tmp_path / "cli" / "box.toml"
+    assert main(["fit", "shift", str(trace), "--out", str(cli)]) == 0
+    figures = carfeel.fit_shift([trace], tmp_path / "api" / "box.toml")
+    assert (tmp_path / "api" / "box.toml").read_bytes() == cli.read_bytes()
+    assert figures["r2"] >= 0.8  # the bar a written preset must pass (below it: refused)
