@@ -106,15 +106,28 @@ def test_swept_pieces_are_the_whole_run_for_every_parameter_set():
         trial = x.copy()
         trial[i] += h
         sets.append(physical_fit.with_values(base, trial).physical())
-    once, _, _ = Batch(runs, pieces, ref).run(sets, x, neighbours, max_sweeps=1)
-    swept, _, change = Batch(runs, pieces, ref).run(sets, x, neighbours, max_sweeps=50)
+    data = physical_fit._data(logs, runs, None)
+    delay = 0.0123  # the torque logged late: the samples fall between grid points
+    once, _, _ = Batch(runs, pieces, ref, data).run(sets, x, neighbours, delay, max_sweeps=1)
+    swept, slope, change = Batch(runs, pieces, ref, data).run(sets, x, neighbours, delay,
+                                                             max_sweeps=50)  # fmt: skip
     assert change <= physical_fit.SWEEP_TOL_NM
     worst_once = 0.0
     for j, params in enumerate(sets):
         exact = reference(params, runs)
-        for run, grid, first in zip(exact.torque_Nm, swept, once, strict=True):
-            assert np.max(np.abs(grid[j] - run)) < 1e-3
-            worst_once = max(worst_once, float(np.max(np.abs(first[j] - run))))
+        model = data.predict([t[None, :] for t in exact.torque_Nm], delay)[0]
+        assert np.max(np.abs(swept[j] - model)) < 1e-3
+        worst_once = max(worst_once, float(np.max(np.abs(once[j] - model))))
+        if j == 0:  # the delay's column: the slope of the same interpolant (a central
+            # difference of it over 0.1 ms, exact where no grid point lies within 0.05 ms)
+            h = 5e-5
+            ahead = data.predict([t[None, :] for t in exact.torque_Nm], delay - h)[0]
+            behind = data.predict([t[None, :] for t in exact.torque_Nm], delay + h)[0]
+            numeric = (ahead - behind) / (2 * h)
+            away = np.abs(((data.time_s - delay) / physical_fit.DT_S + 0.5) % 1.0 - 0.5) > 0.06
+            assert away.mean() > 0.5
+            # 1e-3 Nm of torque difference over a 1 ms grid step: 1 Nm/s
+            assert np.max(np.abs(slope - numeric)[away]) < 1.0
     assert worst_once > 1e-2  # started from the base's states, one sweep is not the run
 
 
@@ -379,5 +392,5 @@ def test_without_logged_ay_the_excitation_of_mu_is_judged_on_the_base_model():
     for logs, kept in ((limit, False), (weave, True)):
         runs = runs_of(logs)
         ref = reference(base.physical(), runs)
-        sim = [np.interp(logs[0].time_s, runs[0].grid_s, ref.lateral_accel_m_s2[0])]
+        sim = [ref.lateral_accel_m_s2[0]]
         assert (index in physical_fit.excitation(logs, sim, base)) == kept

@@ -22,6 +22,7 @@ set (checked).
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 from dataclasses import dataclass
 
 import numpy as np
@@ -34,6 +35,9 @@ FloatArray = npt.NDArray[np.float64]
 STOP_MARGIN_RAD = 0.5
 """The end stops are computed at a step only when a rim or pinion angle of the batch comes
 within this of the lock (elsewhere they are exactly 0)."""
+
+CHUNK_STEPS = 128
+"""Steps whose input-derived arrays are made at once."""
 
 SHARED = (
     "relaxation_length_m",
@@ -75,11 +79,17 @@ def _column(params: Sequence[PhysicalParams], table: str, name: str, pieces: int
 
 
 def simulate(
-    params: Sequence[PhysicalParams], pieces: Pieces, dt_s: float, capture: Sequence[int] = ()
+    params: Sequence[PhysicalParams],
+    pieces: Pieces,
+    dt_s: float,
+    capture: Sequence[int] = (),
+    with_ay: bool = True,
 ) -> tuple[FloatArray, FloatArray, dict[int, FloatArray]]:
     """(torque_Nm, lateral_accel_m_s2, states): the rim torque and Ay after each step, each
-    (T, J, S), of every parameter set (J) on every piece (S); and the states after the steps
-    `capture` (rows), each (fields, J, S) (the pose fields 0: the torque does not see them)."""
+    (T, J, S), of every parameter set (J) on every piece (S) (Ay (0, J, S) without `with_ay`); and
+    the states after the steps `capture` (rows), each (fields, J, S) (the pose fields 0: the
+    torque does not see them)."""
+    ay_too = with_ay
     first = params[0]
     for p in params[1:]:
         if p.vehicle != first.vehicle or any(
@@ -148,23 +158,28 @@ def simulate(
     mu_slope = mu * e / nominal
     tenth4 = np.broadcast_to(tenth_mu, (4, n))
 
-    # Per step and element, (T, B): what depends on the inputs alone.
+    # Per step and element, (C, B) for CHUNK_STEPS steps at a time: what depends on the inputs
+    # alone (made ahead for numpy's sake, in chunks so the memory does not grow with T).
     def tiled(values: FloatArray) -> FloatArray:
         return np.tile(values, (1, n_sets))
 
-    speed = tiled(pieces.speed_m_s)
-    hands, hand_rates = tiled(pieces.angle_rad), tiled(pieces.rate_rad_s)
-    moving = speed >= veh.kinematic_speed_m_s
-    any_moving: list[bool] = np.asarray(moving.any(axis=1), dtype=bool).tolist()
-    any_kinematic: list[bool] = np.asarray((~moving).any(axis=1), dtype=bool).tolist()
-    v_safe = np.where(moving, speed, 1.0)
-    k_all = speed * dt / first.tyres.relaxation_length_m
-    onek_all = 1.0 + k_all
-    fade = speed / first.system.assist_fade_speed_m_s
-    low_all = 1.0 / (1.0 + fade * fade)
-    back = speed / first.system.active_return_fade_speed_m_s
-    window_all = np.minimum(1.0, 0.5 * speed) / (1.0 + back * back * back * back)
-    near = (np.abs(hands) > lock - STOP_MARGIN_RAD).any(axis=1)
+    def chunk(k0: int) -> tuple[npt.NDArray[Any], ...]:
+        rows = slice(k0, k0 + CHUNK_STEPS)
+        speed = tiled(pieces.speed_m_s[rows])
+        moving = speed >= veh.kinematic_speed_m_s
+        fade = speed / first.system.assist_fade_speed_m_s
+        back = speed / first.system.active_return_fade_speed_m_s
+        k_all = speed * dt / first.tyres.relaxation_length_m
+        return (
+            speed, tiled(pieces.angle_rad[rows]), tiled(pieces.rate_rad_s[rows]), moving,
+            np.where(moving, speed, 1.0), k_all, 1.0 + k_all, 1.0 / (1.0 + fade * fade),
+            np.minimum(1.0, 0.5 * speed) / (1.0 + back * back * back * back),
+        )  # fmt: skip
+
+    moving_any = pieces.speed_m_s >= veh.kinematic_speed_m_s
+    any_moving: list[bool] = np.asarray(moving_any.any(axis=1), dtype=bool).tolist()
+    any_kinematic: list[bool] = np.asarray((~moving_any).any(axis=1), dtype=bool).tolist()
+    near = (np.abs(pieces.angle_rad) > lock - STOP_MARGIN_RAD).any(axis=1)
     near_lock: list[bool] = np.asarray(near, dtype=bool).tolist()
 
     start = pieces.start
@@ -181,21 +196,27 @@ def simulate(
     beta, r = full("sideslip_rad"), full("yaw_rate_rad_s")
     ay = full("lateral_accel_m_s2")
 
-    steps = speed.shape[0]
+    steps = pieces.speed_m_s.shape[0]
     torque_out = np.empty((steps, n))
-    ay_out = np.empty((steps, n))
+    ay_out = np.empty((steps, n) if ay_too else (0, n))
     slips, dfz = np.empty((4, n)), np.empty((4, n))
     zeros = np.zeros(n)
     wanted = set(capture)
     states: dict[int, FloatArray] = {}
     for k in range(steps):
-        v = speed[k]
+        if k % CHUNK_STEPS == 0:
+            speed, hands, hand_rates, moving, v_safe, k_all, onek_all, low_all, window_all = chunk(
+                k
+            )
+            k0 = k
+        c = k - k0
+        v = speed[c]
         delta = theta / sr
         transfer = m * ay * height / track
         dfz_f = 0.5 * share * transfer
         dfz_r = 0.5 * transfer - dfz_f
         if any_moving[k]:
-            vs, kk, onek = v_safe[k], k_all[k], onek_all[k]
+            vs, kk, onek = v_safe[c], k_all[c], onek_all[c]
             new_f = (alpha_f + kk * (delta - beta - a * r / vs)) / onek
             new_r = (alpha_r + kk * (b * r / vs - beta)) / onek
             slips[:2], slips[2:] = new_f, new_r
@@ -222,7 +243,7 @@ def simulate(
             front_k = m * ay_k * b / length
             pneumatic_k = t0 * front_k
             if any_moving[k]:
-                mv = moving[k]
+                mv = moving[c]
                 front = np.where(mv, front, front_k)
                 pneumatic = np.where(mv, pneumatic, pneumatic_k)
                 ay_new = np.where(mv, ay_new, ay_k)
@@ -244,19 +265,19 @@ def simulate(
         # Kingpin torques, at the pinion.
         aligning = (trail_m * front + pneumatic) / sr
         jacking = jack * np.sin(delta) / sr
-        park_anchor = (park_anchor + k_all[k] * delta) / onek_all[k]
+        park_anchor = (park_anchor + k_all[c] * delta) / onek_all[c]
         park, park_anchor = _stick(delta, park_anchor, park_level, wind_up, park_over)
         park = park / sr
 
-        hand = hands[k]
+        hand = hands[c]
         bar = k_tb * (hand - theta)
-        bar_total = bar + c_tb * (hand_rates[k] - omega)
-        low_speed = low_all[k]
+        bar_total = bar + c_tb * (hand_rates[c] - omega)
+        low_speed = low_all[c]
         excess = np.maximum(np.abs(bar) - deadband, 0.0)
         boost = np.copysign(
             np.minimum(max_assist, (g_hs + g_span * low_speed) * excess * excess), bar
         )
-        ret = np.minimum(np.maximum(ret_k * theta, -ret_max), ret_max) * window_all[k]
+        ret = np.minimum(np.maximum(ret_k * theta, -ret_max), ret_max) * window_all[c]
         rack_friction, rack_anchor = _stick(
             theta, rack_anchor, rack_level, stiff, rack_over, omega, presliding
         )
@@ -275,20 +296,21 @@ def simulate(
         theta = theta + dt * omega
 
         column, col_anchor = _stick(
-            hand, col_anchor, col_level, stiff, col_over, hand_rates[k], presliding
+            hand, col_anchor, col_level, stiff, col_over, hand_rates[c], presliding
         )
         torque_out[k] = (
             aligning + jacking + park + (rack_friction + column) + damping + jr * rack_accel
             + stop + (ret - boost)
         )  # fmt: skip
-        ay_out[k] = ay
+        if ay_too:
+            ay_out[k] = ay
         if k in wanted:
             states[k] = np.stack([
-                hand, hand_rates[k], theta, omega, col_anchor, rack_anchor, park_anchor,
+                hand, hand_rates[c], theta, omega, col_anchor, rack_anchor, park_anchor,
                 alpha_f, alpha_r, beta, r, zeros, zeros, zeros, ay,
             ]).reshape(len(FIELDS), n_sets, n_pieces)  # fmt: skip
     shape = (steps, n_sets, n_pieces)
-    return torque_out.reshape(shape), ay_out.reshape(shape), states
+    return torque_out.reshape(shape), ay_out.reshape((len(ay_out), n_sets, n_pieces)), states
 
 
 def _stick(

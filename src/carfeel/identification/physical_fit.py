@@ -189,19 +189,44 @@ def with_values(car: SteeringCar, values: Sequence[float] | FloatArray) -> Steer
 @dataclass
 class Run:
     """One gap-free stretch of a log on the model's 1 ms grid: grid point 0 is the start state,
-    step k goes to grid point k with the inputs there."""
+    step k goes to grid point k with the inputs there. The inputs on the grid are made for a
+    window when asked (`inputs`), not held: at 100 Hz a log has ten grid points a sample."""
 
     log: int
     samples: npt.NDArray[np.intp]
     """The log's samples in this stretch."""
-    grid_s: FloatArray
-    speed_m_s: FloatArray
-    angle_rad: FloatArray
-    rate_rad_s: FloatArray
+    start_s: float
+    steps: int
+    time_s: FloatArray
+    """The stretch's samples: times, speed, fused angle and rate (views of the log's)."""
+    speed_samples_m_s: FloatArray
+    angle_samples_rad: FloatArray
+    rate_samples_rad_s: FloatArray
 
     @property
-    def steps(self) -> int:
-        return len(self.grid_s) - 1
+    def grid_s(self) -> FloatArray:
+        return np.asarray(self.start_s + DT_S * np.arange(self.steps + 1), dtype=np.float64)
+
+    def inputs(self, first: int, stop: int) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """(speed, angle, rate) at grid points first..stop-1: the speed and rate linearly
+        interpolated, the angle a cubic Hermite through the samples' angle and rate (linearly
+        interpolated, quick steers lost 0.002-0.003 Nm of rms on clean logs). Both are local
+        (a point sees the two samples around it), so a window's values are the whole run's."""
+        from scipy.interpolate import CubicHermiteSpline
+
+        grid = self.start_s + DT_S * np.arange(first, stop)
+        t = self.time_s
+        a = max(int(np.searchsorted(t, grid[0], side="right")) - 1, 0)
+        b = min(int(np.searchsorted(t, grid[-1], side="left")) + 1, len(t))
+        b = max(b, min(a + 2, len(t)))
+        seg = slice(a, b)
+        hermite = CubicHermiteSpline(t[seg], self.angle_samples_rad[seg],
+                                     self.rate_samples_rad_s[seg])  # fmt: skip
+        return (
+            np.interp(grid, t[seg], self.speed_samples_m_s[seg]),
+            np.asarray(hermite(grid)),
+            np.interp(grid, t[seg], self.rate_samples_rad_s[seg]),
+        )
 
 
 def fused_angle(log: SteeringLog) -> FloatArray:
@@ -225,8 +250,6 @@ def fused_angle(log: SteeringLog) -> FloatArray:
 
 def runs_of(logs: Sequence[SteeringLog]) -> list[Run]:
     """Every log cut at gaps longer than GAP_RESTART_S, each stretch on a 1 ms grid."""
-    from scipy.interpolate import CubicHermiteSpline
-
     runs = []
     for i, log in enumerate(logs):
         t = log.time_s
@@ -236,31 +259,31 @@ def runs_of(logs: Sequence[SteeringLog]) -> list[Run]:
             steps = math.floor((t[b - 1] - t[a]) / DT_S + 1e-9)
             if steps < 1:
                 continue
-            grid = t[a] + DT_S * np.arange(steps + 1)
             seg = slice(a, b)
-            # The angle between samples from the angle and the rate at both ends (cubic Hermite):
-            # linearly interpolated, quick steers lost 0.002-0.003 Nm of rms on clean logs.
-            hermite = CubicHermiteSpline(t[seg], angle[seg], log.rate_rad_s[seg])
             runs.append(Run(
-                i, np.arange(a, b), grid, np.interp(grid, t[seg], log.speed_m_s[seg]),
-                np.asarray(hermite(grid)), np.interp(grid, t[seg], log.rate_rad_s[seg]),
+                i, np.arange(a, b), float(t[a]), steps, t[seg], log.speed_m_s[seg], angle[seg],
+                log.rate_rad_s[seg],
             ))  # fmt: skip
     return runs
 
 
 def start_state(params: PhysicalParams, run: Run) -> PhysicalState:
     """Steady cornering of the linear car at the run's first speed and angle, frictions relaxed."""
-    return physical_start(params, float(run.speed_m_s[0]), float(run.angle_rad[0]))
+    return physical_start(params, float(run.speed_samples_m_s[0]), float(run.angle_samples_rad[0]))
 
 
 @dataclass
 class Reference:
-    """A sequential run of the pure model over every stretch: torque and Ay at every grid point
-    (point 0 repeats point 1) and the states at the points asked for."""
+    """A sequential run of the pure model over every stretch: the torque at every grid point
+    (point 0 repeats point 1), Ay at the run's samples, and the states at the points asked for."""
 
     torque_Nm: list[FloatArray]
     lateral_accel_m_s2: list[FloatArray]
     states: dict[tuple[int, int], PhysicalState]
+
+
+WINDOW_STEPS = 4096
+"""Grid points of a run's inputs made at once (`Run.inputs`) by the sequential runs."""
 
 
 def reference(
@@ -275,15 +298,26 @@ def reference(
         if 0 in wanted:
             states[(i, 0)] = state
         torque = np.empty(run.steps + 1)
-        ay = np.empty(run.steps + 1)
-        rows = zip(run.speed_m_s[1:].tolist(), run.angle_rad[1:].tolist(),
-                   run.rate_rad_s[1:].tolist(), strict=True)  # fmt: skip
-        for k, (v, angle, rate) in enumerate(rows, start=1):
-            state, out = step(state, inputs(v, angle, rate, 0.0, 1.0), params, DT_S)
-            torque[k], ay[k] = out.torque_Nm, out.lateral_accel_m_s2
-            if k in wanted:
-                states[(i, k)] = state
-        torque[0], ay[0] = torque[min(1, run.steps)], ay[min(1, run.steps)]
+        ay = np.empty(len(run.time_s))  # at the samples: each window's, through its grid
+        before = math.nan  # the torque at the grid point before the window
+        for first in range(1, run.steps + 1, WINDOW_STEPS):
+            stop = min(first + WINDOW_STEPS, run.steps + 1)
+            speed, angle, rate = run.inputs(first, stop)
+            window = np.empty(stop - first)
+            rows = zip(speed.tolist(), angle.tolist(), rate.tolist(), strict=True)
+            for k, (v, a, w) in enumerate(rows, start=first):
+                state, out = step(state, inputs(v, a, w, 0.0, 1.0), params, DT_S)
+                torque[k], window[k - first] = out.torque_Nm, out.lateral_accel_m_s2
+                if k in wanted:
+                    states[(i, k)] = state
+            grid = run.start_s + DT_S * np.arange(first - 1, stop)
+            values = np.concatenate([[window[0] if first == 1 else before], window])
+            lo = int(np.searchsorted(run.time_s, grid[0], side="left"))
+            hi = (len(run.time_s) if stop > run.steps
+                  else int(np.searchsorted(run.time_s, grid[-1], side="right")))  # fmt: skip
+            ay[lo:hi] = np.interp(run.time_s[lo:hi], grid, values)
+            before = float(window[-1])
+        torque[0] = torque[min(1, run.steps)]
         torques.append(torque)
         ays.append(ay)
     return Reference(torques, ays, states)
@@ -326,12 +360,16 @@ class Batch:
     reached there, for the same set, within SWEEP_TOL_NM. Then every set's torque is the pure
     model's run over the whole log, to about that.
 
+    What a sweep keeps of a piece is its torque at the scored samples it covers (at the
+    evaluation's delay), written as each group of pieces is simulated: memory in proportion to
+    the log's samples and the sets, not to the 1 ms grid (ten points a sample at 100 Hz).
+
     A sweep's starts are guessed from the last evaluation: its point's states moved to first
     order by the neighbours' (finite-difference) sensitivities, so near the solution one sweep
     suffices; the first guess is a reference run's states."""
 
-    def __init__(self, runs: Sequence[Run], pieces: Pieces, ref: Reference) -> None:
-        self.runs, self.pieces = list(runs), pieces
+    def __init__(self, runs: Sequence[Run], pieces: Pieces, ref: Reference, data: _Data) -> None:
+        self.runs, self.pieces, self.data = list(runs), pieces, data
         starts = [ref.states[(i, b)] for i, b in zip(pieces.run, pieces.begin, strict=True)]
         self.point = physical_batch.stack_states(starts)  # (fields, S)
         for name in ("x_m", "y_m", "yaw_rad"):  # the batch leaves the pose out
@@ -355,22 +393,26 @@ class Batch:
 
     def run(
         self, sets: Sequence[PhysicalParams], x: FloatArray,
-        neighbours: Sequence[tuple[int, float]], max_sweeps: int = MAX_SWEEPS,
-    ) -> tuple[list[FloatArray], list[FloatArray], float]:  # fmt: skip
-        """Per run, the torque and Ay at every grid point of every set, (J, steps + 1) each;
-        and how far (weighted, in Nm) a piece's start was off in the last sweep."""
+        neighbours: Sequence[tuple[int, float]], delay_s: float = 0.0,
+        max_sweeps: int = MAX_SWEEPS, grids: list[FloatArray] | None = None,
+    ) -> tuple[FloatArray, FloatArray, float]:  # fmt: skip
+        """Every set's torque at the scored samples, logged `delay_s` late (J, N); the first
+        set's slope there (Nm/s: d torque / d time of the interpolant); and how far (weighted,
+        in Nm) a piece's start was off in the last sweep. With `grids`, the first set's torque
+        at every grid point is written there too (one array per run, as `Reference`'s)."""
         pieces = self.pieces
-        n_pieces, length = len(pieces.run), pieces.length
+        n_pieces = len(pieces.run)
         starts = self.guess(x, neighbours)
         has_before = np.array(pieces.before) >= 0
         before = np.array(pieces.before)[has_before]
-        torque = np.empty((length, len(sets), n_pieces))
-        ay = np.empty_like(torque)
         reached = np.zeros_like(starts)
+        predicted = np.empty((len(sets), len(self.data.time_s)))
+        slope = np.empty(len(self.data.time_s))
+        rows = self._rows(delay_s)
         chosen = np.arange(n_pieces)
         change = 0.0
         for _ in range(max_sweeps):
-            self._sweep(sets, starts, chosen, torque, ay, reached)
+            self._sweep(sets, starts, chosen, reached, rows, delay_s, predicted, slope, grids)
             self.sweeps += 1
             joined = starts.copy()
             joined[:, :, has_before] = reached[:, :, before]
@@ -385,15 +427,36 @@ class Batch:
         self.point = starts[:, 0, :]
         for j, (i, h) in enumerate(neighbours, start=1):  # kept from before when none
             self.sensitivity[i] = (starts[:, j, :] - starts[:, 0, :]) / h
-        return self._grids(torque), self._grids(ay), change
+        return predicted, slope, change
+
+    def _rows(self, delay_s: float) -> npt.NDArray[np.intp]:
+        """(S + 1): piece p scores the data's rows rows[p]:rows[p + 1], the samples whose time
+        less the delay falls in its scored span (a run's first and last pieces take the
+        samples before and after the run's grid too: the torque is held there)."""
+        pieces, data = self.pieces, self.data
+        bounds = np.empty(len(pieces.run) + 1, dtype=np.intp)
+        p = 0
+        for i, (run, times, span) in enumerate(zip(self.runs, data.run_times, data.run_rows,
+                                                   strict=True)):  # fmt: skip
+            first = p
+            while p < len(pieces.run) and pieces.run[p] == i:
+                p += 1
+            edges = run.start_s + DT_S * np.array(pieces.score[first + 1 : p])
+            assert span.start is not None
+            bounds[first] = span.start
+            bounds[first + 1 : p] = span.start + np.searchsorted(times - delay_s, edges)
+            bounds[p] = span.stop
+        return bounds
 
     def _sweep(
         self, sets: Sequence[PhysicalParams], starts: FloatArray, chosen: npt.NDArray[np.intp],
-        torque: FloatArray, ay: FloatArray, reached: FloatArray,
+        reached: FloatArray, rows: npt.NDArray[np.intp], delay_s: float, predicted: FloatArray,
+        slope: FloatArray, grids: list[FloatArray] | None,
     ) -> None:  # fmt: skip
-        """One batch over the pieces `chosen`: their torque and Ay (L, J, S) and where each was
-        at its successor's start row (fields, J, S), written into the arrays given."""
-        pieces, runs = self.pieces, self.runs
+        """One batch over the pieces `chosen`: their torque at their samples into `predicted`
+        and `slope`, and where each was at its successor's start row (fields, J, S) into
+        `reached`."""
+        pieces, runs, data = self.pieces, self.runs, self.data
         n_sets, length = len(sets), pieces.length
         after = {q: p for p, q in enumerate(pieces.before) if q >= 0}  # piece -> its successor
         group = max(1, MAX_BATCH // n_sets)
@@ -403,33 +466,40 @@ class Batch:
             angle, rate = np.empty_like(speed), np.empty_like(speed)
             for column, p in enumerate(some):
                 run = runs[pieces.run[p]]
-                rows = np.minimum(np.arange(pieces.begin[p] + 1, pieces.begin[p] + 1 + length),
-                                  run.steps)  # fmt: skip
-                speed[:, column] = run.speed_m_s[rows]
-                angle[:, column] = run.angle_rad[rows]
-                rate[:, column] = run.rate_rad_s[rows]
+                begin = pieces.begin[p]
+                stop = min(begin + 1 + length, run.steps + 1)
+                v, a, w = run.inputs(begin + 1, stop)
+                n = stop - begin - 1  # past the run's end a piece holds its last input
+                speed[:n, column], speed[n:, column] = v, v[-1]
+                angle[:n, column], angle[n:, column] = a, a[-1]
+                rate[:n, column], rate[n:, column] = w, w[-1]
             start = starts[:, :, some]
             capture = sorted({pieces.row[after[p]] for p in some if p in after})
             batch = physical_batch.Pieces(speed, angle, rate, start)
-            t, a, states = physical_batch.simulate(sets, batch, DT_S, capture)
+            torque, _, states = physical_batch.simulate(sets, batch, DT_S, capture, with_ay=False)
             self.simulated_s += length * DT_S * n_sets * len(some)
-            torque[:, :, some], ay[:, :, some] = t, a
             for column, p in enumerate(some):
                 if p in after:
                     reached[:, :, p] = states[pieces.row[after[p]]][:, :, column]
-
-    def _grids(self, values: FloatArray) -> list[FloatArray]:
-        """(L, J, S) of the pieces -> per run (J, steps + 1) over its grid."""
-        pieces = self.pieces
-        grids = [np.empty((values.shape[1], run.steps + 1)) for run in self.runs]
-        for p in range(len(pieces.run)):
-            begin, score, end = pieces.begin[p], pieces.score[p], pieces.end[p]
-            grids[pieces.run[p]][:, score + 1 : end + 1] = values[
-                score - begin : end - begin, :, p
-            ].T
-        for grid in grids:
-            grid[:, 0] = grid[:, min(1, grid.shape[1] - 1)]
-        return grids
+                if grids is not None:
+                    begin, score, end = pieces.begin[p], pieces.score[p], pieces.end[p]
+                    grid = grids[pieces.run[p]]
+                    grid[score + 1 : end + 1] = torque[score - begin : end - begin, 0, column]
+                    if score == 0:
+                        grid[0] = grid[min(1, len(grid) - 1)]
+                lo, hi = int(rows[p]), int(rows[p + 1])
+                if hi <= lo:
+                    continue
+                run = runs[pieces.run[p]]
+                # Row k of the piece is grid point begin + 1 + k.
+                position = (data.time_s[lo:hi] - delay_s - run.start_s) / DT_S - pieces.begin[p] - 1
+                last = max(pieces.end[p] - pieces.begin[p] - 1, 1)  # the row of grid point end
+                k = np.clip(np.floor(position), 0, last - 1).astype(np.intp)
+                f = np.clip(position - k, 0.0, 1.0)
+                low, high = torque[k, :, column], torque[k + 1, :, column]
+                predicted[:, lo:hi] = (low + f[:, None] * (high - low)).T
+                inside = (position >= 0.0) & (position <= last)
+                slope[lo:hi] = np.where(inside, (high[:, 0] - low[:, 0]) / DT_S, 0.0)
 
 
 @dataclass
@@ -458,7 +528,7 @@ class _Data:
 
 
 def _data(logs: Sequence[SteeringLog], runs: Sequence[Run], drift_s: float | None) -> _Data:
-    times, torques, bases, blocks, run_rows, run_times = [], [], [], [], [], []
+    times, torques, bases, blocks, run_rows = [], [], [], [], []
     log_rows: list[list[int]] = [[] for _ in logs]
     block0, first = 0, 0
     bases_of = [offset_basis(log.time_s, drift_s) for log in logs]
@@ -479,7 +549,6 @@ def _data(logs: Sequence[SteeringLog], runs: Sequence[Run], drift_s: float | Non
         block0 += int(block[-1]) + 1 if len(block) else 0
         run_rows.append(slice(first, first + len(scored)))
         log_rows[run.log].extend(range(first, first + len(scored)))
-        run_times.append(ts)
         first += len(scored)
     if first == 0:
         raise InputError(
@@ -487,9 +556,10 @@ def _data(logs: Sequence[SteeringLog], runs: Sequence[Run], drift_s: float | Non
             f"{SETTLE_S:g} s on (its start is the model's, not the car's)"
         )
     _, dense = np.unique(np.concatenate(blocks), return_inverse=True)
+    time_s = np.concatenate(times)
     return _Data(
-        np.concatenate(times), np.concatenate(torques), np.vstack(bases),
-        dense.astype(np.intp), list(runs), run_rows, run_times,
+        time_s, np.concatenate(torques), np.vstack(bases),
+        dense.astype(np.intp), list(runs), run_rows, [time_s[rows] for rows in run_rows],
         [np.array(r, dtype=np.intp) for r in log_rows],
     )  # fmt: skip
 
@@ -593,11 +663,11 @@ def fit_physical(
     for index, begin in zip(pieces.run, pieces.begin, strict=True):
         wanted.setdefault(index, set()).add(begin)
     ref = reference(base.physical(), runs, wanted)
-    batch = Batch(runs, pieces, ref)
+    batch = Batch(runs, pieces, ref, data)
     sim_ay = [np.zeros(len(log.time_s)) for log in logs]
-    for run, ay_grid in zip(runs, ref.lateral_accel_m_s2, strict=True):
-        t = logs[run.log].time_s[run.samples]
-        sim_ay[run.log][run.samples] = np.interp(t, run.grid_s, ay_grid)
+    for run, ay_samples in zip(runs, ref.lateral_accel_m_s2, strict=True):
+        sim_ay[run.log][run.samples] = ay_samples
+    ref.states.clear()  # the batch has taken its starts
     free = np.ones(n_par + 1 + n_off, dtype=bool)
     free[n_par] = estimate_delay
     notes: dict[int, str] = {}
@@ -625,11 +695,13 @@ def fit_physical(
             x[:n_par][~free[:n_par]] = base_x[~free[:n_par]]
             x, free, grids = _solve(data, batch, base, x, free, notes, lower, upper, counter,
                                     progress)  # fmt: skip
+    del grids
     delay = float(x[n_par])
     # The figures from the pure model; the covariance from the batch at the same point (the
     # same run to rounding: their largest difference is reported by `batch_check_Nm`).
     final = reference(with_values(base, x[:n_par]).physical(), runs)
     model = data.predict([t[None, :] for t in final.torque_Nm], delay)[0]
+    del final
     model = model + data.offsets @ x[n_par + 1 :]
     r = model - data.torque_Nm
     batch_r, jac = _evaluate(data, batch, base, x, free, counter, exact=True)
@@ -749,15 +821,14 @@ def _evaluate(
         neighbours.append((i, h))
     counter[0] += len(sets)
     sweeps = max(len(batch.pieces.run), MAX_SWEEPS) if exact else MAX_SWEEPS
-    grids, _, _ = batch.run(sets, x, neighbours, max_sweeps=sweeps)
     delay = float(x[n_par])
-    predicted = data.predict(grids, delay)
+    predicted, slope, _ = batch.run(sets, x, neighbours, delay, max_sweeps=sweeps)
     r = predicted[0] + data.offsets @ x[n_par + 1 :] - data.torque_Nm
     jac = np.zeros((len(r), len(x)))
     for j, (i, h) in enumerate(neighbours, start=1):
         jac[:, i] = (predicted[j] - predicted[0]) / h
-    slopes = [np.gradient(g[:1], DT_S, axis=1) for g in grids]
-    jac[:, n_par] = -data.predict(slopes, delay)[0]  # the model's torque at t - delay
+    del predicted
+    jac[:, n_par] = -slope  # the model's torque at t - delay
     jac[:, n_par + 1 :] = data.offsets
     return r, jac
 
@@ -845,8 +916,9 @@ def _solve(
         for i, why in stuck.items():
             free[i], notes[i] = False, why
             x_all[i] = base_x[i]
-    grids, _, _ = batch.run([with_values(base, x_all[:n_par]).physical()], x_all, [])
-    return x_all, free, grids
+    grids = [np.empty(run.steps + 1) for run in batch.runs]
+    batch.run([with_values(base, x_all[:n_par]).physical()], x_all, [], grids=grids)
+    return x_all, free, [grid[None, :] for grid in grids]
 
 
 def _identifiability(estimates: Sequence[Estimate]) -> list[str]:
@@ -874,9 +946,10 @@ def simulate_log(
     ay = np.zeros(len(log.time_s))
     torque = np.zeros(len(log.time_s))
     scored = np.zeros(len(log.time_s), dtype=bool)
-    for run, t_grid, ay_grid in zip(runs, ref.torque_Nm, ref.lateral_accel_m_s2, strict=True):
+    for run, t_grid, ay_samples in zip(runs, ref.torque_Nm, ref.lateral_accel_m_s2,
+                                       strict=True):  # fmt: skip
         t = log.time_s[run.samples]
         torque[run.samples] = np.interp(t - delay_s, run.grid_s, t_grid)
-        ay[run.samples] = np.interp(t, run.grid_s, ay_grid)
+        ay[run.samples] = ay_samples
         scored[run.samples] = t >= t[0] + SETTLE_S
     return ay, torque, scored
