@@ -17,6 +17,7 @@ process (the reference for speed: the fits should cost a fixed number of such ru
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import math
 import subprocess
@@ -59,7 +60,8 @@ def build_log(minutes: float, path: Path) -> None:
             columns["time_s"].append(t[keep])
             columns["speed_m_s"].append(r["speed_m_s"][sel] + noise(NOISE["speed"]))
             columns["steering_angle_rad"].append(
-                r["steering_angle_rad"][sel] + np.radians(ANGLE_OFFSET_DEG + noise(NOISE["angle_deg"]))
+                r["steering_angle_rad"][sel]
+                + np.radians(ANGLE_OFFSET_DEG + noise(NOISE["angle_deg"]))
             )
             columns["steering_torque_Nm"].append(
                 r["torque_Nm"][sel] + TORQUE_BIAS_NM + noise(NOISE["torque"])
@@ -92,6 +94,13 @@ def child(path: str, fit: str) -> None:
                            log.torque_Nm, log.lateral_accel_m_s2) if a is not None
     )  # fmt: skip
     base = base_car()
+    inside = _time_in_model(fit)
+    # Imported before the baseline: their modules are not the fit's memory.
+    import scipy.interpolate
+    import scipy.optimize
+
+    del scipy
+
     gc.collect()
     before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
     t0 = time.perf_counter()
@@ -109,8 +118,41 @@ def child(path: str, fit: str) -> None:
     print(json.dumps({
         "samples": len(log.time_s), "log_bytes": log_bytes, "wall_s": wall,
         "evaluations": result.iterations, "peak_bytes": peak - before, "pure_run_s": pure,
-        "rms_Nm": result.rms_error_Nm,
+        "rms_Nm": result.rms_error_Nm, "model_s": inside[0], "model_calls": inside[1],
+        "one_evaluation_s": inside[0] / max(inside[1], 1),
     }))  # fmt: skip
+
+
+def _time_in_model(fit: str) -> list[float]:
+    """Wrap what computes the model's torque and Jacobian (the physical fit's batch evaluation;
+    the law's residual and Jacobian) to add up the time spent in it: [seconds, evaluations]
+    (for the law a torque-and-Jacobian pair counts as one)."""
+    import functools
+    import time
+
+    from carfeel.identification import physical_fit, steering_fit
+
+    total = [0.0, 0.0]
+
+    def timed(function, count):  # type: ignore[no-untyped-def]
+        @functools.wraps(function)
+        def wrapper(*args, **kwargs):  # type: ignore[no-untyped-def]
+            t0 = time.perf_counter()
+            try:
+                return function(*args, **kwargs)
+            finally:
+                total[0] += time.perf_counter() - t0
+                total[1] += count
+
+        return wrapper
+
+    if fit == "physical":
+        physical_fit._evaluate = timed(physical_fit._evaluate, 1.0)
+    else:
+        problem = steering_fit._Problem
+        problem.residual = timed(problem.residual, 0.5)  # type: ignore[method-assign]
+        problem.weighted_jacobian = timed(problem.weighted_jacobian, 0.5)  # type: ignore[method-assign]
+    return total
 
 
 def main() -> None:
@@ -138,11 +180,19 @@ def main() -> None:
                     f"{row['wall_s'] / row['pure_run_s']:6.1f} pure-model runs of the log "
                     f"({row['pure_run_s']:.1f} s each); peak +{row['peak_bytes'] / 1e6:7.1f} MB "
                     f"= {row['peak_bytes'] / row['log_bytes']:5.2f} x the log's arrays "
-                    f"({row['log_bytes'] / 1e6:.1f} MB); rms {row['rms_Nm']:.4f} Nm",
+                    f"({row['log_bytes'] / 1e6:.1f} MB); rms {row['rms_Nm']:.4f} Nm; "
+                    f"{100 * row['model_s'] / row['wall_s']:.0f} % of the time in the model"
+                    + (
+                        f", {row['wall_s'] / (row['one_evaluation_s'] * row['evaluations']):.2f} x "
+                        f"the counted evaluations' cost ({row['one_evaluation_s'] * 1e3:.0f} ms "
+                        "each)"
+                        if fit == "law"
+                        else f" ({row['model_calls']:.0f} batch evaluations of every parameter set)"
+                    ),
                     flush=True,
                 )
         for fit, fit_rows in rows.items():
-            for a, b in zip(fit_rows, fit_rows[1:], strict=False):
+            for a, b in itertools.pairwise(fit_rows):
                 ratio = math.log(b["samples"] / a["samples"])
                 print(
                     f"{fit:8s} {a['minutes']:g} -> {b['minutes']:g} min: time slope "
