@@ -22,8 +22,8 @@ set (checked).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -36,7 +36,7 @@ STOP_MARGIN_RAD = 0.5
 """The end stops are computed at a step only when a rim or pinion angle of the batch comes
 within this of the lock (elsewhere they are exactly 0)."""
 
-CHUNK_STEPS = 128
+CHUNK_STEPS = 32
 """Steps whose input-derived arrays are made at once."""
 
 SHARED = (

@@ -56,10 +56,13 @@ from carfeel.identification.steering_fit import (
     SteeringFit,
     SteeringLog,
     _check_units,
-    _sandwich,
+    _robust_scale,
     lowpass,
     minimize_delay,
     offset_basis,
+    sandwich_finish,
+    sandwich_terms,
+    soft_l1_cost,
 )
 from carfeel.models.steering import physical
 from carfeel.models.steering.physical import PhysicalInputs, PhysicalParams, PhysicalState
@@ -79,8 +82,15 @@ FUSION_HZ = 1.0
 """Crossover of the angle's complementary filter (`fused_angle`)."""
 GAP_RESTART_S = 1.0
 """A gap in a log longer than this starts the model again (shorter ones are interpolated)."""
-MAX_EVALUATIONS = 40
-"""Most evaluations (each the point and its neighbours in one batch) of one trust-region fit."""
+MAX_EVALUATIONS = 12
+"""Most evaluations (each the point and its neighbours in one batch) of one fit
+(`_levenberg_marquardt`); on the acceptance logs it stops by FTOL after 4-6."""
+FTOL = 1e-6
+"""A step that lowers the robust cost (or that the linearized model says would lower it) by
+less than this share of it ends the fit: below it the batch's own join tolerance (SWEEP_TOL_NM)
+moves the cost as much."""
+XTOL = 1e-4
+"""A step that moves the point (in its Jacobian's scale) by less than this share ends it."""
 MAX_SWEEPS = 3
 SWEEP_TOL_NM = 1e-4
 """How close a piece must start to where the piece before it left off, each state weighted by
@@ -704,10 +714,11 @@ def fit_physical(
     del final
     model = model + data.offsets @ x[n_par + 1 :]
     r = model - data.torque_Nm
-    batch_r, jac = _evaluate(data, batch, base, x, free, counter, exact=True)
-    check = float(np.max(np.abs(batch_r - r)))
-    scale = float(1.4826 * np.median(np.abs(r - np.median(r)))) or 0.1
-    covariance, _ = _sandwich(jac[:, free], r, scale, data.blocks)
+    exact = _evaluate(data, batch, base, x, free, counter, exact=True)
+    check = float(np.max(np.abs(exact.r - r)))
+    scale = _robust_scale(r) or 0.1
+    covariance, _ = _covariance(exact, r, np.flatnonzero(free), scale, data.blocks)
+    del exact
     sigma_all = np.full(len(x), math.nan)
     sigma_all[free] = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
     estimates = tuple(
@@ -799,14 +810,45 @@ def _scan_delay(data: _Data, grids: Sequence[FloatArray], x: FloatArray) -> floa
     return minimize_delay(cost)
 
 
+@dataclass
+class _Evaluation:
+    """One batch evaluation at x: the residual (model + offsets - measured, N) and what makes
+    the Jacobian's rows a chunk at a time (`rows`): the whole Jacobian is never held (at an
+    hour of 100 Hz log it is 30 MB, and a dense solver copies it several times)."""
+
+    x: FloatArray
+    r: FloatArray
+    predicted: FloatArray
+    """(J, N): the point's torque and its neighbours'."""
+    slope: FloatArray
+    neighbours: list[tuple[int, float]]
+    offsets: FloatArray
+
+    def rows(self, lo: int, hi: int, idx: npt.NDArray[np.intp]) -> FloatArray:
+        """d residual / d x[idx] at rows lo:hi: forward differences for the model's
+        parameters, the simulated torque's slope for the delay (the model's torque at
+        t - delay), the offsets' basis for theirs."""
+        n_par = len(PARAMETERS)
+        jac = np.zeros((hi - lo, len(self.x)))
+        base = self.predicted[0, lo:hi]
+        for j, (i, h) in enumerate(self.neighbours, start=1):
+            jac[:, i] = (self.predicted[j, lo:hi] - base) / h
+        jac[:, n_par] = -self.slope[lo:hi]
+        jac[:, n_par + 1 :] = self.offsets[lo:hi]
+        return jac[:, idx]
+
+
+CHUNK_ROWS = 16384
+"""Rows of the Jacobian made at once (about 1.5 MB)."""
+
+
 def _evaluate(
     data: _Data, batch: Batch, base: SteeringCar, x: FloatArray, free: npt.NDArray[np.bool_],
     counter: list[int], exact: bool = False,
-) -> tuple[FloatArray, FloatArray]:  # fmt: skip
-    """The residual at x (model + offsets - measured) and d residual / d x (every entry; the
-    held ones' columns zero), in one batch: forward differences for the model's parameters
-    (the neighbours cost little more than the point: numpy's overhead is per step, not per
-    element), the simulated torque's slope for the delay, the offsets' basis for theirs."""
+) -> _Evaluation:  # fmt: skip
+    """The residual at x and its Jacobian's makings (`_Evaluation`), in one batch: the point
+    and a forward-difference neighbour for each free model parameter (the neighbours cost
+    little more than the point: numpy's overhead is per step, not per element)."""
     n_par = len(PARAMETERS)
     sets = [with_values(base, x[:n_par]).physical()]
     neighbours = []
@@ -821,47 +863,123 @@ def _evaluate(
         neighbours.append((i, h))
     counter[0] += len(sets)
     sweeps = max(len(batch.pieces.run), MAX_SWEEPS) if exact else MAX_SWEEPS
-    delay = float(x[n_par])
-    predicted, slope, _ = batch.run(sets, x, neighbours, delay, max_sweeps=sweeps)
+    predicted, slope, _ = batch.run(sets, x, neighbours, float(x[n_par]), max_sweeps=sweeps)
     r = predicted[0] + data.offsets @ x[n_par + 1 :] - data.torque_Nm
-    jac = np.zeros((len(r), len(x)))
-    for j, (i, h) in enumerate(neighbours, start=1):
-        jac[:, i] = (predicted[j] - predicted[0]) / h
-    del predicted
-    jac[:, n_par] = -slope  # the model's torque at t - delay
-    jac[:, n_par + 1 :] = data.offsets
-    return r, jac
+    return _Evaluation(x.copy(), r, predicted, slope, neighbours, data.offsets)
 
 
-class _Objective:
-    """The residual and its Jacobian in the free entries `idx` of x, computed together (one
-    batch) and kept for the call that asks for the other."""
+def _normal_equations(
+    ev: _Evaluation, idx: npt.NDArray[np.intp], scale: float
+) -> tuple[FloatArray, FloatArray]:
+    """(A, g): soft_l1's Gauss-Newton matrix sum w J J^T and gradient sum w r J over the free
+    entries idx, w = 1 / sqrt(1 + (r / scale)^2) (its IRLS weight), summed a chunk at a time."""
+    a, g = np.zeros((len(idx), len(idx))), np.zeros(len(idx))
+    for lo in range(0, len(ev.r), CHUNK_ROWS):
+        hi = min(lo + CHUNK_ROWS, len(ev.r))
+        jac, r = ev.rows(lo, hi, idx), ev.r[lo:hi]
+        weight = 1.0 / np.sqrt(1.0 + (r / scale) ** 2)
+        a += jac.T @ (jac * weight[:, None])
+        g += jac.T @ (weight * r)
+    return a, g
 
-    def __init__(
-        self, data: _Data, batch: Batch, base: SteeringCar, x: FloatArray,
-        free: npt.NDArray[np.bool_], idx: npt.NDArray[np.intp], counter: list[int],
-        progress: Callable[[int, float], None] | None,
-    ) -> None:  # fmt: skip
-        self.data, self.batch, self.base, self.x, self.free = data, batch, base, x, free
-        self.idx, self.counter, self.progress = idx, counter, progress
-        self.key = b""
-        self.value: tuple[FloatArray, FloatArray] = (np.zeros(0), np.zeros((0, 0)))
 
-    def __call__(self, z: FloatArray) -> tuple[FloatArray, FloatArray]:
-        if z.tobytes() != self.key:
-            x = self.x.copy()
-            x[self.idx] = z
-            r, jac = _evaluate(self.data, self.batch, self.base, x, self.free, self.counter)
-            self.key, self.value = z.tobytes(), (r, jac[:, self.idx])
-            if self.progress is not None:
-                self.progress(self.counter[0], float(np.sqrt(np.mean(r * r))))
-        return self.value
+def _covariance(
+    ev: _Evaluation, r: FloatArray, idx: npt.NDArray[np.intp], scale: float,
+    blocks: npt.NDArray[np.intp],
+) -> tuple[FloatArray, npt.NDArray[np.bool_]]:  # fmt: skip
+    """`steering_fit.sandwich` of the residual r with ev's Jacobian over idx, a chunk of rows
+    at a time (the column norms in a first pass)."""
+    squares = np.zeros(len(idx))
+    for lo in range(0, len(r), CHUNK_ROWS):
+        squares += np.sum(ev.rows(lo, min(lo + CHUNK_ROWS, len(r)), idx) ** 2, axis=0)
+    norms = np.sqrt(squares)
+    norms[norms == 0.0] = 1.0
+    n_blocks = int(blocks.max()) + 1
+    a, g = np.zeros((len(idx), len(idx))), np.zeros((n_blocks, len(idx)))
+    for lo in range(0, len(r), CHUNK_ROWS):
+        hi = min(lo + CHUNK_ROWS, len(r))
+        part_a, part_g = sandwich_terms(ev.rows(lo, hi, idx) / norms, r[lo:hi], scale,
+                                        blocks[lo:hi], n_blocks)  # fmt: skip
+        a += part_a
+        g += part_g
+    covariance, _, unconstrained = sandwich_finish(a, g, norms)
+    return covariance, unconstrained
 
-    def residual(self, z: FloatArray) -> FloatArray:
-        return self(z)[0]
 
-    def jacobian(self, z: FloatArray) -> FloatArray:
-        return self(z)[1]
+@dataclass
+class _Solution:
+    x: FloatArray
+    active: npt.NDArray[np.int_]
+    """Per free entry: -1 held at its lower bound, +1 at its upper, 0 inside."""
+    evaluation: _Evaluation
+
+
+def _levenberg_marquardt(
+    evaluate: Callable[[FloatArray], _Evaluation], x0: FloatArray, idx: npt.NDArray[np.intp],
+    lower: FloatArray, upper: FloatArray, scale: float, first: _Evaluation,
+) -> _Solution:  # fmt: skip
+    """A bounded Levenberg-Marquardt on soft_l1 (IRLS Gauss-Newton steps, damped in the
+    Jacobian's own column scale as scipy's x_scale="jac"; an entry at a bound whose gradient
+    points out is held there), from the evaluation `first` at x0. Stops when a step lowers the
+    cost by under FTOL of it, moves the scaled point by under XTOL of its size, or after
+    MAX_EVALUATIONS evaluations. Every evaluation runs the batch once, so their number is the
+    fit's cost: it does not grow with the log's length."""
+    lo, hi = lower[idx], upper[idx]
+    ev, x = first, x0.copy()
+    cost = soft_l1_cost(ev.r, scale)
+    damping = 1e-3
+    evaluations = 1
+    while evaluations < MAX_EVALUATIONS:
+        a, g = _normal_equations(ev, idx, scale)
+        z = x[idx]
+        d = np.sqrt(np.diag(a))
+        d[d == 0.0] = 1.0
+        inner = _held(z, g, lo, hi) == 0
+        if not inner.any():
+            break
+        scaled = a[np.ix_(inner, inner)] / np.outer(d[inner], d[inner])
+        moved = False
+        while evaluations < MAX_EVALUATIONS:
+            system = scaled + damping * np.eye(len(scaled))
+            step = np.zeros(len(idx))
+            step[inner] = -np.linalg.solve(system, g[inner] / d[inner]) / d[inner]
+            trial = x.copy()
+            trial[idx] = np.clip(z + step, lo, hi)
+            taken = trial[idx] - z
+            expected = -float(g @ taken) - 0.5 * float(taken @ a @ taken)
+            if expected <= FTOL * cost:  # the linear model promises less than the tolerance
+                return _Solution(x, _held(z, g, lo, hi), ev)
+            candidate = evaluate(trial)
+            evaluations += 1
+            new_cost = soft_l1_cost(candidate.r, scale)
+            if new_cost < cost:
+                gain = cost - new_cost
+                moved_by = float(np.linalg.norm((trial[idx] - z) * d))
+                ev, x, cost = candidate, trial, new_cost
+                damping = max(damping / 3.0, 1e-9)
+                moved = True
+                if gain <= FTOL * cost or moved_by <= XTOL * (XTOL + float(np.linalg.norm(z * d))):
+                    return _Solution(
+                        x, _held(x[idx], _normal_equations(ev, idx, scale)[1], lo, hi), ev
+                    )
+                break
+            damping *= 10.0
+            if damping > 1e8:
+                break
+        if not moved:
+            break
+    return _Solution(x, _held(x[idx], _normal_equations(ev, idx, scale)[1], lo, hi), ev)
+
+
+def _held(
+    z: FloatArray, gradient: FloatArray, lower: FloatArray, upper: FloatArray
+) -> npt.NDArray[np.int_]:
+    """-1 where z is at its lower bound and descent would take it lower, +1 at the upper bound
+    likewise, 0 elsewhere."""
+    span = 1e-12 * (upper - lower)
+    low = (z <= lower + span) & (gradient > 0)
+    high = (z >= upper - span) & (gradient < 0)
+    return np.where(low, -1, np.where(high, 1, 0)).astype(np.int_)
 
 
 def _solve(
@@ -869,48 +987,50 @@ def _solve(
     free0: npt.NDArray[np.bool_], notes: dict[int, str], lower: FloatArray, upper: FloatArray,
     counter: list[int], progress: Callable[[int, float], None] | None,
 ) -> tuple[FloatArray, npt.NDArray[np.bool_], list[FloatArray]]:  # fmt: skip
-    """A trust-region fit of the free entries; what stops at a bound or in an unconstrained
-    direction is kept from the base and the rest fitted again (at most twice). Returns x, the
-    free mask and the model's grids at x."""
-    from scipy.optimize import least_squares
-
+    """A bounded fit of the free entries (`_levenberg_marquardt`); what stops at a bound or in
+    an unconstrained direction is kept from the base and the rest fitted again (at most
+    twice). Returns x, the free mask and the model's grids at x."""
     n_par = len(PARAMETERS)
     base_x = np.array([value_of(base, p) for p in PARAMETERS])
     x_all, free = x0.copy(), free0.copy()
     for attempt in range(3):
         idx = np.flatnonzero(free)
-        evaluate = _Objective(data, batch, base, x_all, free, idx, counter, progress)
-        z0 = np.clip(x_all[idx], lower[idx] + 1e-9, upper[idx] - 1e-9)
-        first = evaluate(z0)[0]
-        scale = float(1.4826 * np.median(np.abs(first - np.median(first)))) or 0.1
-        solution = least_squares(
-            evaluate.residual, z0, jac=evaluate.jacobian,
-            bounds=(lower[idx], upper[idx]), loss="soft_l1", f_scale=scale, x_scale="jac",
-            max_nfev=MAX_EVALUATIONS, xtol=1e-4, ftol=1e-6,
-        )  # fmt: skip
-        x_all[idx] = solution.x
-        r, jac = evaluate(solution.x)
-        scale = float(1.4826 * np.median(np.abs(r - np.median(r)))) or scale
-        covariance, unconstrained = _sandwich(jac, r, scale, data.blocks)
+        held = free.copy()
+
+        def evaluate(x: FloatArray, held: npt.NDArray[np.bool_] = held) -> _Evaluation:
+            ev = _evaluate(data, batch, base, x, held, counter)
+            if progress is not None:
+                progress(counter[0], float(np.sqrt(np.mean(ev.r * ev.r))))
+            return ev
+
+        x_all[idx] = np.clip(x_all[idx], lower[idx] + 1e-9, upper[idx] - 1e-9)
+        first = evaluate(x_all)
+        scale = _robust_scale(first.r) or 0.1
+        solution = _levenberg_marquardt(evaluate, x_all, idx, lower, upper, scale, first)
+        x_all = solution.x
+        r = solution.evaluation.r
+        scale = _robust_scale(r) or scale
+        covariance, unconstrained = _covariance(solution.evaluation, r, idx, scale, data.blocks)
         stuck: dict[int, str] = {}
         for j, i in enumerate(idx.tolist()):
             if i >= n_par:
                 continue
-            if solution.active_mask[j] != 0:
-                bound = lower[i] if solution.active_mask[j] < 0 else upper[i]
+            if solution.active[j] != 0:
+                bound = lower[i] if solution.active[j] < 0 else upper[i]
                 stuck[i] = (f"kept from the base preset: the fit stopped at the bound {bound:g}, "
                             "the logs cannot place it")  # fmt: skip
             elif unconstrained[j]:
                 stuck[i] = "kept from the base preset: the logs do not constrain it"
             else:  # within one sigma of a bound the logs cannot tell the value from the bound
                 sigma = math.sqrt(max(float(covariance[j, j]), 0.0))
-                value = float(solution.x[j])
+                value = float(x_all[i])
                 near = lower[i] if value - lower[i] <= upper[i] - value else upper[i]
                 if math.isfinite(near) and abs(value - near) < sigma:
                     stuck[i] = (
                         f"kept from the base preset: the fit ({value:.3g} +- {sigma:.2g}) lies "
                         f"within one sigma of its bound {near:g}, the logs cannot place it"
                     )
+        del solution
         if not stuck or attempt == 2:
             break
         for i, why in stuck.items():

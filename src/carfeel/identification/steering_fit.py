@@ -863,18 +863,32 @@ def sandwich(
     the block; times n_blocks / (n_blocks - p). Returns it, A^-1 (the loss's own inverse
     curvature: `keep` compares the two) and the parameters that lie in a direction the data do
     not constrain (infinite variance there)."""
+    norms = np.linalg.norm(jac, axis=0)
+    norms[norms == 0.0] = 1.0
+    a, g = sandwich_terms(jac / norms, r, scale, blocks, int(blocks.max()) + 1)
+    return sandwich_finish(a, g, norms)
+
+
+def sandwich_terms(
+    js: FloatArray, r: FloatArray, scale: float, blocks: npt.NDArray[np.intp], n_blocks: int
+) -> tuple[FloatArray, FloatArray]:
+    """`sandwich`'s sums over some rows of the column-scaled Jacobian `js`: (A, g per block),
+    which add up over chunks of rows (`physical_fit` never holds its whole Jacobian)."""
     z = (r / scale) ** 2
     weight = 1.0 / np.sqrt(1.0 + z)  # rho'(z): the IRLS weight of soft_l1
     curvature = weight**3  # rho'(z) + 2 z rho''(z)
-    norms = np.linalg.norm(jac, axis=0)
-    norms[norms == 0.0] = 1.0
-    js = jac / norms
     a = js.T @ (js * curvature[:, None])
     scores = js * (weight * r)[:, None]
-    n_blocks = int(blocks.max()) + 1
     g = np.zeros((n_blocks, js.shape[1]))
     np.add.at(g, blocks, scores)
-    p = js.shape[1]
+    return a, g
+
+
+def sandwich_finish(
+    a: FloatArray, g: FloatArray, norms: FloatArray
+) -> tuple[FloatArray, FloatArray, BoolArray]:
+    """`sandwich` from its sums (`sandwich_terms`) and the Jacobian's column norms."""
+    n_blocks, p = g.shape
     b = g.T @ g * (n_blocks / max(n_blocks - p, 1))
     u, s, vt = np.linalg.svd(a)
     weak = s < 1e-10 * s[0]
