@@ -116,8 +116,8 @@ def test_swept_pieces_are_the_whole_run_for_every_parameter_set():
     for j, params in enumerate(sets):
         exact = reference(params, runs)
         model = data.predict([t[None, :] for t in exact.torque_Nm], delay)[0]
-        assert np.max(np.abs(swept[j] - model)) < 1e-3
-        worst_once = max(worst_once, float(np.max(np.abs(once[j] - model))))
+        assert np.max(np.abs(swept.torque(j) - model)) < 1e-3
+        worst_once = max(worst_once, float(np.max(np.abs(once.torque(j) - model))))
         if j == 0:  # the delay's column: the slope of the same interpolant (a central
             # difference of it over 0.1 ms, exact where no grid point lies within 0.05 ms)
             h = 5e-5
@@ -372,7 +372,7 @@ def test_a_long_gap_starts_the_model_again_and_its_start_is_not_scored():
         runs = runs_of([cut])
         assert len(runs) == stretches
         data = physical_fit._data([cut], runs, None)
-        starts = [cut.time_s[run.samples[0]] for run in runs]
+        starts = [cut.time_s[run.samples.start] for run in runs]
         scored = data.time_s
         for start in starts:
             assert not np.any((scored >= start) & (scored < start + physical_fit.SETTLE_S))

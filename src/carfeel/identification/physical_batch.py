@@ -84,11 +84,13 @@ def simulate(
     dt_s: float,
     capture: Sequence[int] = (),
     with_ay: bool = True,
+    first_row: int = 0,
 ) -> tuple[FloatArray, FloatArray, dict[int, FloatArray]]:
     """(torque_Nm, lateral_accel_m_s2, states): the rim torque and Ay after each step, each
     (T, J, S), of every parameter set (J) on every piece (S) (Ay (0, J, S) without `with_ay`); and
     the states after the steps `capture` (rows), each (fields, J, S) (the pose fields 0: the
-    torque does not see them)."""
+    torque does not see them). The torque from row `first_row` on only (row 0 of the array
+    is that row): a run-in's torque is not wanted."""
     ay_too = with_ay
     first = params[0]
     for p in params[1:]:
@@ -197,7 +199,7 @@ def simulate(
     ay = full("lateral_accel_m_s2")
 
     steps = pieces.speed_m_s.shape[0]
-    torque_out = np.empty((steps, n))
+    torque_out = np.empty((steps - first_row, n))
     ay_out = np.empty((steps, n) if ay_too else (0, n))
     slips, dfz = np.empty((4, n)), np.empty((4, n))
     zeros = np.zeros(n)
@@ -298,10 +300,11 @@ def simulate(
         column, col_anchor = _stick(
             hand, col_anchor, col_level, stiff, col_over, hand_rates[c], presliding
         )
-        torque_out[k] = (
-            aligning + jacking + park + (rack_friction + column) + damping + jr * rack_accel
-            + stop + (ret - boost)
-        )  # fmt: skip
+        if k >= first_row:
+            torque_out[k - first_row] = (
+                aligning + jacking + park + (rack_friction + column) + damping
+                + jr * rack_accel + stop + (ret - boost)
+            )  # fmt: skip
         if ay_too:
             ay_out[k] = ay
         if k in wanted:
@@ -309,7 +312,7 @@ def simulate(
                 hand, hand_rates[c], theta, omega, col_anchor, rack_anchor, park_anchor,
                 alpha_f, alpha_r, beta, r, zeros, zeros, zeros, ay,
             ]).reshape(len(FIELDS), n_sets, n_pieces)  # fmt: skip
-    shape = (steps, n_sets, n_pieces)
+    shape = (steps - first_row, n_sets, n_pieces)
     return torque_out.reshape(shape), ay_out.reshape((len(ay_out), n_sets, n_pieces)), states
 
 

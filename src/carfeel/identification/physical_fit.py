@@ -203,7 +203,7 @@ class Run:
     window when asked (`inputs`), not held: at 100 Hz a log has ten grid points a sample."""
 
     log: int
-    samples: npt.NDArray[np.intp]
+    samples: slice
     """The log's samples in this stretch."""
     start_s: float
     steps: int
@@ -271,7 +271,7 @@ def runs_of(logs: Sequence[SteeringLog]) -> list[Run]:
                 continue
             seg = slice(a, b)
             runs.append(Run(
-                i, np.arange(a, b), float(t[a]), steps, t[seg], log.speed_m_s[seg], angle[seg],
+                i, seg, float(t[a]), steps, t[seg], log.speed_m_s[seg], angle[seg],
                 log.rate_rad_s[seg],
             ))  # fmt: skip
     return runs
@@ -364,6 +364,22 @@ def pieces_of(runs: Sequence[Run]) -> Pieces:
     return out
 
 
+@dataclass
+class Predicted:
+    """The batch's torque at the scored samples, logged late by the evaluation's delay: the
+    point's (N) and each neighbour's difference from it ((J - 1, N), in float32: a difference
+    of about 1e-3 Nm keeps 7 digits, and half the memory of the largest thing the fit holds)."""
+
+    point_Nm: FloatArray
+    differences_Nm: npt.NDArray[np.float32]
+
+    def torque(self, j: int) -> FloatArray:
+        """Set j's torque (0: the point)."""
+        if j == 0:
+            return self.point_Nm
+        return np.asarray(self.point_Nm + self.differences_Nm[j - 1], dtype=np.float64)
+
+
 class Batch:
     """Every piece of every run, for several parameter sets at once (`physical_batch`), swept
     until the pieces join up: each piece starts from the state the piece before it in its run
@@ -405,8 +421,8 @@ class Batch:
         self, sets: Sequence[PhysicalParams], x: FloatArray,
         neighbours: Sequence[tuple[int, float]], delay_s: float = 0.0,
         max_sweeps: int = MAX_SWEEPS, grids: list[FloatArray] | None = None,
-    ) -> tuple[FloatArray, FloatArray, float]:  # fmt: skip
-        """Every set's torque at the scored samples, logged `delay_s` late (J, N); the first
+    ) -> tuple[Predicted, npt.NDArray[np.float32], float]:  # fmt: skip
+        """Every set's torque at the scored samples, logged `delay_s` late; the first
         set's slope there (Nm/s: d torque / d time of the interpolant); and how far (weighted,
         in Nm) a piece's start was off in the last sweep. With `grids`, the first set's torque
         at every grid point is written there too (one array per run, as `Reference`'s)."""
@@ -416,8 +432,11 @@ class Batch:
         has_before = np.array(pieces.before) >= 0
         before = np.array(pieces.before)[has_before]
         reached = np.zeros_like(starts)
-        predicted = np.empty((len(sets), len(self.data.time_s)))
-        slope = np.empty(len(self.data.time_s))
+        predicted = Predicted(
+            np.empty(len(self.data.time_s)),
+            np.empty((len(sets) - 1, len(self.data.time_s)), np.float32),
+        )
+        slope = np.empty(len(self.data.time_s), np.float32)
         rows = self._rows(delay_s)
         chosen = np.arange(n_pieces)
         change = 0.0
@@ -460,8 +479,8 @@ class Batch:
 
     def _sweep(
         self, sets: Sequence[PhysicalParams], starts: FloatArray, chosen: npt.NDArray[np.intp],
-        reached: FloatArray, rows: npt.NDArray[np.intp], delay_s: float, predicted: FloatArray,
-        slope: FloatArray, grids: list[FloatArray] | None,
+        reached: FloatArray, rows: npt.NDArray[np.intp], delay_s: float, predicted: Predicted,
+        slope: npt.NDArray[np.float32], grids: list[FloatArray] | None,
     ) -> None:  # fmt: skip
         """One batch over the pieces `chosen`: their torque at their samples into `predicted`
         and `slope`, and where each was at its successor's start row (fields, J, S) into
@@ -486,7 +505,11 @@ class Batch:
             start = starts[:, :, some]
             capture = sorted({pieces.row[after[p]] for p in some if p in after})
             batch = physical_batch.Pieces(speed, angle, rate, start)
-            torque, _, states = physical_batch.simulate(sets, batch, DT_S, capture, with_ay=False)
+            # The torque from the row before the first scored one (interpolation needs it).
+            row0 = min(max(pieces.score[p] - pieces.begin[p] - 1, 0) for p in some)
+            torque, _, states = physical_batch.simulate(
+                sets, batch, DT_S, capture, with_ay=False, first_row=row0
+            )
             self.simulated_s += length * DT_S * n_sets * len(some)
             for column, p in enumerate(some):
                 if p in after:
@@ -494,7 +517,9 @@ class Batch:
                 if grids is not None:
                     begin, score, end = pieces.begin[p], pieces.score[p], pieces.end[p]
                     grid = grids[pieces.run[p]]
-                    grid[score + 1 : end + 1] = torque[score - begin : end - begin, 0, column]
+                    grid[score + 1 : end + 1] = torque[
+                        score - begin - row0 : end - begin - row0, 0, column
+                    ]
                     if score == 0:
                         grid[0] = grid[min(1, len(grid) - 1)]
                 lo, hi = int(rows[p]), int(rows[p + 1])
@@ -506,10 +531,13 @@ class Batch:
                 last = max(pieces.end[p] - pieces.begin[p] - 1, 1)  # the row of grid point end
                 k = np.clip(np.floor(position), 0, last - 1).astype(np.intp)
                 f = np.clip(position - k, 0.0, 1.0)
-                low, high = torque[k, :, column], torque[k + 1, :, column]
-                predicted[:, lo:hi] = (low + f[:, None] * (high - low)).T
+                low, high = torque[k - row0, :, column], torque[k + 1 - row0, :, column]
+                values = low + f[:, None] * (high - low)  # (samples, sets)
+                predicted.point_Nm[lo:hi] = values[:, 0]
+                predicted.differences_Nm[:, lo:hi] = (values[:, 1:] - values[:, :1]).T
                 inside = (position >= 0.0) & (position <= last)
                 slope[lo:hi] = np.where(inside, (high[:, 0] - low[:, 0]) / DT_S, 0.0)
+            del torque, states, batch  # before the next group's are made
 
 
 @dataclass
@@ -524,7 +552,8 @@ class _Data:
     run_rows: list[slice]
     """Where each run's scored samples sit in the concatenation."""
     run_times: list[FloatArray]
-    log_rows: list[npt.NDArray[np.intp]]
+    log_rows: list[slice]
+    """Each log's scored rows (its runs are consecutive)."""
 
     def predict(self, grids: Sequence[FloatArray], delay_s: float) -> FloatArray:
         """(J, N): the model's torque at the scored samples, logged `delay_s` late."""
@@ -539,7 +568,7 @@ class _Data:
 
 def _data(logs: Sequence[SteeringLog], runs: Sequence[Run], drift_s: float | None) -> _Data:
     times, torques, bases, blocks, run_rows = [], [], [], [], []
-    log_rows: list[list[int]] = [[] for _ in logs]
+    log_rows: list[list[int]] = [[] for _ in logs]  # the first and last row of each log's
     block0, first = 0, 0
     bases_of = [offset_basis(log.time_s, drift_s) for log in logs]
     width = sum(b.shape[1] for b in bases_of)
@@ -547,19 +576,21 @@ def _data(logs: Sequence[SteeringLog], runs: Sequence[Run], drift_s: float | Non
     for run in runs:
         log = logs[run.log]
         t = log.time_s[run.samples]
-        scored = run.samples[t >= t[0] + SETTLE_S]
+        first_scored = int(np.searchsorted(t, t[0] + SETTLE_S, side="left"))
+        scored = slice(run.samples.start + first_scored, run.samples.stop)
+        n_scored = run.samples.stop - scored.start
         ts = log.time_s[scored]
         times.append(ts)
         torques.append(log.torque_Nm[scored])
-        basis = np.zeros((len(scored), width))
+        basis = np.zeros((n_scored, width))
         basis[:, starts[run.log] : starts[run.log + 1]] = bases_of[run.log][scored]
         bases.append(basis)
         block = ((ts - log.time_s[0]) // BLOCK_S).astype(np.intp)
         blocks.append(block + block0)
         block0 += int(block[-1]) + 1 if len(block) else 0
-        run_rows.append(slice(first, first + len(scored)))
-        log_rows[run.log].extend(range(first, first + len(scored)))
-        first += len(scored)
+        run_rows.append(slice(first, first + n_scored))
+        log_rows[run.log].extend([first, first + n_scored])
+        first += n_scored
     if first == 0:
         raise InputError(
             f"the logs are too short: the physical model's fit scores each stretch from "
@@ -570,7 +601,7 @@ def _data(logs: Sequence[SteeringLog], runs: Sequence[Run], drift_s: float | Non
     return _Data(
         time_s, np.concatenate(torques), np.vstack(bases),
         dense.astype(np.intp), list(runs), run_rows, [time_s[rows] for rows in run_rows],
-        [np.array(r, dtype=np.intp) for r in log_rows],
+        [slice(r[0], r[-1]) if r else slice(0, 0) for r in log_rows],
     )  # fmt: skip
 
 
@@ -691,9 +722,11 @@ def fit_physical(
         # solve pushed its parameters to their bounds.
         x[n_par] = _scan_delay(data, grids, x)
     x[n_par + 1 :] = _offsets(data, grids, float(x[n_par]))
+    del ref, grids  # the base model's grid (ten points a sample at 100 Hz) is done with
     mu_index = NAMES.index("friction_coefficient")
     if free[mu_index]:
         x[mu_index] = _mu_start(logs, sim_ay, base_x[mu_index])
+    del sim_ay
     counter = [0]
     excited, excited_notes = free.copy(), dict(notes)
     x, free, grids = _solve(data, batch, base, x, free, notes, lower, upper, counter, progress)
@@ -743,15 +776,16 @@ def fit_physical(
     per_log: dict[str, dict[str, float]] = {}
     offset_values = data.offsets @ x[n_par + 1 :]
     for log, rows in zip(logs, data.log_rows, strict=True):
+        some = rows.stop > rows.start
         log_rms, log_r2 = rms_r2(data.torque_Nm[rows], model[rows])
         per_log[log.name] = {
             "rms_error_Nm": log_rms,
             "r2": log_r2,
-            "mean_residual_Nm": float(np.mean(r[rows])) if len(rows) else math.nan,
+            "mean_residual_Nm": float(np.mean(r[rows])) if some else math.nan,
             "samples": float(len(log.time_s)),
-            "offset_Nm": float(np.mean(offset_values[rows])) if len(rows) else math.nan,
-            "offset_range_Nm": float(np.ptp(offset_values[rows])) if len(rows) else 0.0,
-            "offset_end_Nm": float(offset_values[rows][-1]) if len(rows) else math.nan,
+            "offset_Nm": float(np.mean(offset_values[rows])) if some else math.nan,
+            "offset_range_Nm": float(np.ptp(offset_values[rows])) if some else 0.0,
+            "offset_end_Nm": float(offset_values[rows][-1]) if some else math.nan,
         }
     rms, r2 = rms_r2(data.torque_Nm, model)
     if not r2 > 0.5:
@@ -818,9 +852,9 @@ class _Evaluation:
 
     x: FloatArray
     r: FloatArray
-    predicted: FloatArray
-    """(J, N): the point's torque and its neighbours'."""
-    slope: FloatArray
+    differences_Nm: npt.NDArray[np.float32]
+    """(J - 1, N): each neighbour's torque less the point's (`Predicted`)."""
+    slope: npt.NDArray[np.float32]
     neighbours: list[tuple[int, float]]
     offsets: FloatArray
 
@@ -830,9 +864,8 @@ class _Evaluation:
         t - delay), the offsets' basis for theirs."""
         n_par = len(PARAMETERS)
         jac = np.zeros((hi - lo, len(self.x)))
-        base = self.predicted[0, lo:hi]
-        for j, (i, h) in enumerate(self.neighbours, start=1):
-            jac[:, i] = (self.predicted[j, lo:hi] - base) / h
+        for j, (i, h) in enumerate(self.neighbours):
+            jac[:, i] = self.differences_Nm[j, lo:hi] / h
         jac[:, n_par] = -self.slope[lo:hi]
         jac[:, n_par + 1 :] = self.offsets[lo:hi]
         return jac[:, idx]
@@ -864,8 +897,10 @@ def _evaluate(
     counter[0] += len(sets)
     sweeps = max(len(batch.pieces.run), MAX_SWEEPS) if exact else MAX_SWEEPS
     predicted, slope, _ = batch.run(sets, x, neighbours, float(x[n_par]), max_sweeps=sweeps)
-    r = predicted[0] + data.offsets @ x[n_par + 1 :] - data.torque_Nm
-    return _Evaluation(x.copy(), r, predicted, slope, neighbours, data.offsets)
+    r = predicted.point_Nm  # the residual in its place: the point's torque is not kept
+    r += data.offsets @ x[n_par + 1 :]
+    r -= data.torque_Nm
+    return _Evaluation(x.copy(), r, predicted.differences_Nm, slope, neighbours, data.offsets)
 
 
 def _normal_equations(
