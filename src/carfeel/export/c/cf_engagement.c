@@ -422,7 +422,7 @@ void cf_engagement_step(cf_engagement_state *state, const cf_engagement_inputs *
         }
     } else if (stage == CF_STOP || stage == CF_IN_GEAR) {
         double gear = p->in_gear_position_m;
-        if (x1 < gear - p->detent_release_m) {
+        if (x1 < gear - p->detent_release_m && force < 0.0) { /* only a pull takes it out */
             new_stage = CF_RETURNING;
         } else if (stage == CF_STOP && -p->settle_velocity_m_s < v1 &&
                    v1 < p->settle_velocity_m_s && -p->settle_distance_m < x1 - gear &&

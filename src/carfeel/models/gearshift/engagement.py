@@ -22,7 +22,9 @@ Stages, in the order a push from neutral meets them (`Stage`):
                    travel set by that angle; then sliding friction to the end of the teeth
   free_travel      free motion to the end stop
   stop             elastic end stop around x_gear: overshoot, then recovery
-  in_gear          settled; the stop's spring and the gear detent hold the lever at x_gear
+  in_gear          settled; the stop's spring and the gear detent hold the lever at x_gear;
+                   only a pull of the driver takes it out (past `detent_release_m`), never a
+                   rebound off the stop after a release
   returning        free motion back from past the ring: after the driver pulls the lever out of
                    gear or back from the teeth. Pushed forward again it goes on where it is (gate
                    open, teeth, free travel): the ring can block again only once the sleeve is back
@@ -490,7 +492,10 @@ def step(
             new_stage = Stage.RETURNING  # pulled back into the teeth: on the way out
     elif stage is Stage.STOP or stage is Stage.IN_GEAR:
         x_gear = params.in_gear_position_m
-        if x1 < x_gear - params.detent_release_m:
+        if x1 < x_gear - params.detent_release_m and force < 0.0:
+            # Only the driver's pull takes the gear out: a rebound off the stop after a
+            # release (no pull) stays in the in-gear well (the sleeve's detent groove and the
+            # teeth's back taper), whose spring brings it back to x_gear.
             new_stage = Stage.RETURNING
         elif (
             stage is Stage.STOP
