@@ -123,6 +123,13 @@ static double detent_potential(double x, double seat, double width, const cf_det
     return energy;
 }
 
+/* engagement.detent_energy_J: potential (J) of both detents at x (as _detents: e1 + e2). */
+static double cf_detents_energy(const cf_engagement_params *p, double x) {
+    double e1 = detent_potential(x, 0.0, p->neutral_detent.width_m, &p->neutral_detent);
+    double e2 = detent_potential(x, p->in_gear_position_m, -p->gear_detent.width_m, &p->gear_detent);
+    return e1 + e2;
+}
+
 /* engagement._flat_J */
 static double flat_J(double width, const cf_detent_params *d) {
     return (d->seat_force_N * width - d->far_force_N * d->far_width_m) * (2.0 / 3.0);
@@ -415,7 +422,16 @@ void cf_engagement_step(cf_engagement_state *state, const cf_engagement_inputs *
         }
     } else if (stage == CF_FREE_TRAVEL) {
         if (x1 >= p->in_gear_position_m) {
-            x1 = p->in_gear_position_m;
+            /* engagement.py: cap the kinetic energy at what it was plus the driver's work up
+             * to x_gear less the detents' climb (v1 holds the whole step's acceleration). */
+            double xg = p->in_gear_position_m;
+            double gained = force * (xg - x) - (cf_detents_energy(p, xg) - cf_detents_energy(p, x));
+            double cap = 0.5 * mech->mass_kg * v * v + gained;
+            double kinetic = 0.5 * mech->mass_kg * v1 * v1;
+            if (kinetic > cap) {
+                v1 = cap > 0.0 ? sqrt(2.0 * cap / mech->mass_kg) : 0.0;
+            }
+            x1 = xg;
             new_stage = CF_STOP;
         } else if (x1 < p->teeth_end_position_m) {
             new_stage = CF_RETURNING;

@@ -486,7 +486,18 @@ def step(
         if x1 >= params.in_gear_position_m:
             # The stop's spring starts at x_gear: enter it there, so no spring energy appears
             # from the part of the step that overshot the boundary.
-            x1 = params.in_gear_position_m
+            x_gear = params.in_gear_position_m
+            # ... and no kinetic energy either: v1 holds the whole step's acceleration, but the
+            # driver did work only up to x_gear. Cap the kinetic energy at what it was plus that
+            # work less the detents' potential climb (friction and damping only take away).
+            gained = force * (x_gear - x) - (
+                detent_energy_J(x_gear, params) - detent_energy_J(x, params)
+            )
+            cap = 0.5 * mech.mass_kg * v * v + gained
+            kinetic = 0.5 * mech.mass_kg * v1 * v1
+            if kinetic > cap:
+                v1 = math.sqrt(2.0 * cap / mech.mass_kg) if cap > 0.0 else 0.0
+            x1 = x_gear
             new_stage = Stage.STOP
         elif x1 < params.teeth_end_position_m:
             new_stage = Stage.RETURNING  # pulled back into the teeth: on the way out
