@@ -74,3 +74,23 @@ def test_the_stop_impact_gains_no_energy(dt_s, push_N):
             return
         state = new
     pytest.fail("the lever never reached the stop")
+
+
+@pytest.mark.parametrize("pull_N", [-20.0, -50.0, -200.0])
+def test_a_rear_stop_ends_the_slot_behind_neutral(pull_N):
+    # Before: -50 N settled at -125 mm (only the neutral spring held it). The rear stop sits at
+    # -x_gear (the opposite gear's end stop) and is plastic: the lever rests on it, never past.
+    gearbox = default_params().gearbox
+    state = engagement.initial_state(0)
+    lowest = 0.0
+    for _ in range(2000):
+        state, _ = engagement.step(state, EngagementInputs(pull_N), gearbox, DT_S)
+        lowest = min(lowest, state.position_m)
+    assert lowest >= -gearbox.in_gear_position_m
+    # 20 N against the 400 N/m spring rests at -50 mm without a stop: every pull here reaches it.
+    assert state.position_m == pytest.approx(-gearbox.in_gear_position_m, abs=1e-9)
+    assert state.stage is Stage.NEUTRAL
+    # Let go, the neutral spring brings it back toward neutral (within the detent's friction).
+    for _ in range(3000):
+        state, _ = engagement.step(state, EngagementInputs(0.0), gearbox, DT_S)
+    assert abs(state.position_m) < 0.01

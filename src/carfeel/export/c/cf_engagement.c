@@ -395,6 +395,9 @@ void cf_engagement_step(cf_engagement_state *state, const cf_engagement_inputs *
             x1 = x_sync;
             v1 = 0.0;
             new_stage = CF_SYNCHRONIZATION;
+        } else if (x1 < -p->in_gear_position_m) { /* the rear stop, plastic */
+            x1 = -p->in_gear_position_m;
+            v1 = 0.0;
         }
     } else if (stage == CF_GATE_OPEN) {
         double x_teeth = p->teeth_position_m;

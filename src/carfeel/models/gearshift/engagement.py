@@ -7,7 +7,8 @@ Axis: x along the slot, 0 = neutral, positive toward the gear. Forces are positi
     0          x_sync        x_teeth   x_teeth_end   x_gear
 
 Stages, in the order a push from neutral meets them (`Stage`):
-  neutral          free motion; the neutral spring and spring-ball detent centre the lever
+  neutral          free motion; the neutral spring and spring-ball detent centre the lever;
+                   a rear stop (plastic) at -x_gear ends the slot behind neutral
   synchronization  the blocker ring holds the lever at x_sync (rigidly, or through the linkage's
                    compliance) while the driver's push (more than
                    the strut and detent force that pushes the sleeve back there) loads it and the
@@ -463,6 +464,10 @@ def step(
     if stage is Stage.NEUTRAL:
         if x1 >= x_sync and v1 > 0.0:
             x1, v1, new_stage = x_sync, 0.0, Stage.SYNCHRONIZATION
+        elif x1 < -params.in_gear_position_m:
+            # The rear stop: the slot ends as far behind neutral as the gear is in front (the
+            # opposite gear's end stop); unilateral and plastic, so it only takes energy.
+            x1, v1 = -params.in_gear_position_m, 0.0
     elif stage is Stage.GATE_OPEN:
         x_teeth = params.teeth_position_m
         if x1 < x_sync:
