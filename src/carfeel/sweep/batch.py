@@ -591,6 +591,10 @@ class ShiftBatch:
         new[reaches_ring] = SYNC
         x1 = _sel(reaches_ring, x_sync, x1)
         v1 = _sel(reaches_ring, 0.0, v1)
+        # The rear stop behind neutral (plastic, at -x_gear).
+        behind = (stage == NEUTRAL) & ~reaches_ring & (x1 < -self.x_gear)
+        x1 = _sel(behind, -self.x_gear, x1)
+        v1 = _sel(behind, 0.0, v1)
         gate = stage == GATE_OPEN
         new[gate & (x1 < x_sync)] = RETURNING
         teeth = gate & (x1 >= x_sync) & (x1 >= self.x_teeth)
@@ -602,10 +606,20 @@ class ShiftBatch:
         free = stage == FREE
         at_stop = free & (x1 >= self.x_gear)
         new[at_stop] = STOP
+        if at_stop.any():
+            # No energy gained entering the stop: the kinetic energy is capped at its value
+            # plus the driver's work up to x_gear less the detents' climb (engagement.step).
+            xg = self.x_gear
+            climb = (_energy(xg, nd) + _energy(xg, gd)) - (_energy(x, nd) + _energy(x, gd))
+            gained = force * (xg - x) - climb
+            cap = 0.5 * mech_mass * v * v + gained
+            over = at_stop & (0.5 * mech_mass * v1 * v1 > cap)
+            capped = _sel(cap > 0.0, np.sqrt(2.0 * cap / mech_mass), 0.0)
+            v1 = _sel(over, capped, v1)
         x1 = _sel(at_stop, self.x_gear, x1)
         new[free & ~at_stop & (x1 < self.x_teeth_end)] = RETURNING
         off = x1 - self.x_gear
-        out = midpoint & (x1 < self.x_release)
+        out = midpoint & (x1 < self.x_release) & (force < 0.0)  # only a pull takes it out
         new[out] = RETURNING
         settled = (
             (stage == STOP)
