@@ -306,7 +306,9 @@ def test_the_force_histories_reach_every_transition_of_the_stage_graph():
     # A two-hop transition random histories rarely make: 20 N into the teeth, a light pull held
     # past the reversal time, then a hard one that in one 10 ms step takes the lever behind the
     # ring.
-    follow_stage_graph(0, [("push", 0.0, 0.8), ("pull", 0.0, 0.0), ("pull", 1.0, 0.1)], 1e-2, seen)
+    # (Seed 11, u = 0.32: its chamfers meet 0.6 mm into the teeth;
+    # seed 0 made it while the chamfers met at the teeth, before issue 30.)
+    follow_stage_graph(11, [("push", 0.0, 0.8), ("pull", 0.0, 0.0), ("pull", 1.0, 0.1)], 1e-2, seen)
     assert seen == ALLOWED, sorted((a.value, b.value) for a, b in ALLOWED - seen)
 
 

@@ -413,6 +413,7 @@ class ShiftBatch:
         self.tooth = zeros.copy()
         self.rng = [seed_state(s) for s in seeds]
         self.index_end = zeros.copy()
+        self.contact = zeros.copy()
         self.reversal = zeros.copy()
         self.phase = np.zeros(n, dtype=np.int8)
         self.phase_time = zeros.copy()
@@ -533,7 +534,8 @@ class ShiftBatch:
         damping = t["c"][at]
         rest = t["x0"][at]
         engaged = stage == ENGAGED
-        heavy = engaged & (x < self.index_end)
+        contact = self.contact
+        heavy = engaged & (contact <= x) & (x < self.index_end)
         extra = _sel(engaged, self.tooth, 0.0)
         mass = _sel(heavy, mech_mass + self.index_mass, mech_mass)
         extra = _sel(heavy, extra + self.index_drag, extra)
@@ -600,6 +602,7 @@ class ShiftBatch:
         teeth = gate & (x1 >= x_sync) & (x1 >= self.x_teeth)
         new[teeth] = ENGAGED
         lined_up = engaged & (x1 >= index_end)
+        meets = lined_up & (index_end > 0.0) & ~heavy & (x < contact)  # met and passed in a step
         index_end = _sel(lined_up, 0.0, index_end)
         new[engaged & (x1 >= self.x_teeth_end)] = FREE
         new[engaged & (x1 < self.x_teeth_end) & (x1 < self.x_teeth)] = RETURNING
@@ -641,19 +644,20 @@ class ShiftBatch:
         tooth = self.tooth
         drawn = np.flatnonzero(teeth)
         if drawn.size:
-            tooth, index_end = tooth.copy(), index_end.copy()
+            tooth, index_end, contact = tooth.copy(), index_end.copy(), contact.copy()
             for i in drawn.tolist():
                 p = self.gearboxes[i]
                 self.rng[i], u = next_uniform(self.rng[i])
                 tooth[i] = u * p.tooth_force_spread_N
                 miss = p.chamfer.no_contact_fraction
-                index_end[i] = 0.0
+                index_end[i] = contact[i] = 0.0
                 if u >= miss:
-                    index_end[i] = p.teeth_position_m + (u - miss) / (1.0 - miss) * (
-                        p.chamfer.travel_m
-                    )
+                    travel = p.chamfer.travel_m
+                    contact[i] = p.teeth_position_m + (u - miss) / (1.0 - miss) * travel
+                    index_end[i] = p.teeth_position_m + travel
         v1 = self._hand_over(v1, x1, stage, new)
-        picks = np.flatnonzero((new == ENGAGED) & (x1 < index_end) & ~heavy)
+        crossing = (contact <= x1) & (x1 < index_end) & ~heavy
+        picks = np.flatnonzero((new == ENGAGED) & (meets | crossing))
         if picks.size:
             v1 = v1.copy()
             for i in picks.tolist():
@@ -691,4 +695,5 @@ class ShiftBatch:
         self.stage_time = _sel(new == stage0, self.stage_time + h, 0.0)
         self.stage, self.x, self.v = new, x1, v1
         self.progress, self.tooth, self.index_end = progress, tooth, index_end
+        self.contact = contact
         self.reversal = reversal

@@ -229,6 +229,7 @@ void cf_engagement_initial_state(cf_engagement_state *s, int64_t seed, double po
     s->rng_state = cf_seed_state(seed);
     s->index_end_m = 0.0;
     s->reversal_s = 0.0;
+    s->contact_m = 0.0;
 }
 
 /* engagement.step */
@@ -311,7 +312,8 @@ void cf_engagement_step(cf_engagement_state *state, const cf_engagement_inputs *
         damping += inputs->wall_damping_N_s_m;
     }
     double extra = inputs->extra_friction_N;
-    int heavy = stage == CF_ENGAGEMENT && x < state->index_end_m;
+    double contact = state->contact_m;
+    int heavy = stage == CF_ENGAGEMENT && contact <= x && x < state->index_end_m;
     if (stage == CF_ENGAGEMENT) {
         extra += state->tooth_force_N;
         if (heavy) {
@@ -389,6 +391,7 @@ void cf_engagement_step(cf_engagement_state *state, const cf_engagement_inputs *
     uint64_t rng_state = state->rng_state;
     double tooth = state->tooth_force_N;
     double index_end = state->index_end_m;
+    int meets = 0;
     double x_sync = p->synchronization_position_m;
     if (stage == CF_NEUTRAL) {
         if (x1 >= x_sync && v1 > 0.0) {
@@ -409,13 +412,16 @@ void cf_engagement_step(cf_engagement_state *state, const cf_engagement_inputs *
             rng_state = cf_next_uniform(rng_state, &u);
             tooth = u * p->tooth_force_spread_N;
             double miss = p->chamfer.no_contact_fraction;
-            index_end = 0.0;
-            if (u >= miss) {
-                index_end = x_teeth + (u - miss) / (1.0 - miss) * p->chamfer.travel_m;
+            index_end = contact = 0.0;
+            if (u >= miss) { /* engagement.py: where the chamfer faces meet, and their end */
+                double travel = p->chamfer.travel_m;
+                contact = x_teeth + (u - miss) / (1.0 - miss) * travel;
+                index_end = x_teeth + travel;
             }
         }
     } else if (stage == CF_ENGAGEMENT) {
         if (x1 >= index_end) {
+            meets = index_end > 0.0 && !heavy && x < contact; /* met and passed in one step */
             index_end = 0.0;
         }
         if (x1 >= p->teeth_end_position_m) {
@@ -466,7 +472,8 @@ void cf_engagement_step(cf_engagement_state *state, const cf_engagement_inputs *
     if (new_stage != stage) {
         v1 = hand_over(v1, x1, stage, new_stage, p);
     }
-    if (new_stage == CF_ENGAGEMENT && x1 < index_end && !heavy) {
+    if (new_stage == CF_ENGAGEMENT &&
+        (meets || (contact <= x1 && x1 < index_end && !heavy))) {
         double index_mass, index_drag;
         chamfer_load(p, inputs->gear_inertia_kg_m2, inputs->gear_drag_Nm, &index_mass,
                      &index_drag);
@@ -482,6 +489,7 @@ void cf_engagement_step(cf_engagement_state *state, const cf_engagement_inputs *
     state->rng_state = rng_state;
     state->index_end_m = index_end;
     state->reversal_s = reversal;
+    state->contact_m = contact;
     out->position_m = x1;
     out->velocity_m_s = v1;
     out->force_N = force;

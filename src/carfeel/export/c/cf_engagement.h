@@ -92,6 +92,7 @@ typedef struct {
     uint64_t rng_state;
     double index_end_m;
     double reversal_s;
+    double contact_m; /* where the chamfers meet (engagement.EngagementState.contact_m) */
 } cf_engagement_state;
 
 typedef struct {

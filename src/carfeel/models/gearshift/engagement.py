@@ -18,9 +18,11 @@ Stages, in the order a push from neutral meets them (`Stage`):
                    there over `desynchronization_time_s` (the speeds drift apart again)
   gate_open        free motion from the ring to the teeth
   engagement       the sleeve's chamfers meet the gear's dog teeth at a random relative angle: no
-                   contact (a chance), or the sleeve must turn the gear (its inertia reflected
-                   through the chamfer angle and the linkage, against its drag) over an axial
-                   travel set by that angle; then sliding friction to the end of the teeth
+                   contact (a chance), or the chamfer faces meet at a position set by that angle
+                   (`contact_m`, Lovas et al. 2006) and from there the sleeve must turn the gear
+                   (its inertia reflected through the chamfer angle and the linkage, picked up in
+                   a plastic impact, against its drag) to the end of the chamfers; then sliding
+                   friction to the end of the teeth
   free_travel      free motion to the end stop
   stop             elastic end stop around x_gear: overshoot, then recovery
   in_gear          settled; the stop's spring and the gear detent hold the lever at x_gear;
@@ -95,7 +97,9 @@ class ChamferParams:
     equivalent mass J * tan^2 / (radius^2 * ratio^2 * efficiency) at the knob, picked up by a
     plastic impact, and its drag torque a resistance T * tan / (radius * ratio * efficiency).
     The relative angle u is U(0, 1): below `no_contact_fraction` the teeth meet gap to gap (no
-    contact); above, the chamfer travel is (u - f) / (1 - f) * `travel_m` of knob travel.
+    contact); above, the chamfer faces meet q = (u - f) / (1 - f) of `travel_m` past the teeth
+    (the sleeve's tip travels freely over the part of the face the angle leaves open) and turn
+    the gear from there to the chamfers' end, `travel_m` past the teeth.
     """
 
     gear_inertia_kg_m2: float
@@ -181,6 +185,9 @@ class EngagementState(NamedTuple):
     """Where the chamfers of the current engagement have turned the gear into line, m."""
     reversal_s: float = 0.0
     """How long the driver has pulled beyond the reversal force in the teeth, s."""
+    contact_m: float = 0.0
+    """Where the chamfers of the current engagement meet, m (they turn the gear from there to
+    `index_end_m`); 0: at the teeth."""
 
 
 class EngagementInputs(NamedTuple):
@@ -359,6 +366,7 @@ def step(
                     state.tooth_force_N,
                     state.rng_state,
                     state.index_end_m,
+                    contact_m=state.contact_m,
                 )
                 return held, EngagementOutputs(x1, v1, force, reaction, stage.value)
             stage = Stage.GATE_OPEN  # synchro gate opens
@@ -383,7 +391,8 @@ def step(
         stiffness += k_wall
         damping += inputs.wall_damping_N_s_m
     extra = inputs.extra_friction_N
-    heavy = stage is Stage.ENGAGEMENT and x < state.index_end_m
+    contact = state.contact_m
+    heavy = stage is Stage.ENGAGEMENT and contact <= x < state.index_end_m
     if stage is Stage.ENGAGEMENT:
         extra += state.tooth_force_N
         if heavy:  # turning the gear through the chamfers
@@ -460,6 +469,7 @@ def step(
     rng_state = state.rng_state
     tooth = state.tooth_force_N
     index_end = state.index_end_m
+    meets = False
     x_sync = params.synchronization_position_m
     if stage is Stage.NEUTRAL:
         if x1 >= x_sync and v1 > 0.0:
@@ -477,11 +487,16 @@ def step(
             rng_state, u = next_uniform(rng_state)
             tooth = u * params.tooth_force_spread_N
             miss = params.chamfer.no_contact_fraction
-            index_end = 0.0
+            index_end = contact = 0.0
             if u >= miss:
-                index_end = x_teeth + (u - miss) / (1.0 - miss) * params.chamfer.travel_m
+                # Where the chamfer faces meet (the angle sets how much of the face the sleeve's
+                # tip passes freely); they turn the gear from there to the chamfers' end.
+                travel = params.chamfer.travel_m
+                contact = x_teeth + (u - miss) / (1.0 - miss) * travel
+                index_end = x_teeth + travel
     elif stage is Stage.ENGAGEMENT:
         if x1 >= index_end:
+            meets = index_end > 0.0 and not heavy and x < contact  # met and passed in one step
             index_end = 0.0  # the teeth are in line: the chamfers are done with this gear
         if x1 >= params.teeth_end_position_m:
             new_stage = Stage.FREE_TRAVEL
@@ -535,13 +550,14 @@ def step(
 
     if new_stage is not stage:
         v1 = _hand_over(v1, x1, stage, new_stage, params)
-    if new_stage is Stage.ENGAGEMENT and x1 < index_end and not heavy:
-        # The chamfers meet: the lever picks up the gear's inertia (a plastic impact).
+    if new_stage is Stage.ENGAGEMENT and (meets or (contact <= x1 < index_end and not heavy)):
+        # The chamfers meet: the lever picks up the gear's inertia (a plastic impact), also when
+        # the step passed the whole face (the gear takes the sleeve's speed whatever the angle).
         index_mass = chamfer_load(params, inputs.gear_inertia_kg_m2, inputs.gear_drag_Nm)[0]
         v1 = hand_over_velocity(v1, mech.mass_kg, mech.mass_kg + index_mass)
     stage_time = state.stage_time_s + dt_s if new_stage is state.stage else 0.0
     new_state = EngagementState(
-        new_stage, x1, v1, stage_time, progress, tooth, rng_state, index_end, reversal
+        new_stage, x1, v1, stage_time, progress, tooth, rng_state, index_end, reversal, contact
     )
     return new_state, EngagementOutputs(x1, v1, force, reaction, new_stage.value)
 
@@ -551,7 +567,7 @@ def energy_J(state: EngagementState, params: EngagementParams) -> float:
     turn it, included), the stage's spring and the detents."""
     mech, rest = mechanics(params, state.stage)
     mass = mech.mass_kg
-    if state.stage is Stage.ENGAGEMENT and state.position_m < state.index_end_m:
+    if state.stage is Stage.ENGAGEMENT and state.contact_m <= state.position_m < state.index_end_m:
         mass += chamfer_load(params, None, None)[0]
     stretch = state.position_m - rest
     return (
