@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 
 from carfeel.models.gearshift import engagement
 from carfeel.models.gearshift.engagement import EngagementInputs, Stage
+from carfeel.simulation.shift import simulate_shift
 from tests.conftest import default_params
 
 DT_S = 0.001
@@ -94,3 +97,55 @@ def test_a_rear_stop_ends_the_slot_behind_neutral(pull_N):
     for _ in range(3000):
         state, _ = engagement.step(state, EngagementInputs(0.0), gearbox, DT_S)
     assert abs(state.position_m) < 0.01
+
+
+@pytest.mark.parametrize("push_N", [60.0, 100.0, 150.0, 200.0])
+@pytest.mark.parametrize("speed_m_s", [0.25, 0.8])
+def test_a_hand_left_on_the_knob_does_not_pull_the_gear_out_on_the_rebound(push_N, speed_m_s):
+    # The eq. (10) driver lets go at the stop in 1 ms but keeps the hand on the knob 0.3 s: the
+    # lever's rebound drags the hand back, so the knob force is negative (up to 22 N) for a
+    # few ms. With "any negative force past the 1 mm release is a pull" (the first fix), 120
+    # and 200 N at 0.8 m/s ended in `returning` at 16 mm; a pull now counts only beyond the
+    # reversal force held for the reversal time (5 N, 20 ms), as in the teeth.
+    base = default_params()
+    driver = dataclasses.replace(
+        base.driver,
+        push_force_N=push_N,
+        push_velocity_m_s=speed_m_s,
+        release_time_s=0.001,
+        hold_s=0.3,
+    )
+    run = simulate_shift(dataclasses.replace(base, driver=driver), seed=5, duration_s=1.5)
+    g = base.gearbox
+    assert run["stage"][-1] == "in_gear"
+    assert abs(run["position_m"][-1] - g.in_gear_position_m) < g.settle_distance_m
+
+
+def test_the_drivers_own_pull_out_still_takes_the_gear_out():
+    # The eq. (10) driver's pull-out (50 N): a held pull, so the gear comes out to neutral.
+    base = default_params()
+    driver = dataclasses.replace(base.driver, pull_out=True)
+    run = simulate_shift(dataclasses.replace(base, driver=driver), seed=5, duration_s=2.5)
+    stages = list(run["stage"])
+    assert "in_gear" in stages
+    assert stages[-1] == "neutral"
+
+
+@pytest.mark.parametrize("step_N", [78.5, 200.0, 400.0])
+def test_a_force_step_presses_no_further_than_the_gates_end(step_N):
+    # A step of force from neutral (the ring, then 25 mm of free run into the stop): 200 N
+    # overshot by 18.5 mm before, the stop's 30 kN/m alone. The lever now meets the gate's end
+    # `stop_travel_m` (5 mm, 150 N into the stop) past in gear, where it stops (plastic).
+    gearbox = default_params().gearbox
+    state = engagement.initial_state(0)
+    deepest = 0.0
+    for _ in range(1500):
+        state, _ = engagement.step(state, EngagementInputs(step_N), gearbox, DT_S)
+        deepest = max(deepest, state.position_m)
+    assert deepest <= gearbox.in_gear_position_m + gearbox.stop_travel_m
+    assert state.stage in (Stage.STOP, Stage.IN_GEAR)
+    # Let go: the stop's spring brings it back and the gear stays in.
+    for _ in range(1500):
+        state, _ = engagement.step(state, EngagementInputs(0.0), gearbox, DT_S)
+    assert state.stage is Stage.IN_GEAR
+    assert abs(state.position_m - gearbox.in_gear_position_m) < gearbox.settle_distance_m

@@ -288,7 +288,7 @@ def test_flat_values_follow_the_parameter_dataclass():
     flat = fmu.flat_values(gearbox)
     assert flat[0] == gearbox.synchronization_position_m
     assert flat[10] == gearbox.neutral.mass_kg  # the first nested table starts after 10 numbers
-    assert flat[-1] == gearbox.linkage_damping_N_s_m
+    assert flat[-1] == gearbox.stop_travel_m
     spec = fmu.shift_spec(load_shift("paper-first-gear"))
     exposed = [v.start for v in spec.variables if v.name.startswith("gearbox.")]
     assert exposed == flat  # every gearbox number is an FMU parameter, in the same order

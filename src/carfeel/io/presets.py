@@ -56,6 +56,7 @@ RANGES: dict[str, tuple[float, float, bool, bool]] = {
     "reversal_time_s": (0.0, 1.0, True, True),
     "linkage_stiffness_N_m": (0.0, 1e7, True, True),
     "linkage_damping_N_s_m": (0.0, 1e4, True, True),
+    "stop_travel_m": (0.0, 0.1, True, True),
     "neutral_detent.width_m": (0.0, 0.1, False, True),
     "gear_detent.width_m": (0.0, 0.1, False, True),
     "seat_force_N": (0.0, 1e3, True, True),

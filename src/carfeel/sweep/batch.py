@@ -351,6 +351,8 @@ class ShiftBatch:
         self.x_teeth = _floats([p.teeth_position_m for p in g])
         self.x_teeth_end = _floats([p.teeth_end_position_m for p in g])
         self.x_gear = _floats([p.in_gear_position_m for p in g])
+        self.stop_end = _floats([p.stop_travel_m for p in g])
+        self.x_end = _floats([p.in_gear_position_m + p.stop_travel_m for p in g])
         self.x_release = _floats([p.in_gear_position_m - p.detent_release_m for p in g])
         self.bound = _floats(
             [
@@ -520,8 +522,10 @@ class ShiftBatch:
             opens = loaded & (progress >= _DONE)
             stage[opens] = GATE_OPEN
             held = loaded & ~opens
-        pulled = (stage0 == ENGAGED) & (force < self.neg_reversal)
-        reversal = _sel(pulled, self.reversal + h, 0.0)
+        pulls = force < self.neg_reversal
+        pulled = (stage0 == ENGAGED) & pulls
+        held_in = (stage0 == STOP) | (stage0 == IN_GEAR)
+        reversal = _sel(pulled | (held_in & pulls), self.reversal + h, 0.0)
         stage[pulled & (reversal >= self.reversal_s) & (v <= 0.0)] = RETURNING
         drifting = (stage0 == NEUTRAL) & (progress > 0.0)
         progress = _sel(drifting, np.maximum(0.0, progress - self.d_desync), progress)
@@ -621,8 +625,12 @@ class ShiftBatch:
             v1 = _sel(over, capped, v1)
         x1 = _sel(at_stop, self.x_gear, x1)
         new[free & ~at_stop & (x1 < self.x_teeth_end)] = RETURNING
+        hard = midpoint & (self.stop_end > 0.0) & (x1 > self.x_end)  # the gate's end, plastic
+        x1 = _sel(hard, self.x_end, x1)
+        v1 = _sel(hard, 0.0, v1)
         off = x1 - self.x_gear
-        out = midpoint & (x1 < self.x_release) & (force < 0.0)  # only a pull takes it out
+        pulled_out = (reversal > 0.0) & (reversal >= self.reversal_s)  # a pull, held
+        out = midpoint & (x1 < self.x_release) & pulled_out
         new[out] = RETURNING
         settled = (
             (stage == STOP)

@@ -292,6 +292,8 @@ void cf_engagement_step(cf_engagement_state *state, const cf_engagement_inputs *
         if (reversal >= p->reversal_time_s && v <= 0.0) {
             stage = CF_RETURNING;
         }
+    } else if ((stage == CF_STOP || stage == CF_IN_GEAR) && force < -p->reversal_force_N) {
+        reversal = state->reversal_s + dt_s; /* a pull out of gear, held */
     } else if (stage == CF_NEUTRAL && progress > 0.0) {
         double dropped = progress - dt_s / p->desynchronization_time_s;
         progress = dropped > 0.0 ? dropped : 0.0; /* max(0.0, dropped) */
@@ -447,7 +449,13 @@ void cf_engagement_step(cf_engagement_state *state, const cf_engagement_inputs *
         }
     } else if (stage == CF_STOP || stage == CF_IN_GEAR) {
         double gear = p->in_gear_position_m;
-        if (x1 < gear - p->detent_release_m && force < 0.0) { /* only a pull takes it out */
+        double end = p->stop_travel_m;
+        if (end > 0.0 && x1 > gear + end) { /* the gate's end: plastic */
+            x1 = gear + end;
+            v1 = 0.0;
+        }
+        /* only a pull, held, takes it out */
+        if (x1 < gear - p->detent_release_m && 0.0 < reversal && reversal >= p->reversal_time_s) {
             new_stage = CF_RETURNING;
         } else if (stage == CF_STOP && -p->settle_velocity_m_s < v1 &&
                    v1 < p->settle_velocity_m_s && -p->settle_distance_m < x1 - gear &&

@@ -80,6 +80,7 @@ typedef struct {
     cf_chamfer_params chamfer;
     double linkage_stiffness_N_m;
     double linkage_damping_N_s_m;
+    double stop_travel_m;
 } cf_engagement_params;
 
 typedef struct {

@@ -152,7 +152,8 @@ class EngagementParams:
     """Fixed synchronizer: after the ring lets go the progress falls by dt / this."""
     reversal_force_N: float
     reversal_time_s: float
-    """In the teeth a pull counts as a reversal only beyond this force, held this long."""
+    """In the teeth a pull counts as a reversal only beyond this force, held this long; in
+    gear, as a pull out of gear."""
     neutral_detent: DetentParams
     gear_detent: DetentParams
     chamfer: ChamferParams
@@ -160,6 +161,9 @@ class EngagementParams:
     """Compliance of the linkage against the blocked ring (0: rigid, the knob held at x_sync);
     a cable linkage lets the knob in by F / k while the ring blocks."""
     linkage_damping_N_s_m: float
+    stop_travel_m: float = 0.0
+    """How far the knob can press into the elastic stop before the lever meets the gate's end
+    (rigid and plastic: the lever stops there); 0: no end (the stop's spring alone)."""
 
     @property
     def hold_force_N(self) -> float:
@@ -375,6 +379,10 @@ def step(
         reversal = state.reversal_s + dt_s
         if reversal >= params.reversal_time_s and v <= 0.0:
             stage = Stage.RETURNING
+    elif (stage is Stage.STOP or stage is Stage.IN_GEAR) and force < -params.reversal_force_N:
+        # A pull out of gear counts as in the teeth: beyond the reversal force, held (a hand
+        # dragged back by the lever's rebound pulls for a few ms only).
+        reversal = state.reversal_s + dt_s
     elif stage is Stage.NEUTRAL and progress > 0.0:
         # The ring let go before the gate opened: the speeds drift apart again.
         progress = max(0.0, progress - dt_s / params.desynchronization_time_s)
@@ -523,10 +531,16 @@ def step(
             new_stage = Stage.RETURNING  # pulled back into the teeth: on the way out
     elif stage is Stage.STOP or stage is Stage.IN_GEAR:
         x_gear = params.in_gear_position_m
-        if x1 < x_gear - params.detent_release_m and force < 0.0:
-            # Only the driver's pull takes the gear out: a rebound off the stop after a
-            # release (no pull) stays in the in-gear well (the sleeve's detent groove and the
-            # teeth's back taper), whose spring brings it back to x_gear.
+        end = params.stop_travel_m
+        if end > 0.0 and x1 > x_gear + end:
+            # The gate's end: the lever cannot press further into the stop (plastic).
+            x1, v1 = x_gear + end, 0.0
+        pulled = reversal > 0.0 and reversal >= params.reversal_time_s
+        if x1 < x_gear - params.detent_release_m and pulled:
+            # Only the driver's pull, held, takes the gear out: a rebound off the stop after a
+            # release (the hand let go, or dragged back with the knob) stays in the in-gear well
+            # (the sleeve's detent groove and the teeth's back taper), whose spring brings it
+            # back to x_gear.
             new_stage = Stage.RETURNING
         elif (
             stage is Stage.STOP
