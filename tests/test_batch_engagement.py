@@ -181,12 +181,15 @@ def test_the_release_the_stop_impact_and_the_rear_stop_equal_the_pure_step():
     pulled = dataclasses.replace(
         d, pull_out=True, pull_force_N=120.0, neutral_position_m=-1.0, hold_s=0.05
     )
+    # The hand left on the knob 0.3 s: dragged back by the rebound, it pulls for a few ms only.
+    resting = dataclasses.replace(hard, hold_s=0.3)
     params = [
         dataclasses.replace(base, driver=hard),
         dataclasses.replace(base, driver=pulled),
         base,
+        dataclasses.replace(base, driver=resting),
     ]
-    seeds = [5, 6, 7]
+    seeds = [5, 6, 7, 5]
     # The lanes reach what they are here for (else the test would prove nothing).
     rear = simulate_shift(params[1], seed=6, duration_s=2.5)
     assert rear["position_m"].min() == -g.in_gear_position_m
