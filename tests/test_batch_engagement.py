@@ -199,6 +199,12 @@ def test_the_release_the_stop_impact_and_the_rear_stop_equal_the_pure_step():
     assert released["position_m"][in_gear].min() < g.in_gear_position_m - g.detent_release_m
     assert released["stage"][-1] == "in_gear"
     assert_lanes_equal_pure(params, seeds, 2.5)
+    # The fixed synchronizer's time falling with the push (issue 30), beside the paper's timer.
+    timed = [
+        dataclasses.replace(p, gearbox=dataclasses.replace(p.gearbox, synchronization_force_N=f))
+        for p, f in zip(params, (60.0, 100.0, 0.0, 78.5), strict=True)
+    ]
+    assert_lanes_equal_pure(timed, seeds, 2.5)
     # A brisk hand (V0 3 m/s) still pushes 60 N on the step into the stop: the cap acts.
     brisk = dataclasses.replace(hard, push_velocity_m_s=3.0)
     assert_lanes_equal_pure([dataclasses.replace(base, driver=brisk)] * 2, [5, 8], 1.0, 2e-3)

@@ -637,3 +637,41 @@ def test_the_linkage_efficiency_makes_the_gear_heavier_to_index():
     assert mass_ideal == pytest.approx(c.gear_inertia_kg_m2 * per**2)
     assert mass_lossy == pytest.approx(mass_ideal / 0.7)
     assert drag_lossy == pytest.approx(drag_ideal / 0.7)
+
+
+@pytest.mark.parametrize("push_N", [15.0, 20.0, 40.0, 78.5, 150.0])
+def test_the_fixed_synchronizers_time_falls_with_the_push(push_N):
+    # Issue 30: with synchronization_force_N set, the cone's rate is proportional to the axial
+    # load (the push less hold_force_N, 7.2 N here): 300 ms at 78.5 N, (78.5 - 7.2) / (F - 7.2)
+    # times that at F. Measured: 2734, 1669, 652, 300, 150 ms at 15, 20, 40, 78.5, 150 N.
+    # Within 2 steps of 1 ms: the step that meets the ring and the step the gate opens on.
+    g = dataclasses.replace(default_params().gearbox, synchronization_force_N=78.5)
+    expected_s = g.synchronization_duration_s * (78.5 - g.hold_force_N) / (push_N - g.hold_force_N)
+    state = engagement.initial_state(0)
+    blocked = 0
+    for _ in range(5000):
+        state, _ = engagement.step(state, EngagementInputs(push_N), g, 1e-3)
+        blocked += state.stage is Stage.SYNCHRONIZATION
+        if state.stage is Stage.GATE_OPEN:
+            break
+    assert state.stage is Stage.GATE_OPEN
+    assert blocked * 1e-3 == pytest.approx(expected_s, abs=2e-3)
+    # The paper's timer (the preset's 0) takes 300 ms whatever the push.
+    paper = default_params().gearbox
+    state, blocked = engagement.initial_state(0), 0
+    while state.stage is not Stage.GATE_OPEN:
+        state, _ = engagement.step(state, EngagementInputs(push_N), paper, 1e-3)
+        blocked += state.stage is Stage.SYNCHRONIZATION
+    assert blocked == 300
+
+
+def test_a_synchronization_force_below_what_holds_the_ring_is_refused():
+    # (F_ref - hold) divides the rate: at or below the 7.2 N the struts push back with, a preset
+    # would synchronize backward or never; the check names the parameter and the bound.
+    from carfeel.io.presets import check_shift
+
+    base = default_params()
+    bad = dataclasses.replace(base.gearbox, synchronization_force_N=5.0)
+    problems = check_shift(dataclasses.replace(base, gearbox=bad))
+    assert any("gearbox.synchronization_force_N = 5 N must exceed" in p for p in problems)
+    assert not check_shift(base)

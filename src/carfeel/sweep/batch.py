@@ -363,6 +363,8 @@ class ShiftBatch:
         )
         self.hold = _floats([p.hold_force_N for p in g])
         self.sync_s = _floats([p.synchronization_duration_s for p in g])
+        self.by_force = np.array([p.synchronization_force_N > 0.0 for p in g], dtype=bool)
+        self.ref_less_hold = _floats([p.synchronization_force_N - p.hold_force_N for p in g])
         self.desync_s = _floats([p.desynchronization_time_s for p in g])
         self.neg_reversal = _floats([-p.reversal_force_N for p in g])
         self.reversal_s = _floats([p.reversal_time_s for p in g])
@@ -518,7 +520,11 @@ class ShiftBatch:
             drop = blocked & (force < self.bound) & (force < self.hold)
             stage[drop] = NEUTRAL
             loaded = blocked & ~drop
-            progress = _sel(loaded, progress + self.d_sync, progress)
+            rate = self.d_sync
+            scaled = loaded & self.by_force
+            if scaled.any():  # the cone's rate grows with the axial load (engagement.step)
+                rate = _sel(scaled, rate * ((force - self.hold) / self.ref_less_hold), rate)
+            progress = _sel(loaded, progress + rate, progress)
             opens = loaded & (progress >= _DONE)
             stage[opens] = GATE_OPEN
             held = loaded & ~opens

@@ -253,7 +253,13 @@ void cf_engagement_step(cf_engagement_state *state, const cf_engagement_inputs *
         } else {
             int synchronized;
             if (inputs->gate_open < 0) {
-                progress += dt_s / p->synchronization_duration_s;
+                double rate = dt_s / p->synchronization_duration_s;
+                double f_ref = p->synchronization_force_N;
+                if (f_ref > 0.0) { /* the cone's torque grows with the axial load */
+                    double hold = cf_hold_force_N(p);
+                    rate *= (force - hold) / (f_ref - hold);
+                }
+                progress += rate;
                 synchronized = progress >= DONE;
             } else {
                 synchronized = inputs->gate_open != 0;

@@ -81,6 +81,7 @@ typedef struct {
     double linkage_stiffness_N_m;
     double linkage_damping_N_s_m;
     double stop_travel_m;
+    double synchronization_force_N;
 } cf_engagement_params;
 
 typedef struct {

@@ -164,6 +164,10 @@ class EngagementParams:
     stop_travel_m: float = 0.0
     """How far the knob can press into the elastic stop before the lever meets the gate's end
     (rigid and plastic: the lever stops there); 0: no end (the stop's spring alone)."""
+    synchronization_force_N: float = 0.0
+    """Fixed synchronizer: the push at which it takes `synchronization_duration_s`; the cone's
+    torque grows with the axial load (the push less `hold_force_N`), so the time scales as
+    (this - hold) / (push - hold). 0: the paper's timer, whatever the push."""
 
     @property
     def hold_force_N(self) -> float:
@@ -343,7 +347,13 @@ def step(
             stage = Stage.NEUTRAL
         else:
             if inputs.gate_open is None:
-                progress += dt_s / params.synchronization_duration_s
+                rate = dt_s / params.synchronization_duration_s
+                f_ref = params.synchronization_force_N
+                if f_ref > 0.0:
+                    # The cone's torque, so its rate, is proportional to the axial load.
+                    hold = params.hold_force_N
+                    rate *= (force - hold) / (f_ref - hold)
+                progress += rate
                 synchronized = progress >= _DONE
             else:
                 synchronized = inputs.gate_open
