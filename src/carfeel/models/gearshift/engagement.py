@@ -13,7 +13,8 @@ Stages, in the order a push from neutral meets them (`Stage`):
                    compliance) while the driver's push (more than
                    the strut and detent force that pushes the sleeve back there) loads it and the
                    cones cancel the speed difference; after `synchronization_duration_s` of
-                   pushing the synchro gate opens (or when an outside synchronizer says so). When
+                   pushing (scaled by the axial load where `synchronization_force_N` is set)
+                   the synchro gate opens (or when an outside synchronizer says so). When
                    the push drops, the ring lets go: back to neutral, the progress kept; it decays
                    there over `desynchronization_time_s` (the speeds drift apart again)
   gate_open        free motion from the ring to the teeth
@@ -24,10 +25,11 @@ Stages, in the order a push from neutral meets them (`Stage`):
                    a plastic impact, against its drag) to the end of the chamfers; then sliding
                    friction to the end of the teeth
   free_travel      free motion to the end stop
-  stop             elastic end stop around x_gear: overshoot, then recovery
+  stop             elastic end stop around x_gear: overshoot, then recovery; the gate's end
+                   (rigid, plastic) `stop_travel_m` past x_gear bounds the overshoot
   in_gear          settled; the stop's spring and the gear detent hold the lever at x_gear;
-                   only a pull of the driver takes it out (past `detent_release_m`), never a
-                   rebound off the stop after a release
+                   only a held pull of the driver takes it out (past `detent_release_m`, beyond
+                   `reversal_force_N` for `reversal_time_s`), never a rebound off the stop
   returning        free motion back from past the ring: after the driver pulls the lever out of
                    gear or back from the teeth. Pushed forward again it goes on where it is (gate
                    open, teeth, free travel): the ring can block again only once the sleeve is back
