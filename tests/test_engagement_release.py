@@ -34,6 +34,15 @@ def _push_and_release(push_N: float, release_s: float, seed: int = 0):
     return state, gearbox
 
 
+def _hold(state, force_N: float, steps: int, gearbox):
+    """`steps` steps of a constant force: (final state, lowest and highest position, m)."""
+    lowest = highest = state.position_m
+    for _ in range(steps):
+        state, _ = engagement.step(state, EngagementInputs(force_N), gearbox, DT_S)
+        lowest, highest = min(lowest, state.position_m), max(highest, state.position_m)
+    return state, lowest, highest
+
+
 @pytest.mark.parametrize("push_N", [60.0, 80.0, 100.0, 120.0, 150.0, 200.0])
 @pytest.mark.parametrize("release_s", [0.001, 0.03])
 def test_a_release_from_a_hard_push_leaves_the_gear_in(push_N, release_s):
@@ -84,11 +93,7 @@ def test_a_rear_stop_ends_the_slot_behind_neutral(pull_N):
     # Before: -50 N settled at -125 mm (only the neutral spring held it). The rear stop sits at
     # -x_gear (the opposite gear's end stop) and is plastic: the lever rests on it, never past.
     gearbox = default_params().gearbox
-    state = engagement.initial_state(0)
-    lowest = 0.0
-    for _ in range(2000):
-        state, _ = engagement.step(state, EngagementInputs(pull_N), gearbox, DT_S)
-        lowest = min(lowest, state.position_m)
+    state, lowest, _ = _hold(engagement.initial_state(0), pull_N, 2000, gearbox)
     assert lowest >= -gearbox.in_gear_position_m
     # 20 N against the 400 N/m spring rests at -50 mm without a stop: every pull here reaches it.
     assert state.position_m == pytest.approx(-gearbox.in_gear_position_m, abs=1e-9)
@@ -137,11 +142,7 @@ def test_a_force_step_presses_no_further_than_the_gates_end(step_N):
     # overshot by 18.5 mm before, the stop's 30 kN/m alone. The lever now meets the gate's end
     # `stop_travel_m` (5 mm, 150 N into the stop) past in gear, where it stops (plastic).
     gearbox = default_params().gearbox
-    state = engagement.initial_state(0)
-    deepest = 0.0
-    for _ in range(1500):
-        state, _ = engagement.step(state, EngagementInputs(step_N), gearbox, DT_S)
-        deepest = max(deepest, state.position_m)
+    state, _, deepest = _hold(engagement.initial_state(0), step_N, 1500, gearbox)
     assert deepest <= gearbox.in_gear_position_m + gearbox.stop_travel_m
     assert state.stage in (Stage.STOP, Stage.IN_GEAR)
     # Let go: the stop's spring brings it back and the gear stays in.
