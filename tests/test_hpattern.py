@@ -63,6 +63,8 @@ def engaged(result: Result) -> list[str]:
         ("5r", FULL),
         ("6r", ("N", "1", "2", "3", "4", "5", "6", "R", "N")),
         ("5r-reverse-left", ("N", "R", "1", "2", "N")),
+        # Issue 30: a 7+R, reverse forward on the left, seventh alone on the right.
+        ("7r", ("N", "1", "2", "3", "4", "5", "6", "7", "6", "N", "R", "N")),
     ],
 )
 def test_the_sequence_is_followed_and_the_gear_output_matches(layout, sequence):
