@@ -167,3 +167,44 @@ def test_a_lane_does_not_depend_on_the_lanes_beside_it():
     assert alone is not None and mixed is not None
     assert np.array_equal(alone.position_m[:, 0], mixed.position_m[:, 1])
     assert np.array_equal(alone.force_N[:, 0], mixed.force_N[:, 1])
+
+
+def test_the_release_the_stop_impact_and_the_rear_stop_equal_the_pure_step():
+    # Issue 30's three changes to the pure step, each met by lanes here: a hard push let go at
+    # once (the rebound off the stop stays in gear), a 2 ms step into the stop (the impact's
+    # kinetic energy capped) and a pull past neutral onto the rear stop at -x_gear.
+    base = default_params()
+    g, d = base.gearbox, base.driver
+    hard = dataclasses.replace(
+        d, push_force_N=200.0, push_velocity_m_s=0.8, release_time_s=0.001, hold_s=0.0
+    )
+    pulled = dataclasses.replace(
+        d, pull_out=True, pull_force_N=120.0, neutral_position_m=-1.0, hold_s=0.05
+    )
+    # The hand left on the knob 0.3 s: dragged back by the rebound, it pulls for a few ms only.
+    resting = dataclasses.replace(hard, hold_s=0.3)
+    params = [
+        dataclasses.replace(base, driver=hard),
+        dataclasses.replace(base, driver=pulled),
+        base,
+        dataclasses.replace(base, driver=resting),
+    ]
+    seeds = [5, 6, 7, 5]
+    # The lanes reach what they are here for (else the test would prove nothing).
+    rear = simulate_shift(params[1], seed=6, duration_s=2.5)
+    assert rear["position_m"].min() == -g.in_gear_position_m
+    released = simulate_shift(params[0], seed=5, duration_s=1.5)
+    in_gear = (released["stage"] == "stop") | (released["stage"] == "in_gear")
+    # The rebound goes deeper than the 1 mm release (to 36 mm), and the gear stays in.
+    assert released["position_m"][in_gear].min() < g.in_gear_position_m - g.detent_release_m
+    assert released["stage"][-1] == "in_gear"
+    assert_lanes_equal_pure(params, seeds, 2.5)
+    # The fixed synchronizer's time falling with the push (issue 30), beside the paper's timer.
+    timed = [
+        dataclasses.replace(p, gearbox=dataclasses.replace(p.gearbox, synchronization_force_N=f))
+        for p, f in zip(params, (60.0, 100.0, 0.0, 78.5), strict=True)
+    ]
+    assert_lanes_equal_pure(timed, seeds, 2.5)
+    # A brisk hand (V0 3 m/s) still pushes 60 N on the step into the stop: the cap acts.
+    brisk = dataclasses.replace(hard, push_velocity_m_s=3.0)
+    assert_lanes_equal_pure([dataclasses.replace(base, driver=brisk)] * 2, [5, 8], 1.0, 2e-3)

@@ -246,7 +246,9 @@ def test_shift_fmu_in_fmpy_simulate_equals_carfeels_force_profile_run(fmus):
         stages = [s.value for s in eng.Stage]
         assert [stages[int(s)] for s in result["stage"][1:]] == list(expected["stage"])
         # The hard case, all of it: synchronization, teeth, stop, in gear and out, five times.
-        assert np.count_nonzero(np.diff(result["stage"]) != 0) > 40
+        # (8 changes a cycle: 40 since issue 30, whose chamfers take this profile through each
+        # cycle without a detour.)
+        assert np.count_nonzero(np.diff(result["stage"]) != 0) >= 40
 
 
 def test_shift_fmu_equals_the_cli_force_profile_run_within_its_csv_digits(fmus, tmp_path):
@@ -502,7 +504,10 @@ def test_the_shifts_integer_and_outside_inputs_reach_the_model(fmus, version):
         assert _bits(got) == _bits((out.position_m, out.reaction_N))
         assert [s.value for s in eng.Stage][int(instance.get("stage"))] == out.stage
     instance.free()
-    assert {"synchronization", "engagement", "in_gear", "returning"} <= stages
+    # (A constant 70 N keeps the lever 2.3 mm into the stop: in_gear came only when a rebound
+    # of the stop's ring happened to turn within 0.5 mm of x_gear, which the gate's end at 5 mm
+    # (issue 30) no longer makes. The force-profile runs above cover in_gear.)
+    assert {"synchronization", "engagement", "stop", "returning"} <= stages
 
 
 # -- communication steps, parameters, state ----------------------------------------------------

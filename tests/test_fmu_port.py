@@ -126,6 +126,11 @@ def _variants():
         "cable-linkage": dataclasses.replace(pull, gearbox=cable),
         "chamfers-always-meet": dataclasses.replace(pull, gearbox=always_chamfer),
         "heavy-gear": dataclasses.replace(pull, gearbox=heavy_gear),
+        # Issue 30: the fixed synchronizer's time falling with the push, no gate's end.
+        "timer-by-force": dataclasses.replace(
+            pull,
+            gearbox=dataclasses.replace(g, synchronization_force_N=60.0, stop_travel_m=0.0),
+        ),
     }
 
 
@@ -194,6 +199,8 @@ def _rough_inputs(seed: int, steps: int) -> list[EngagementInputs]:
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_rough_inputs_through_every_branch_are_bit_for_bit(c_port, seed):
     params = _variants()["cable-linkage"].gearbox
+    if seed == 3:  # the force-scaled timer under rough pushes too (issue 30)
+        params = dataclasses.replace(params, synchronization_force_N=60.0)
     inputs = _rough_inputs(seed, 30_000)
     state, states, outputs = eng.initial_state(seed), [], []
     for u in inputs:
@@ -288,7 +295,7 @@ def test_flat_values_follow_the_parameter_dataclass():
     flat = fmu.flat_values(gearbox)
     assert flat[0] == gearbox.synchronization_position_m
     assert flat[10] == gearbox.neutral.mass_kg  # the first nested table starts after 10 numbers
-    assert flat[-1] == gearbox.linkage_damping_N_s_m
+    assert flat[-1] == gearbox.synchronization_force_N
     spec = fmu.shift_spec(load_shift("paper-first-gear"))
     exposed = [v.start for v in spec.variables if v.name.startswith("gearbox.")]
     assert exposed == flat  # every gearbox number is an FMU parameter, in the same order

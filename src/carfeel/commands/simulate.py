@@ -104,7 +104,7 @@ def register(commands: Any) -> None:
         "the knob), reaction_x_N, reaction_y_N (the gearbox's force on it), region, gear (N, R, "
         "1, 2 ...), event, stage, clutch_pedal, speed_difference_rad_s, grind_N, click_N, "
         "driver_phase, target.",
-        epilog="layouts: 5r (default), 6r, 5r-reverse-left (see `carfeel presets`), or a TOML "
+        epilog="layouts: 5r (default), 6r, 7r, 5r-reverse-left (see `carfeel presets`), or a TOML "
         "file. mistakes (K counts the gears of --sequence, not N): early-clutch:K releases the "
         "clutch while pushing into the K-th gear; wall:K pushes toward the K-th gear while the "
         "knob is still between planes.",

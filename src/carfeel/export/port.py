@@ -44,6 +44,7 @@ ENGAGEMENT_STATE = np.dtype(
         ("rng_state", "<u8"),
         ("index_end_m", "<f8"),
         ("reversal_s", "<f8"),
+        ("contact_m", "<f8"),
     ]
 )
 ENGAGEMENT_INPUTS = np.dtype(
@@ -99,7 +100,7 @@ def engagement_state(state: EngagementState) -> np.ndarray:
     out[0] = (
         STAGES.index(state.stage), state.position_m, state.velocity_m_s, state.stage_time_s,
         state.synchronization_progress, state.tooth_force_N, state.rng_state, state.index_end_m,
-        state.reversal_s,
+        state.reversal_s, state.contact_m,
     )  # fmt: skip
     return out
 
@@ -110,7 +111,7 @@ def python_state(record: Any) -> EngagementState:
         STAGES[int(record["stage"])], float(record["position_m"]), float(record["velocity_m_s"]),
         float(record["stage_time_s"]), float(record["synchronization_progress"]),
         float(record["tooth_force_N"]), int(record["rng_state"]), float(record["index_end_m"]),
-        float(record["reversal_s"]),
+        float(record["reversal_s"]), float(record["contact_m"]),
     )  # fmt: skip
 
 

@@ -723,11 +723,13 @@ def _entered_teeth(
         return state
     if chamfer_travel_m is None:
         return state._replace(index_end_m=0.0)
+    # The fit's chamfers meet at the teeth (contact_m 0) and turn the gear over the fitted
+    # travel: one number per engagement, its impact where the knob shows it (`_met_chamfers`).
     end = params.teeth_position_m + chamfer_travel_m if chamfer_travel_m > 0.0 else 0.0
     v = state.velocity_m_s
     if state.position_m < end and index_mass_kg > 0.0:
         v = engagement.hand_over_velocity(v, lever_mass_kg, lever_mass_kg + index_mass_kg)
-    return state._replace(index_end_m=end, velocity_m_s=v)
+    return state._replace(index_end_m=end, velocity_m_s=v, contact_m=0.0)
 
 
 # --- the fits ----------------------------------------------------------------------------------

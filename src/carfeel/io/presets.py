@@ -56,6 +56,8 @@ RANGES: dict[str, tuple[float, float, bool, bool]] = {
     "reversal_time_s": (0.0, 1.0, True, True),
     "linkage_stiffness_N_m": (0.0, 1e7, True, True),
     "linkage_damping_N_s_m": (0.0, 1e4, True, True),
+    "stop_travel_m": (0.0, 0.1, True, True),
+    "synchronization_force_N": (0.0, 1e4, True, True),
     "neutral_detent.width_m": (0.0, 0.1, False, True),
     "gear_detent.width_m": (0.0, 0.1, False, True),
     "seat_force_N": (0.0, 1e3, True, True),
@@ -624,6 +626,13 @@ def check_shift(params: ShiftParams) -> list[str]:
             f"stop's static friction can hold the lever off x_gear ({held:.3g} m = "
             "gearbox.stop.static_friction_N / gearbox.stop.stiffness_N_m), or the lever may "
             "never count as settled in gear"
+        )
+    f_ref = g.synchronization_force_N
+    if 0.0 < f_ref <= g.hold_force_N:
+        problems.append(
+            f"gearbox.synchronization_force_N = {f_ref:g} N must exceed the force that pushes the "
+            f"sleeve back at the ring ({g.hold_force_N:.3g} N, gearbox.hold_force_N), or 0 for "
+            "the paper's timer whatever the push"
         )
     room = g.in_gear_position_m - g.teeth_end_position_m
     if g.detent_release_m >= room:

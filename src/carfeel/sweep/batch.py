@@ -351,6 +351,8 @@ class ShiftBatch:
         self.x_teeth = _floats([p.teeth_position_m for p in g])
         self.x_teeth_end = _floats([p.teeth_end_position_m for p in g])
         self.x_gear = _floats([p.in_gear_position_m for p in g])
+        self.stop_end = _floats([p.stop_travel_m for p in g])
+        self.x_end = _floats([p.in_gear_position_m + p.stop_travel_m for p in g])
         self.x_release = _floats([p.in_gear_position_m - p.detent_release_m for p in g])
         self.bound = _floats(
             [
@@ -361,6 +363,8 @@ class ShiftBatch:
         )
         self.hold = _floats([p.hold_force_N for p in g])
         self.sync_s = _floats([p.synchronization_duration_s for p in g])
+        self.by_force = np.array([p.synchronization_force_N > 0.0 for p in g], dtype=bool)
+        self.ref_less_hold = _floats([p.synchronization_force_N - p.hold_force_N for p in g])
         self.desync_s = _floats([p.desynchronization_time_s for p in g])
         self.neg_reversal = _floats([-p.reversal_force_N for p in g])
         self.reversal_s = _floats([p.reversal_time_s for p in g])
@@ -413,6 +417,7 @@ class ShiftBatch:
         self.tooth = zeros.copy()
         self.rng = [seed_state(s) for s in seeds]
         self.index_end = zeros.copy()
+        self.contact = zeros.copy()
         self.reversal = zeros.copy()
         self.phase = np.zeros(n, dtype=np.int8)
         self.phase_time = zeros.copy()
@@ -515,12 +520,18 @@ class ShiftBatch:
             drop = blocked & (force < self.bound) & (force < self.hold)
             stage[drop] = NEUTRAL
             loaded = blocked & ~drop
-            progress = _sel(loaded, progress + self.d_sync, progress)
+            rate = self.d_sync
+            scaled = loaded & self.by_force
+            if scaled.any():  # the cone's rate grows with the axial load (engagement.step)
+                rate = _sel(scaled, rate * ((force - self.hold) / self.ref_less_hold), rate)
+            progress = _sel(loaded, progress + rate, progress)
             opens = loaded & (progress >= _DONE)
             stage[opens] = GATE_OPEN
             held = loaded & ~opens
-        pulled = (stage0 == ENGAGED) & (force < self.neg_reversal)
-        reversal = _sel(pulled, self.reversal + h, 0.0)
+        pulls = force < self.neg_reversal
+        pulled = (stage0 == ENGAGED) & pulls
+        held_in = (stage0 == STOP) | (stage0 == IN_GEAR)
+        reversal = _sel(pulled | (held_in & pulls), self.reversal + h, 0.0)
         stage[pulled & (reversal >= self.reversal_s) & (v <= 0.0)] = RETURNING
         drifting = (stage0 == NEUTRAL) & (progress > 0.0)
         progress = _sel(drifting, np.maximum(0.0, progress - self.d_desync), progress)
@@ -533,7 +544,8 @@ class ShiftBatch:
         damping = t["c"][at]
         rest = t["x0"][at]
         engaged = stage == ENGAGED
-        heavy = engaged & (x < self.index_end)
+        contact = self.contact
+        heavy = engaged & (contact <= x) & (x < self.index_end)
         extra = _sel(engaged, self.tooth, 0.0)
         mass = _sel(heavy, mech_mass + self.index_mass, mech_mass)
         extra = _sel(heavy, extra + self.index_drag, extra)
@@ -591,21 +603,40 @@ class ShiftBatch:
         new[reaches_ring] = SYNC
         x1 = _sel(reaches_ring, x_sync, x1)
         v1 = _sel(reaches_ring, 0.0, v1)
+        # The rear stop behind neutral (plastic, at -x_gear).
+        behind = (stage == NEUTRAL) & ~reaches_ring & (x1 < -self.x_gear)
+        x1 = _sel(behind, -self.x_gear, x1)
+        v1 = _sel(behind, 0.0, v1)
         gate = stage == GATE_OPEN
         new[gate & (x1 < x_sync)] = RETURNING
         teeth = gate & (x1 >= x_sync) & (x1 >= self.x_teeth)
         new[teeth] = ENGAGED
         lined_up = engaged & (x1 >= index_end)
+        meets = lined_up & (index_end > 0.0) & ~heavy & (x < contact)  # met and passed in a step
         index_end = _sel(lined_up, 0.0, index_end)
         new[engaged & (x1 >= self.x_teeth_end)] = FREE
         new[engaged & (x1 < self.x_teeth_end) & (x1 < self.x_teeth)] = RETURNING
         free = stage == FREE
         at_stop = free & (x1 >= self.x_gear)
         new[at_stop] = STOP
+        if at_stop.any():
+            # No energy gained entering the stop: the kinetic energy is capped at its value
+            # plus the driver's work up to x_gear less the detents' climb (engagement.step).
+            xg = self.x_gear
+            climb = (_energy(xg, nd) + _energy(xg, gd)) - (_energy(x, nd) + _energy(x, gd))
+            gained = force * (xg - x) - climb
+            cap = 0.5 * mech_mass * v * v + gained
+            over = at_stop & (0.5 * mech_mass * v1 * v1 > cap)
+            capped = _sel(cap > 0.0, np.sqrt(2.0 * cap / mech_mass), 0.0)
+            v1 = _sel(over, capped, v1)
         x1 = _sel(at_stop, self.x_gear, x1)
         new[free & ~at_stop & (x1 < self.x_teeth_end)] = RETURNING
+        hard = midpoint & (self.stop_end > 0.0) & (x1 > self.x_end)  # the gate's end, plastic
+        x1 = _sel(hard, self.x_end, x1)
+        v1 = _sel(hard, 0.0, v1)
         off = x1 - self.x_gear
-        out = midpoint & (x1 < self.x_release)
+        pulled_out = (reversal > 0.0) & (reversal >= self.reversal_s)  # a pull, held
+        out = midpoint & (x1 < self.x_release) & pulled_out
         new[out] = RETURNING
         settled = (
             (stage == STOP)
@@ -627,19 +658,20 @@ class ShiftBatch:
         tooth = self.tooth
         drawn = np.flatnonzero(teeth)
         if drawn.size:
-            tooth, index_end = tooth.copy(), index_end.copy()
+            tooth, index_end, contact = tooth.copy(), index_end.copy(), contact.copy()
             for i in drawn.tolist():
                 p = self.gearboxes[i]
                 self.rng[i], u = next_uniform(self.rng[i])
                 tooth[i] = u * p.tooth_force_spread_N
                 miss = p.chamfer.no_contact_fraction
-                index_end[i] = 0.0
+                index_end[i] = contact[i] = 0.0
                 if u >= miss:
-                    index_end[i] = p.teeth_position_m + (u - miss) / (1.0 - miss) * (
-                        p.chamfer.travel_m
-                    )
+                    travel = p.chamfer.travel_m
+                    contact[i] = p.teeth_position_m + (u - miss) / (1.0 - miss) * travel
+                    index_end[i] = p.teeth_position_m + travel
         v1 = self._hand_over(v1, x1, stage, new)
-        picks = np.flatnonzero((new == ENGAGED) & (x1 < index_end) & ~heavy)
+        crossing = (contact <= x1) & (x1 < index_end) & ~heavy
+        picks = np.flatnonzero((new == ENGAGED) & (meets | crossing))
         if picks.size:
             v1 = v1.copy()
             for i in picks.tolist():
@@ -677,4 +709,5 @@ class ShiftBatch:
         self.stage_time = _sel(new == stage0, self.stage_time + h, 0.0)
         self.stage, self.x, self.v = new, x1, v1
         self.progress, self.tooth, self.index_end = progress, tooth, index_end
+        self.contact = contact
         self.reversal = reversal

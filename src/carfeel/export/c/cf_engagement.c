@@ -123,6 +123,13 @@ static double detent_potential(double x, double seat, double width, const cf_det
     return energy;
 }
 
+/* engagement.detent_energy_J: potential (J) of both detents at x (as _detents: e1 + e2). */
+static double cf_detents_energy(const cf_engagement_params *p, double x) {
+    double e1 = detent_potential(x, 0.0, p->neutral_detent.width_m, &p->neutral_detent);
+    double e2 = detent_potential(x, p->in_gear_position_m, -p->gear_detent.width_m, &p->gear_detent);
+    return e1 + e2;
+}
+
 /* engagement._flat_J */
 static double flat_J(double width, const cf_detent_params *d) {
     return (d->seat_force_N * width - d->far_force_N * d->far_width_m) * (2.0 / 3.0);
@@ -222,6 +229,7 @@ void cf_engagement_initial_state(cf_engagement_state *s, int64_t seed, double po
     s->rng_state = cf_seed_state(seed);
     s->index_end_m = 0.0;
     s->reversal_s = 0.0;
+    s->contact_m = 0.0;
 }
 
 /* engagement.step */
@@ -245,7 +253,13 @@ void cf_engagement_step(cf_engagement_state *state, const cf_engagement_inputs *
         } else {
             int synchronized;
             if (inputs->gate_open < 0) {
-                progress += dt_s / p->synchronization_duration_s;
+                double rate = dt_s / p->synchronization_duration_s;
+                double f_ref = p->synchronization_force_N;
+                if (f_ref > 0.0) { /* the cone's torque grows with the axial load */
+                    double hold = cf_hold_force_N(p);
+                    rate *= (force - hold) / (f_ref - hold);
+                }
+                progress += rate;
                 synchronized = progress >= DONE;
             } else {
                 synchronized = inputs->gate_open != 0;
@@ -284,6 +298,8 @@ void cf_engagement_step(cf_engagement_state *state, const cf_engagement_inputs *
         if (reversal >= p->reversal_time_s && v <= 0.0) {
             stage = CF_RETURNING;
         }
+    } else if ((stage == CF_STOP || stage == CF_IN_GEAR) && force < -p->reversal_force_N) {
+        reversal = state->reversal_s + dt_s; /* a pull out of gear, held */
     } else if (stage == CF_NEUTRAL && progress > 0.0) {
         double dropped = progress - dt_s / p->desynchronization_time_s;
         progress = dropped > 0.0 ? dropped : 0.0; /* max(0.0, dropped) */
@@ -304,7 +320,8 @@ void cf_engagement_step(cf_engagement_state *state, const cf_engagement_inputs *
         damping += inputs->wall_damping_N_s_m;
     }
     double extra = inputs->extra_friction_N;
-    int heavy = stage == CF_ENGAGEMENT && x < state->index_end_m;
+    double contact = state->contact_m;
+    int heavy = stage == CF_ENGAGEMENT && contact <= x && x < state->index_end_m;
     if (stage == CF_ENGAGEMENT) {
         extra += state->tooth_force_N;
         if (heavy) {
@@ -382,12 +399,16 @@ void cf_engagement_step(cf_engagement_state *state, const cf_engagement_inputs *
     uint64_t rng_state = state->rng_state;
     double tooth = state->tooth_force_N;
     double index_end = state->index_end_m;
+    int meets = 0;
     double x_sync = p->synchronization_position_m;
     if (stage == CF_NEUTRAL) {
         if (x1 >= x_sync && v1 > 0.0) {
             x1 = x_sync;
             v1 = 0.0;
             new_stage = CF_SYNCHRONIZATION;
+        } else if (x1 < -p->in_gear_position_m) { /* the rear stop, plastic */
+            x1 = -p->in_gear_position_m;
+            v1 = 0.0;
         }
     } else if (stage == CF_GATE_OPEN) {
         double x_teeth = p->teeth_position_m;
@@ -399,13 +420,16 @@ void cf_engagement_step(cf_engagement_state *state, const cf_engagement_inputs *
             rng_state = cf_next_uniform(rng_state, &u);
             tooth = u * p->tooth_force_spread_N;
             double miss = p->chamfer.no_contact_fraction;
-            index_end = 0.0;
-            if (u >= miss) {
-                index_end = x_teeth + (u - miss) / (1.0 - miss) * p->chamfer.travel_m;
+            index_end = contact = 0.0;
+            if (u >= miss) { /* engagement.py: where the chamfer faces meet, and their end */
+                double travel = p->chamfer.travel_m;
+                contact = x_teeth + (u - miss) / (1.0 - miss) * travel;
+                index_end = x_teeth + travel;
             }
         }
     } else if (stage == CF_ENGAGEMENT) {
         if (x1 >= index_end) {
+            meets = index_end > 0.0 && !heavy && x < contact; /* met and passed in one step */
             index_end = 0.0;
         }
         if (x1 >= p->teeth_end_position_m) {
@@ -415,14 +439,29 @@ void cf_engagement_step(cf_engagement_state *state, const cf_engagement_inputs *
         }
     } else if (stage == CF_FREE_TRAVEL) {
         if (x1 >= p->in_gear_position_m) {
-            x1 = p->in_gear_position_m;
+            /* engagement.py: cap the kinetic energy at what it was plus the driver's work up
+             * to x_gear less the detents' climb (v1 holds the whole step's acceleration). */
+            double xg = p->in_gear_position_m;
+            double gained = force * (xg - x) - (cf_detents_energy(p, xg) - cf_detents_energy(p, x));
+            double cap = 0.5 * mech->mass_kg * v * v + gained;
+            double kinetic = 0.5 * mech->mass_kg * v1 * v1;
+            if (kinetic > cap) {
+                v1 = cap > 0.0 ? sqrt(2.0 * cap / mech->mass_kg) : 0.0;
+            }
+            x1 = xg;
             new_stage = CF_STOP;
         } else if (x1 < p->teeth_end_position_m) {
             new_stage = CF_RETURNING;
         }
     } else if (stage == CF_STOP || stage == CF_IN_GEAR) {
         double gear = p->in_gear_position_m;
-        if (x1 < gear - p->detent_release_m) {
+        double end = p->stop_travel_m;
+        if (end > 0.0 && x1 > gear + end) { /* the gate's end: plastic */
+            x1 = gear + end;
+            v1 = 0.0;
+        }
+        /* only a pull, held, takes it out */
+        if (x1 < gear - p->detent_release_m && 0.0 < reversal && reversal >= p->reversal_time_s) {
             new_stage = CF_RETURNING;
         } else if (stage == CF_STOP && -p->settle_velocity_m_s < v1 &&
                    v1 < p->settle_velocity_m_s && -p->settle_distance_m < x1 - gear &&
@@ -447,7 +486,8 @@ void cf_engagement_step(cf_engagement_state *state, const cf_engagement_inputs *
     if (new_stage != stage) {
         v1 = hand_over(v1, x1, stage, new_stage, p);
     }
-    if (new_stage == CF_ENGAGEMENT && x1 < index_end && !heavy) {
+    if (new_stage == CF_ENGAGEMENT &&
+        (meets || (contact <= x1 && x1 < index_end && !heavy))) {
         double index_mass, index_drag;
         chamfer_load(p, inputs->gear_inertia_kg_m2, inputs->gear_drag_Nm, &index_mass,
                      &index_drag);
@@ -463,6 +503,7 @@ void cf_engagement_step(cf_engagement_state *state, const cf_engagement_inputs *
     state->rng_state = rng_state;
     state->index_end_m = index_end;
     state->reversal_s = reversal;
+    state->contact_m = contact;
     out->position_m = x1;
     out->velocity_m_s = v1;
     out->force_N = force;

@@ -80,6 +80,8 @@ typedef struct {
     cf_chamfer_params chamfer;
     double linkage_stiffness_N_m;
     double linkage_damping_N_s_m;
+    double stop_travel_m;
+    double synchronization_force_N;
 } cf_engagement_params;
 
 typedef struct {
@@ -92,6 +94,7 @@ typedef struct {
     uint64_t rng_state;
     double index_end_m;
     double reversal_s;
+    double contact_m; /* where the chamfers meet (engagement.EngagementState.contact_m) */
 } cf_engagement_state;
 
 typedef struct {

@@ -7,22 +7,29 @@ Axis: x along the slot, 0 = neutral, positive toward the gear. Forces are positi
     0          x_sync        x_teeth   x_teeth_end   x_gear
 
 Stages, in the order a push from neutral meets them (`Stage`):
-  neutral          free motion; the neutral spring and spring-ball detent centre the lever
+  neutral          free motion; the neutral spring and spring-ball detent centre the lever;
+                   a rear stop (plastic) at -x_gear ends the slot behind neutral
   synchronization  the blocker ring holds the lever at x_sync (rigidly, or through the linkage's
                    compliance) while the driver's push (more than
                    the strut and detent force that pushes the sleeve back there) loads it and the
                    cones cancel the speed difference; after `synchronization_duration_s` of
-                   pushing the synchro gate opens (or when an outside synchronizer says so). When
+                   pushing (scaled by the axial load where `synchronization_force_N` is set)
+                   the synchro gate opens (or when an outside synchronizer says so). When
                    the push drops, the ring lets go: back to neutral, the progress kept; it decays
                    there over `desynchronization_time_s` (the speeds drift apart again)
   gate_open        free motion from the ring to the teeth
   engagement       the sleeve's chamfers meet the gear's dog teeth at a random relative angle: no
-                   contact (a chance), or the sleeve must turn the gear (its inertia reflected
-                   through the chamfer angle and the linkage, against its drag) over an axial
-                   travel set by that angle; then sliding friction to the end of the teeth
+                   contact (a chance), or the chamfer faces meet at a position set by that angle
+                   (`contact_m`, Lovas et al. 2006) and from there the sleeve must turn the gear
+                   (its inertia reflected through the chamfer angle and the linkage, picked up in
+                   a plastic impact, against its drag) to the end of the chamfers; then sliding
+                   friction to the end of the teeth
   free_travel      free motion to the end stop
-  stop             elastic end stop around x_gear: overshoot, then recovery
-  in_gear          settled; the stop's spring and the gear detent hold the lever at x_gear
+  stop             elastic end stop around x_gear: overshoot, then recovery; the gate's end
+                   (rigid, plastic) `stop_travel_m` past x_gear bounds the overshoot
+  in_gear          settled; the stop's spring and the gear detent hold the lever at x_gear;
+                   only a held pull of the driver takes it out (past `detent_release_m`, beyond
+                   `reversal_force_N` for `reversal_time_s`), never a rebound off the stop
   returning        free motion back from past the ring: after the driver pulls the lever out of
                    gear or back from the teeth. Pushed forward again it goes on where it is (gate
                    open, teeth, free travel): the ring can block again only once the sleeve is back
@@ -92,7 +99,9 @@ class ChamferParams:
     equivalent mass J * tan^2 / (radius^2 * ratio^2 * efficiency) at the knob, picked up by a
     plastic impact, and its drag torque a resistance T * tan / (radius * ratio * efficiency).
     The relative angle u is U(0, 1): below `no_contact_fraction` the teeth meet gap to gap (no
-    contact); above, the chamfer travel is (u - f) / (1 - f) * `travel_m` of knob travel.
+    contact); above, the chamfer faces meet q = (u - f) / (1 - f) of `travel_m` past the teeth
+    (the sleeve's tip travels freely over the part of the face the angle leaves open) and turn
+    the gear from there to the chamfers' end, `travel_m` past the teeth.
     """
 
     gear_inertia_kg_m2: float
@@ -145,7 +154,8 @@ class EngagementParams:
     """Fixed synchronizer: after the ring lets go the progress falls by dt / this."""
     reversal_force_N: float
     reversal_time_s: float
-    """In the teeth a pull counts as a reversal only beyond this force, held this long."""
+    """In the teeth a pull counts as a reversal only beyond this force, held this long; in
+    gear, as a pull out of gear."""
     neutral_detent: DetentParams
     gear_detent: DetentParams
     chamfer: ChamferParams
@@ -153,6 +163,13 @@ class EngagementParams:
     """Compliance of the linkage against the blocked ring (0: rigid, the knob held at x_sync);
     a cable linkage lets the knob in by F / k while the ring blocks."""
     linkage_damping_N_s_m: float
+    stop_travel_m: float = 0.0
+    """How far the knob can press into the elastic stop before the lever meets the gate's end
+    (rigid and plastic: the lever stops there); 0: no end (the stop's spring alone)."""
+    synchronization_force_N: float = 0.0
+    """Fixed synchronizer: the push at which it takes `synchronization_duration_s`; the cone's
+    torque grows with the axial load (the push less `hold_force_N`), so the time scales as
+    (this - hold) / (push - hold). 0: the paper's timer, whatever the push."""
 
     @property
     def hold_force_N(self) -> float:
@@ -178,6 +195,9 @@ class EngagementState(NamedTuple):
     """Where the chamfers of the current engagement have turned the gear into line, m."""
     reversal_s: float = 0.0
     """How long the driver has pulled beyond the reversal force in the teeth, s."""
+    contact_m: float = 0.0
+    """Where the chamfers of the current engagement meet, m (they turn the gear from there to
+    `index_end_m`); 0: at the teeth."""
 
 
 class EngagementInputs(NamedTuple):
@@ -329,7 +349,13 @@ def step(
             stage = Stage.NEUTRAL
         else:
             if inputs.gate_open is None:
-                progress += dt_s / params.synchronization_duration_s
+                rate = dt_s / params.synchronization_duration_s
+                f_ref = params.synchronization_force_N
+                if f_ref > 0.0:
+                    # The cone's torque, so its rate, is proportional to the axial load.
+                    hold = params.hold_force_N
+                    rate *= (force - hold) / (f_ref - hold)
+                progress += rate
                 synchronized = progress >= _DONE
             else:
                 synchronized = inputs.gate_open
@@ -356,6 +382,7 @@ def step(
                     state.tooth_force_N,
                     state.rng_state,
                     state.index_end_m,
+                    contact_m=state.contact_m,
                 )
                 return held, EngagementOutputs(x1, v1, force, reaction, stage.value)
             stage = Stage.GATE_OPEN  # synchro gate opens
@@ -364,6 +391,10 @@ def step(
         reversal = state.reversal_s + dt_s
         if reversal >= params.reversal_time_s and v <= 0.0:
             stage = Stage.RETURNING
+    elif (stage is Stage.STOP or stage is Stage.IN_GEAR) and force < -params.reversal_force_N:
+        # A pull out of gear counts as in the teeth: beyond the reversal force, held (a hand
+        # dragged back by the lever's rebound pulls for a few ms only).
+        reversal = state.reversal_s + dt_s
     elif stage is Stage.NEUTRAL and progress > 0.0:
         # The ring let go before the gate opened: the speeds drift apart again.
         progress = max(0.0, progress - dt_s / params.desynchronization_time_s)
@@ -380,7 +411,8 @@ def step(
         stiffness += k_wall
         damping += inputs.wall_damping_N_s_m
     extra = inputs.extra_friction_N
-    heavy = stage is Stage.ENGAGEMENT and x < state.index_end_m
+    contact = state.contact_m
+    heavy = stage is Stage.ENGAGEMENT and contact <= x < state.index_end_m
     if stage is Stage.ENGAGEMENT:
         extra += state.tooth_force_N
         if heavy:  # turning the gear through the chamfers
@@ -457,10 +489,15 @@ def step(
     rng_state = state.rng_state
     tooth = state.tooth_force_N
     index_end = state.index_end_m
+    meets = False
     x_sync = params.synchronization_position_m
     if stage is Stage.NEUTRAL:
         if x1 >= x_sync and v1 > 0.0:
             x1, v1, new_stage = x_sync, 0.0, Stage.SYNCHRONIZATION
+        elif x1 < -params.in_gear_position_m:
+            # The rear stop: the slot ends as far behind neutral as the gear is in front (the
+            # opposite gear's end stop); unilateral and plastic, so it only takes energy.
+            x1, v1 = -params.in_gear_position_m, 0.0
     elif stage is Stage.GATE_OPEN:
         x_teeth = params.teeth_position_m
         if x1 < x_sync:
@@ -470,11 +507,16 @@ def step(
             rng_state, u = next_uniform(rng_state)
             tooth = u * params.tooth_force_spread_N
             miss = params.chamfer.no_contact_fraction
-            index_end = 0.0
+            index_end = contact = 0.0
             if u >= miss:
-                index_end = x_teeth + (u - miss) / (1.0 - miss) * params.chamfer.travel_m
+                # Where the chamfer faces meet (the angle sets how much of the face the sleeve's
+                # tip passes freely); they turn the gear from there to the chamfers' end.
+                travel = params.chamfer.travel_m
+                contact = x_teeth + (u - miss) / (1.0 - miss) * travel
+                index_end = x_teeth + travel
     elif stage is Stage.ENGAGEMENT:
         if x1 >= index_end:
+            meets = index_end > 0.0 and not heavy and x < contact  # met and passed in one step
             index_end = 0.0  # the teeth are in line: the chamfers are done with this gear
         if x1 >= params.teeth_end_position_m:
             new_stage = Stage.FREE_TRAVEL
@@ -484,13 +526,33 @@ def step(
         if x1 >= params.in_gear_position_m:
             # The stop's spring starts at x_gear: enter it there, so no spring energy appears
             # from the part of the step that overshot the boundary.
-            x1 = params.in_gear_position_m
+            x_gear = params.in_gear_position_m
+            # ... and no kinetic energy either: v1 holds the whole step's acceleration, but the
+            # driver did work only up to x_gear. Cap the kinetic energy at what it was plus that
+            # work less the detents' potential climb (friction and damping only take away).
+            gained = force * (x_gear - x) - (
+                detent_energy_J(x_gear, params) - detent_energy_J(x, params)
+            )
+            cap = 0.5 * mech.mass_kg * v * v + gained
+            kinetic = 0.5 * mech.mass_kg * v1 * v1
+            if kinetic > cap:
+                v1 = math.sqrt(2.0 * cap / mech.mass_kg) if cap > 0.0 else 0.0
+            x1 = x_gear
             new_stage = Stage.STOP
         elif x1 < params.teeth_end_position_m:
             new_stage = Stage.RETURNING  # pulled back into the teeth: on the way out
     elif stage is Stage.STOP or stage is Stage.IN_GEAR:
         x_gear = params.in_gear_position_m
-        if x1 < x_gear - params.detent_release_m:
+        end = params.stop_travel_m
+        if end > 0.0 and x1 > x_gear + end:
+            # The gate's end: the lever cannot press further into the stop (plastic).
+            x1, v1 = x_gear + end, 0.0
+        pulled = reversal > 0.0 and reversal >= params.reversal_time_s
+        if x1 < x_gear - params.detent_release_m and pulled:
+            # Only the driver's pull, held, takes the gear out: a rebound off the stop after a
+            # release (the hand let go, or dragged back with the knob) stays in the in-gear well
+            # (the sleeve's detent groove and the teeth's back taper), whose spring brings it
+            # back to x_gear.
             new_stage = Stage.RETURNING
         elif (
             stage is Stage.STOP
@@ -514,13 +576,14 @@ def step(
 
     if new_stage is not stage:
         v1 = _hand_over(v1, x1, stage, new_stage, params)
-    if new_stage is Stage.ENGAGEMENT and x1 < index_end and not heavy:
-        # The chamfers meet: the lever picks up the gear's inertia (a plastic impact).
+    if new_stage is Stage.ENGAGEMENT and (meets or (contact <= x1 < index_end and not heavy)):
+        # The chamfers meet: the lever picks up the gear's inertia (a plastic impact), also when
+        # the step passed the whole face (the gear takes the sleeve's speed whatever the angle).
         index_mass = chamfer_load(params, inputs.gear_inertia_kg_m2, inputs.gear_drag_Nm)[0]
         v1 = hand_over_velocity(v1, mech.mass_kg, mech.mass_kg + index_mass)
     stage_time = state.stage_time_s + dt_s if new_stage is state.stage else 0.0
     new_state = EngagementState(
-        new_stage, x1, v1, stage_time, progress, tooth, rng_state, index_end, reversal
+        new_stage, x1, v1, stage_time, progress, tooth, rng_state, index_end, reversal, contact
     )
     return new_state, EngagementOutputs(x1, v1, force, reaction, new_stage.value)
 
@@ -530,7 +593,7 @@ def energy_J(state: EngagementState, params: EngagementParams) -> float:
     turn it, included), the stage's spring and the detents."""
     mech, rest = mechanics(params, state.stage)
     mass = mech.mass_kg
-    if state.stage is Stage.ENGAGEMENT and state.position_m < state.index_end_m:
+    if state.stage is Stage.ENGAGEMENT and state.contact_m <= state.position_m < state.index_end_m:
         mass += chamfer_load(params, None, None)[0]
     stretch = state.position_m - rest
     return (
