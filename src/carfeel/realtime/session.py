@@ -366,9 +366,9 @@ def _check_telemetry(run: RealtimeRun) -> None:
     if run.car_presets is not None and run.telemetry is None:
         raise InputError("--car-presets needs --telemetry (the format names the car)")
     if run.telemetry is not None:
-        from carfeel.telemetry.receiver import Source
+        from carfeel.telemetry.receiver import parse_source
 
-        Source.parse(run.telemetry)
+        parse_source(run.telemetry)
         if run.model not in ("steering", "hpattern"):
             raise InputError("--telemetry drives --model steering or hpattern")
 
@@ -561,9 +561,9 @@ def run_realtime(
     receiver = None
     if run.telemetry is not None:
         # Before the device: a port in use or a bad source stops the run before anything starts.
-        from carfeel.telemetry.receiver import Receiver, Source
+        from carfeel.telemetry.receiver import open_receiver
 
-        receiver = Receiver(Source.parse(run.telemetry))
+        receiver = open_receiver(run.telemetry)
     try:
         return _run_realtime(run, announce, receiver, preset_name, kind, delay, observer, say)
     finally:
@@ -812,7 +812,7 @@ def _render(
         r = driven.source.receiver
         notes += driven.source.events
         notes.append(
-            f"telemetry {r.format.name} on {r.bound[0]}:{r.bound[1]}: {r.packets} good packets, "
+            f"telemetry {r.format.name} on {r.where}: {r.packets} good packets, "
             f"{r.bad} bad, {r.ignored} "
             f"ignored{'; car ' + r.latest.car if r.latest.car else ''}"
         )

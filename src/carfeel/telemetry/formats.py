@@ -28,8 +28,16 @@ from carfeel.telemetry.state import BAD, NAN, NEUTRAL, REVERSE, VehicleState
 G = 9.80665
 KMH = 1.0 / 3.6
 DEG = math.pi / 180.0
-_make = VehicleState._make
-"""Positional, as the fields' order: a third of the keyword constructor's cost."""
+_TAIL = tuple(VehicleState._field_defaults[f] for f in VehicleState._fields[14:])
+"""The fields after time_s, which the UDP formats leave at their defaults."""
+_new = VehicleState._make
+
+
+def _make(values: tuple[Any, ...]) -> VehicleState:
+    """Positional, as the fields' order up to time_s (a third of the keyword constructor's
+    cost); the later fields at their defaults."""
+    return _new(values + _TAIL)
+
 
 Decoder = Callable[[Any, VehicleState], VehicleState | None]
 

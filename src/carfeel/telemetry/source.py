@@ -49,7 +49,7 @@ class VehicleSource:
         if not self._started:  # what queued while the run was being set up is old news
             receiver.flush()
             self._started = True
-        if receiver.poll():
+        if receiver.poll(now_s=t_s):
             state = receiver.latest
             if self.needs(state):
                 self.state = state

@@ -38,6 +38,34 @@ class VehicleState(NamedTuple):
     time_s: float = NAN
     """The packet's own time stamp, s, as the game counts it (its session or race clock; NaN
     where the format has none: Assetto Corsa, BeamNG's MotionSim, OutSim without OSO_TIME)."""
+    # What the shared-memory games add (issue 29); defaults where a format does not say.
+    wheel_torque_Nm: float = NAN
+    """The game's own force-feedback torque at the wheel, N*m, positive to the left (as the
+    steering angle: it is negative while the wheel is turned left and the tyres pull it back);
+    iRacing's SteeringWheelTorque."""
+    wheel_torque_samples_Nm: tuple[float, ...] = ()
+    """The same torque at the game's higher rate within this frame, oldest first (iRacing's
+    SteeringWheelTorque_ST: 6 samples at 360 Hz); empty where the game has none."""
+    wheel_torque_max_Nm: float = NAN
+    """The game's torque scale: the torque its force feedback maps to the wheel's full force
+    (iRacing's SteeringWheelMaxForceNm), for normalizing per car."""
+    shift_grind_rpm: float = NAN
+    """Where the game says a shift grinds (iRacing's ShiftGrindRPM: the speed difference)."""
+    engine_idle_rpm: float = NAN
+    forward_gears: int = 0
+    """The gearbox's forward gears, where the game says (0: not said)."""
+    gearbox: str = ""
+    """"h", "sequential" or "truck" where the game says; "" where not."""
+    truck_slot: int = -1
+    """ETS2/ATS: the H-shifter slot the game has selected (-1: not a truck or not said)."""
+    range_high: bool = False
+    """A truck's range selector (high), where the game says."""
+    splitter_high: bool = False
+    """A truck's splitter (high), where the game says."""
+    replay: bool = False
+    """The game is playing a replay (the cues are off: nobody is driving)."""
+    paused: bool = False
+    """The game says it is paused or the player is not in the car."""
 
 
 FIELDS = (
