@@ -19,9 +19,9 @@ def register(commands: Any) -> None:
         "telemetry",
         help="receive a game's telemetry (listen) or send a capture as the game would (replay)",
         description="SOURCE is FORMAT:HOST:PORT (or FORMAT:PORT on 127.0.0.1) with FORMAT one "
-        "of codemasters, f1, assetto, forza, outgauge, outsim, beamng, carfeel. For assetto, "
-        "HOST:PORT is the game's (port 9996); for the others, where to listen. Packets are "
-        "taken from the game's host only (127.0.0.1 on loopback); beyond loopback name it with "
+        "of codemasters, f1, assetto, forza, outgauge, outsim, beamng, pcars, carfeel. For "
+        "assetto, HOST:PORT is the game's (port 9996); for the others, where to listen. Packets "
+        "are taken from the game's host only (127.0.0.1 on loopback); beyond loopback name it with "
         "--accept-from ADDR (or ,from=ADDR after the source). The shared-memory games (iracing) "
         "are FORMAT (the live map: Windows' named memory, on Linux the bridge's file under "
         "/dev/shm) or FORMAT:file:PATH (a file image: an iRacing .ibt is replayed at its rate).",
@@ -195,11 +195,15 @@ def _replay(args: argparse.Namespace) -> int:
     path = Path(args.file)
     if not path.is_file():
         raise InputError(f"{path}: no such capture")
-    size = replay.datagram_size(path, fmt, args.size)
+    if fmt.name == "pcars" and args.size is None:  # three packet types of three sizes
+        packets = replay.pcars_datagrams(path)
+        size = len(packets[0]) if packets else 0
+    else:
+        size = replay.datagram_size(path, fmt, args.size)
+        packets = replay.datagrams(path, size)
     rate = args.rate_hz or replay.NATURAL_RATE_HZ.get(fmt.name, 100.0)
     if not (math.isfinite(rate) and 0.0 < rate <= 10_000.0):
         raise InputError(f"--rate-hz {rate:g}: allowed 0 < value <= 10000")
-    packets = replay.datagrams(path, size)
     try:
         if fmt.name == "assetto":
             print(f"serving {len(packets)} RTCarInfo packets as Assetto Corsa on {to[0]}:{to[1]}",
@@ -211,5 +215,6 @@ def _replay(args: argparse.Namespace) -> int:
         raise InputError(f"--to {args.to}: {exc}") from exc
     except KeyboardInterrupt:
         return 130
-    print(f"sent {sent} of {len(packets)} {size}-byte datagrams at {rate:g} Hz to {args.to}")
+    sizes = "-".join(map(str, sorted({len(p) for p in packets}))) or str(size)
+    print(f"sent {sent} of {len(packets)} {sizes}-byte datagrams at {rate:g} Hz to {args.to}")
     return 0
