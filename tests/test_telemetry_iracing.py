@@ -168,7 +168,7 @@ class TearingImage(bytearray):
 def test_a_torn_frame_is_read_again_once_then_counted_bad(tears: int, good: int, bad: int) -> None:
     raw = data_file("telemetry", LIVE).read_bytes()
     image = TearingImage(raw, 0)
-    reader = shm.open_iracing(image, False, "test")
+    reader = shm.open_iracing((image,), False, "test")
     image.tears = tears  # from now: each copy of a buffer sees the game rewrite it
     states = reader.read(0.0)
     assert len(states) == 1
@@ -266,7 +266,7 @@ def test_the_reader_survives_a_fuzzed_image(name: str) -> None:
         if trial % 7 == 0:
             image = image[: rng.randrange(len(image))]
         try:
-            reader = shm.open_iracing(bytes(image), True, "fuzz")
+            reader = shm.open_iracing((bytes(image),), True, "fuzz")
         except ValueError:
             refused += 1
             continue
@@ -281,7 +281,7 @@ def test_the_reader_survives_a_fuzzed_image(name: str) -> None:
         for _ in range(64):
             image[rng.randrange(header_end, len(image))] = rng.randrange(256)
         try:
-            reader = shm.open_iracing(bytes(image), True, "fuzz")
+            reader = shm.open_iracing((bytes(image),), True, "fuzz")
         except ValueError:
             continue
         rec = shm.MapReceiver.__new__(shm.MapReceiver)

@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from carfeel.errors import InputError
-from carfeel.telemetry import irsdk
+from carfeel.telemetry import irsdk, pages
 from carfeel.telemetry.state import BAD, VehicleState, plausible
 
 MAX_PER_POLL = 64
@@ -49,9 +49,10 @@ class Reader(Protocol):
         ...
 
 
-Opener = Callable[[Any, bool, str], Reader]
-"""(image, is a file, where) -> Reader; raises `irsdk.LayoutError` (or ValueError) with the
-reason where the image is not a layout the format knows."""
+Opener = Callable[[tuple[Any, ...], bool, str], Reader]
+"""(images: the file's one, or the live maps' one per name; is a file; where) -> Reader;
+raises `irsdk.LayoutError` (or ValueError) with the reason where the images are not a layout
+the format knows."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -174,7 +175,8 @@ class LiveReader:
         return [BAD]  # torn twice
 
 
-def open_iracing(image: Any, is_file: bool, where: str) -> Reader:
+def open_iracing(images: tuple[Any, ...], is_file: bool, where: str) -> Reader:
+    image = images[0]
     layout = irsdk.read_layout(image)
     if is_file and irsdk.is_disk_file(image, layout):
         return IbtReader(image, layout)
@@ -191,8 +193,27 @@ MAP_FORMATS: dict[str, MapFormat] = {
             (irsdk.LIVE_MAP_SIZE,),
             open_iracing,
         ),
+        MapFormat(
+            "acc",
+            "Assetto Corsa Competizione shared memory (physics, graphics, static pages)",
+            pages.AC_MAP_NAMES,
+            pages.ACC.page_bytes,
+            lambda images, is_file, where: pages.PagesReader(pages.ACC, images, is_file),
+            pages.FRAME_HZ,
+        ),
+        MapFormat(
+            "assetto",
+            "Assetto Corsa shared memory (physics, graphics, static pages)",
+            pages.AC_MAP_NAMES,
+            pages.ASSETTO.page_bytes,
+            lambda images, is_file, where: pages.PagesReader(pages.ASSETTO, images, is_file),
+            pages.FRAME_HZ,
+        ),
     )
 }
+UDP_TOO = frozenset({"assetto"})
+"""Formats that are UDP as well: bare or FORMAT:HOST:PORT is the UDP source; the map is
+FORMAT:live and the image FORMAT:file:PATH."""
 
 
 # --- opening images ----------------------------------------------------------------------
@@ -211,9 +232,7 @@ def _read_file(path: Path) -> Any:
         raise InputError(f"{path}: cannot be read ({exc})") from exc
 
 
-def _open_live(fmt: MapFormat) -> Any | None:
-    """The live map's image (the first of its maps), or None if the game has not made it."""
-    name, size = fmt.map_names[0], fmt.map_bytes[0]
+def _open_map(name: str, size: int) -> Any | None:
     if sys.platform == "win32":
         try:
             return mmap.mmap(-1, size, tagname=name, access=mmap.ACCESS_READ)
@@ -225,6 +244,19 @@ def _open_live(fmt: MapFormat) -> Any | None:
             return mmap.mmap(handle.fileno(), 0, access=mmap.ACCESS_READ)
     except (OSError, ValueError):
         return None
+
+
+def _open_live(fmt: MapFormat) -> tuple[Any, ...] | None:
+    """The live maps' images (one per name), or None if the game has not made them all."""
+    images: list[Any] = []
+    for name, size in zip(fmt.map_names, fmt.map_bytes, strict=True):
+        image = _open_map(name, size)
+        if image is None:
+            for opened in images:
+                opened.close()
+            return None
+        images.append(image)
+    return tuple(images)
 
 
 class MapReceiver:
@@ -243,7 +275,7 @@ class MapReceiver:
         self.bound = (self.where, 0)
         self.address = self.bound
         self.reader: Reader | None = None
-        self._image: Any = None
+        self._images: tuple[Any, ...] = ()
         self._looked_s = -math.inf
         self._origin: tuple[bool, float] | None = None
         self.arrival_s = math.nan
@@ -251,12 +283,12 @@ class MapReceiver:
         if source.path is not None:
             image = _read_file(source.path)
             try:
-                self.reader = source.format.open(image, True, str(source.path))
+                self.reader = source.format.open((image,), True, str(source.path))
             except ValueError as exc:
                 raise InputError(
                     f"{source.text}: not a {source.format.describe} image: {exc}"
                 ) from None
-            self._image = image
+            self._images = (image,)
             self.latest = VehicleState(car=self.reader.car)
         else:
             self._look()
@@ -271,16 +303,17 @@ class MapReceiver:
 
     def _look(self) -> None:
         self._looked_s = time.monotonic()
-        image = _open_live(self.format)
-        if image is None:
+        images = _open_live(self.format)
+        if images is None:
             return
         try:
-            self.reader = self.format.open(image, False, self.where)
-            self._image = image
+            self.reader = self.format.open(images, False, self.where)
+            self._images = images
             self.latest = self.latest._replace(car=self.reader.car)
         except ValueError as exc:  # the game made the map but has not filled it yet
             self.first_error = self.first_error or f"{self.where}: {exc}"
-            image.close()
+            for image in images:
+                image.close()
 
     def _clock(self, now_s: float | None) -> float:
         given = now_s is not None
@@ -340,9 +373,10 @@ class MapReceiver:
         return text
 
     def close(self) -> None:
-        image, self._image = self._image, None
-        if isinstance(image, mmap.mmap):
-            image.close()
+        images, self._images = self._images, ()
+        for image in images:
+            if isinstance(image, mmap.mmap):
+                image.close()
 
     def __enter__(self) -> MapReceiver:
         return self
@@ -357,6 +391,8 @@ def parse_map_source(text: str) -> MapSource | None:
     fmt = MAP_FORMATS.get(name)
     if fmt is None:
         return None
+    if name in UDP_TOO and rest != "live" and not rest.startswith("file:"):
+        return None  # the UDP source of the same name (assetto:HOST:PORT)
     if rest in ("", "live"):
         return MapSource(fmt)
     kind, _, path = rest.partition(":")

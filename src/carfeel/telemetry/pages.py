@@ -1,0 +1,206 @@
+"""Shared-memory games whose state is a few fixed pages (Assetto Corsa and ACC: physics,
+graphics, static), one decoder per layout, from the games' published headers.
+
+A live game has one named map per page; a file image is the pages concatenated in their order
+(one frame), or several such frames one after the other, replayed at `FRAME_HZ`. Each layout's
+pages are read at the sizes of the fields carfeel uses (a prefix of the game's page: the live
+map is mapped at that size), and checked once at open (the static page's version string) and
+each frame (the graphics page's status, the physics page's own ranges). A torn frame (the
+physics page's packetId moved while it was copied) is copied again once, then counted bad.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from carfeel.telemetry.formats import KMH, VELOCITY_BOUND_M_S, G, _within
+from carfeel.telemetry.state import BAD, NAN, REVERSE, VehicleState
+
+FRAME_HZ = 60.0
+"""A file image's frames are replayed at 60 Hz (the games' graphics rate; a dump tool writes
+one frame per graphics update)."""
+
+# --- Assetto Corsa / ACC (SharedFileOut.h, #pragma pack(4)) ----------------------------------
+AC_PHYSICS = struct.Struct("<i4x4x4xiiff12x3f240x3f56xf")
+"""packetId 0, gear 16, rpms 20, steerAngle 24, speedKmh 28, accG 44..55, localAngularVel
+296..307, clutch 364 (the other fields skipped)."""
+AC_INPUTS = struct.Struct("<4xff")  # gas 4, brake 8
+ACC_PHYSICS_BYTES = 800
+"""ACC's SPageFilePhysics (to absVibrations)."""
+AC_PHYSICS_BYTES = 580
+"""Assetto Corsa's SPageFilePhysics to localVelocity (AC 1.7's header; later versions add
+fields after it, not read)."""
+GRAPHICS_BYTES = 12
+"""SPageFileGraphic's packetId, status (0 off, 1 replay, 2 live, 3 pause), session."""
+STATIC_BYTES = 416
+"""SPageFileStatic to maxRpm: smVersion and acVersion (wchar_t[15] each), numberOfSessions,
+numCars, carModel, track, playerName, playerSurname, playerNick (wchar_t[33] each),
+sectorCount, maxTorque, maxPower, maxRpm."""
+_STATUS = struct.Struct("<4xi")
+_MAX_RPM = struct.Struct("<i")  # at 412
+AC_OFF, AC_REPLAY, AC_LIVE, AC_PAUSE = 0, 1, 2, 3
+
+
+def _wide(raw: bytes) -> str | None:
+    """A wchar_t (UTF-16LE) C string, or None where it is not one (no NUL, unprintable)."""
+    text = raw.decode("utf-16-le", "replace")
+    head, nul, _ = text.partition("\x00")
+    if not nul or "\ufffd" in head or not head.isprintable():
+        return None
+    return head
+
+
+@dataclass(frozen=True, slots=True)
+class PageLayout:
+    name: str
+    page_bytes: tuple[int, ...]
+    """Each page's size as read (physics, graphics, static)."""
+    check: Callable[[Sequence[bytes]], str | None]
+    """Why the static pages are not this layout's (None: they are), checked at open."""
+    decode: Callable[[Sequence[Any], str, float], VehicleState | None]
+    """(pages, car, max rpm) -> a state, None (no car driven) or BAD."""
+    sequence_offset: int = 0
+    """Where in the first page its update counter is (torn-read check)."""
+
+    @property
+    def frame_bytes(self) -> int:
+        return sum(self.page_bytes)
+
+
+def _check_ac(version_prefix: str) -> Callable[[Sequence[bytes]], str | None]:
+    def check(pages: Sequence[bytes]) -> str | None:
+        static = pages[2]
+        version = _wide(static[0:30])
+        if version is None:
+            return "its static page's smVersion is not a string (not this game's pages)"
+        if not version.startswith(version_prefix):
+            return (
+                f"its shared-memory version {version!r} is not {version_prefix}x, the layout "
+                "carfeel reads"
+            )
+        return None
+
+    return check
+
+
+def _decode_ac(pages: Sequence[Any], car: str, max_rpm: float) -> VehicleState | None:
+    physics, graphics = pages[0], pages[1]
+    status = _STATUS.unpack_from(graphics)[0]
+    if not AC_OFF <= status <= AC_PAUSE:
+        return BAD
+    if status == AC_OFF:
+        return None  # the game is in its menus
+    _id, raw_gear, rpm, steer, kmh, ax, ay, az, wx, wy, wz, clutch = AC_PHYSICS.unpack_from(physics)
+    gas, brake = AC_INPUTS.unpack_from(physics)
+    # gear 0 R, 1 N, 2 first; rpm whole; steer the normalized input -1..1; the accelerations in g.
+    if not (
+        0 <= raw_gear <= 11
+        and 0 <= rpm <= 30_000
+        and -1.01 <= steer <= 1.01
+        and 0.0 <= kmh <= VELOCITY_BOUND_M_S * 3.6
+        and _within(50.0, ax, ay, az)
+        and _within(50.0, wx, wy, wz)
+    ):
+        return BAD
+    # Car axes x right, y up, z forward (DirectX, left-handed): Ay left = -accG x * g; the yaw
+    # rate about y is positive turning right, so left positive is its negative. As Assetto
+    # Corsa's UDP accG_horizontal, whose sign the real capture fixed (tests/test_telemetry.py);
+    # no real dump of the pages was found to check the yaw rate's.
+    gear = raw_gear - 1 if raw_gear >= 1 else REVERSE
+    return VehicleState(
+        speed_m_s=kmh * KMH,
+        lateral_accel_m_s2=-ax * G,
+        yaw_rate_rad_s=-wy,
+        engine_speed_rpm=float(rpm),
+        gear=gear,
+        clutch_pedal=clutch,
+        throttle=gas,
+        brake=brake,
+        engine_max_rpm=max_rpm,
+        car=car,
+        replay=status == AC_REPLAY,
+        paused=status == AC_PAUSE,
+    )
+
+
+def ac_static(pages: Sequence[bytes]) -> tuple[str, float]:
+    """The car (carModel, wchar_t[33] at 68) and its max rpm (at 412)."""
+    static = pages[2]
+    car = _wide(static[68:134]) or ""
+    rpm = _MAX_RPM.unpack_from(static, 412)[0]
+    return car, float(rpm) if 0 < rpm <= 30_000 else NAN
+
+
+ACC = PageLayout("acc", (ACC_PHYSICS_BYTES, GRAPHICS_BYTES, STATIC_BYTES), _check_ac("1."),
+                 _decode_ac)  # fmt: skip
+ASSETTO = PageLayout("assetto", (AC_PHYSICS_BYTES, GRAPHICS_BYTES, STATIC_BYTES),
+                     _check_ac("1."), _decode_ac)  # fmt: skip
+AC_MAP_NAMES = ("Local\\acpmf_physics", "Local\\acpmf_graphics", "Local\\acpmf_static")
+
+
+class PagesReader:
+    """The frames of a page layout: a live map's pages (one image each) or a file of frames."""
+
+    def __init__(self, layout: PageLayout, images: Sequence[Any], is_file: bool) -> None:
+        self.layout, self.images, self.is_file = layout, images, is_file
+        self.finished = False
+        self.next = 0
+        self.skipped = 0
+        sizes = layout.page_bytes
+        if is_file:
+            (image,) = images
+            if len(image) == 0 or len(image) % layout.frame_bytes:
+                raise ValueError(
+                    f"{len(image)} bytes is not a whole number of {layout.name} frames of "
+                    f"{layout.frame_bytes} bytes (pages of {', '.join(map(str, sizes))})"
+                )
+            self.frames = len(image) // layout.frame_bytes
+        else:
+            for image, size in zip(images, sizes, strict=True):
+                if len(image) < size:
+                    raise ValueError(f"a page of {len(image)} bytes, under the {size} read")
+            self.frames = 0
+        first = self._pages(0)
+        why = layout.check(first)
+        if why is not None:
+            raise ValueError(why)
+        self.car, self.max_rpm = ac_static(first)
+        self._sequence = -1
+        self._seq = struct.Struct("<i")
+
+    def _pages(self, frame: int) -> list[bytes]:
+        sizes = self.layout.page_bytes
+        if self.is_file:
+            at = frame * self.layout.frame_bytes
+            out = []
+            for size in sizes:
+                out.append(bytes(self.images[0][at : at + size]))
+                at += size
+            return out
+        return [bytes(image[0:size]) for image, size in zip(self.images, sizes, strict=True)]
+
+    def read(self, now_s: float) -> list[VehicleState | None]:
+        decode, car, max_rpm = self.layout.decode, self.car, self.max_rpm
+        if self.is_file:
+            due = min(self.frames, int(now_s * FRAME_HZ + 1e-9) + 1)
+            if due <= self.next:
+                self.finished = self.next >= self.frames
+                return []
+            start = max(self.next, due - 64)
+            self.skipped += start - self.next
+            self.next = due
+            return [decode(self._pages(i), car, max_rpm) for i in range(start, due)]
+        at = self.layout.sequence_offset
+        physics = self.images[0]
+        for _ in range(2):  # the game may write the page while we copy it: once more
+            before = self._seq.unpack_from(physics, at)[0]
+            if before == self._sequence:
+                return []  # nothing new
+            pages = self._pages(0)
+            if self._seq.unpack_from(physics, at)[0] == before:
+                self._sequence = before
+                return [decode(pages, car, max_rpm)]
+        return [BAD]
