@@ -62,12 +62,20 @@ class PageLayout:
     """Why the static pages are not this layout's (None: they are), checked at open."""
     decode: Callable[[Sequence[Any], str, float], VehicleState | None]
     """(pages, car, max rpm) -> a state, None (no car driven) or BAD."""
+    identify: Callable[[Sequence[bytes]], tuple[str, float]] = lambda pages: ("", NAN)
+    """(car, max rpm) from the pages at open (the static page where the game has one)."""
     sequence_offset: int = 0
     """Where in the first page its update counter is (torn-read check)."""
+    file_page_bytes: tuple[int, ...] = ()
+    """Each page's size in a file image where it is more than what is read (a whole map)."""
+
+    @property
+    def stride(self) -> tuple[int, ...]:
+        return self.file_page_bytes or self.page_bytes
 
     @property
     def frame_bytes(self) -> int:
-        return sum(self.page_bytes)
+        return sum(self.stride)
 
 
 def _check_ac(version_prefix: str) -> Callable[[Sequence[bytes]], str | None]:
@@ -135,10 +143,133 @@ def ac_static(pages: Sequence[bytes]) -> tuple[str, float]:
 
 
 ACC = PageLayout("acc", (ACC_PHYSICS_BYTES, GRAPHICS_BYTES, STATIC_BYTES), _check_ac("1."),
-                 _decode_ac)  # fmt: skip
+                 _decode_ac, ac_static)  # fmt: skip
 ASSETTO = PageLayout("assetto", (AC_PHYSICS_BYTES, GRAPHICS_BYTES, STATIC_BYTES),
-                     _check_ac("1."), _decode_ac)  # fmt: skip
+                     _check_ac("1."), _decode_ac, ac_static)  # fmt: skip
 AC_MAP_NAMES = ("Local\\acpmf_physics", "Local\\acpmf_graphics", "Local\\acpmf_static")
+
+
+# --- Euro Truck Simulator 2 / American Truck Simulator: scs-sdk-plugin revision 12 -----------
+SCS_MAP_NAME = "Local\\SCSTelemetry"
+SCS_MAP_BYTES = 32 * 1024
+SCS_READ_BYTES = 3212
+"""scsTelemetryMap_t through config_s.shifterType (zone 9), of the plugin's 32 KiB map."""
+SCS_REVISION = 12
+_SCS_HEAD = struct.Struct("<?3x?3xQ16x8xIIIIII4xIIIII16xI")
+"""sdkActive 0, paused 4, time 8 (a stamp that moves each update), then at 40 the plugin
+revision, the game's version major and minor, the game (1 ETS2, 2 ATS), its telemetry
+version major and minor; at 68 gears, gears_reverse, retarderStepCount, truckWheelCount,
+selectorCount; at 104 shifterSlot."""
+_SCS_TABLE = struct.Struct("<32I32I")  # at 184: hshifterPosition[32], hshifterBitmask[32]
+_SCS_RESULTING = struct.Struct("<ii32i")  # at 504: gear, gearDashboard, hshifterResulting[32]
+_SCS_MAX_RPM = struct.Struct("<f")  # at 740: engineRpmMax
+_SCS_DRIVE = struct.Struct("<ff16xffff")
+"""At 948: speed (m/s, negative reversing), engineRpm, gameSteer 972, gameThrottle,
+gameBrake, gameClutch (what the game applies, 0..1)."""
+_SCS_TOGGLES = struct.Struct("<??")  # at 1606: shifterToggle[2] (range, splitter)
+_SCS_MOTION = struct.Struct("<3f3f3f")
+"""At 1868: linear velocity, angular velocity, linear acceleration (truck frame)."""
+SHIFTER_TYPES = {"hshifter": "h", "manual": "sequential", "automatic": "", "arcade": ""}
+
+
+def _c_text(raw: bytes) -> str | None:
+    text, nul, _ = raw.partition(b"\x00")
+    if not nul or not text.isascii() or not text.decode("ascii").isprintable():
+        return None
+    return text.decode("ascii")
+
+
+def _check_scs(pages: Sequence[bytes]) -> str | None:
+    head = _SCS_HEAD.unpack_from(pages[0])
+    revision, game = head[3], head[6]
+    if revision != SCS_REVISION:
+        return (
+            f"scs-sdk-plugin revision {revision}: carfeel reads revision {SCS_REVISION} (its "
+            "layout moved between revisions); update the plugin"
+        )
+    if game not in (1, 2):
+        return f"game id {game}: not Euro Truck Simulator 2 (1) or American Truck Simulator (2)"
+    return None
+
+
+def scs_identify(pages: Sequence[bytes]) -> tuple[str, float]:
+    """The truck (truckId, e.g. vehicle.scania.s_2016) and the engine's max rpm."""
+    page = pages[0]
+    truck = _c_text(page[2428:2492]) or ""
+    rpm = _SCS_MAX_RPM.unpack_from(page, 740)[0]
+    return truck, float(rpm) if 0.0 < rpm <= 30_000.0 else NAN
+
+
+_slot_cache: dict[bytes, tuple[tuple[int, int, int], ...]] = {}
+
+
+def scs_slots(page: bytes) -> tuple[tuple[int, int, int], ...]:
+    """The H-shifter's slot table (handle position, selector bitmask, gear), as the game gives
+    it (32 slots; cached by its bytes: it changes with the truck only)."""
+    raw = page[184:440] + page[512:640]
+    cached = _slot_cache.get(raw)
+    if cached is None:
+        table = _SCS_TABLE.unpack_from(page, 184)
+        gears = _SCS_RESULTING.unpack_from(page, 504)[2:]
+        cached = tuple((table[i], table[32 + i], gears[i]) for i in range(32))
+        if len(_slot_cache) > 16:
+            _slot_cache.clear()
+        _slot_cache[raw] = cached
+    return cached
+
+
+def _decode_scs(pages: Sequence[Any], car: str, max_rpm: float) -> VehicleState | None:
+    page = pages[0]
+    active, paused, _stamp, *_rest = _SCS_HEAD.unpack_from(page)
+    if not active:
+        return None  # the game is not running the SDK
+    gears, reverse, _steps, _wheels, selectors, slot = _SCS_HEAD.unpack_from(page)[9:15]
+    gear = _SCS_RESULTING.unpack_from(page, 504)[0]
+    speed, rpm, steer, throttle, brake, clutch = _SCS_DRIVE.unpack_from(page, 948)
+    range_high, splitter_high = _SCS_TOGGLES.unpack_from(page, 1606)
+    m = _SCS_MOTION.unpack_from(page, 1868)
+    kind = _c_text(page[3196:3212])
+    # The game's own ranges: gear counts and the slot within the table; the gear within them;
+    # the controls 0..1 (steer -1..1); the shifter type one of the SDK's four.
+    if (
+        not (0 <= gears <= 24 and 0 <= reverse <= 8 and 0 <= selectors <= 4 and slot <= 32)
+        or not -reverse <= gear <= gears
+        or kind not in SHIFTER_TYPES
+        or not _within(1.01, steer, throttle, brake, clutch)
+        or not _within(VELOCITY_BOUND_M_S, speed, *m[0:3])
+        or not _within(50.0, *m[3:6])
+        or not _within(500.0, *m[6:9])
+        or not 0.0 <= rpm <= 30_000.0
+    ):
+        return BAD
+    # Truck axes: x right, y up, z backward (the SDK's, right-handed): Ay left is minus the x
+    # acceleration; the angular velocity about y (up) is positive anticlockwise: left already.
+    gearbox = SHIFTER_TYPES[kind]
+    if gearbox == "h" and selectors:
+        gearbox = "truck"
+    return VehicleState(
+        speed_m_s=abs(speed),
+        lateral_accel_m_s2=-m[6],
+        yaw_rate_rad_s=m[4],
+        engine_speed_rpm=rpm,
+        gear=REVERSE if gear < 0 else gear,
+        clutch_pedal=clutch,
+        throttle=throttle,
+        brake=brake,
+        engine_max_rpm=max_rpm,
+        car=car,
+        forward_gears=gears,
+        gearbox=gearbox,
+        truck_slot=slot,
+        range_high=range_high,
+        splitter_high=splitter_high,
+        slots=scs_slots(page) if selectors or gearbox == "h" else (),
+        paused=paused,
+    )
+
+
+SCS = PageLayout("scs", (SCS_READ_BYTES,), _check_scs, _decode_scs, scs_identify,
+                 sequence_offset=8, file_page_bytes=(SCS_MAP_BYTES,))  # fmt: skip
 
 
 class PagesReader:
@@ -167,7 +298,7 @@ class PagesReader:
         why = layout.check(first)
         if why is not None:
             raise ValueError(why)
-        self.car, self.max_rpm = ac_static(first)
+        self.car, self.max_rpm = layout.identify(first)
         self._sequence = -1
         self._seq = struct.Struct("<i")
 
@@ -176,9 +307,9 @@ class PagesReader:
         if self.is_file:
             at = frame * self.layout.frame_bytes
             out = []
-            for size in sizes:
+            for size, stride in zip(sizes, self.layout.stride, strict=True):
                 out.append(bytes(self.images[0][at : at + size]))
-                at += size
+                at += stride
             return out
         return [bytes(image[0:size]) for image, size in zip(self.images, sizes, strict=True)]
 

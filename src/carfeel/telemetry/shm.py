@@ -209,6 +209,14 @@ MAP_FORMATS: dict[str, MapFormat] = {
             lambda images, is_file, where: pages.PagesReader(pages.ASSETTO, images, is_file),
             pages.FRAME_HZ,
         ),
+        MapFormat(
+            "scs",
+            "Euro Truck Simulator 2 / American Truck Simulator (scs-sdk-plugin rev. 12 map)",
+            (pages.SCS_MAP_NAME,),
+            (pages.SCS_MAP_BYTES,),
+            lambda images, is_file, where: pages.PagesReader(pages.SCS, images, is_file),
+            pages.FRAME_HZ,
+        ),
     )
 }
 UDP_TOO = frozenset({"assetto"})
