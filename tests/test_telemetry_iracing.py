@@ -363,3 +363,17 @@ def test_run_is_driven_by_the_ibt(
     assert max(game) > 10.0  # the car moved off within the first seconds
     notes = " ".join(summary["notes"])
     assert "telemetry iracing on file " in notes and "car mercedesamggt4" in notes
+
+
+def test_the_summary_names_the_car_and_its_profile(capsys: pytest.CaptureFixture[str]) -> None:
+    path = data_file("telemetry", IBT)
+    code = cli.main(["run", "--model", "hpattern", "--device", "virtual", "--clock",
+                     "simulated", "--telemetry", f"iracing:file:{path}", "--duration", "0.5",
+                     "--json"])  # fmt: skip
+    assert code == 0
+    notes = json.loads(capsys.readouterr().out)["notes"]
+    profile = [n for n in notes if n.startswith("car mercedesamggt4: profile")]
+    assert profile == [
+        "car mercedesamggt4: profile from the carfeel car map (iracing, Mercedes-AMG GT4, "
+        "sequential): hpattern preset 6r, torque scale 20 Nm"
+    ]

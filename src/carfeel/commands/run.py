@@ -122,7 +122,8 @@ def register(commands: Any) -> None:
         "--car-presets",
         metavar="FILE.toml",
         default=None,
-        help="--telemetry: presets per car the format names (README)",
+        help="--telemetry: your car map (profiles per car the game names: layout, presets, "
+        "torque scale), over the one carfeel ships",
     )
     run.add_argument("--identify", choices=("auto", "full", "off"), default="auto",
                      help="how the device is known: auto (default: its stored profile checked "

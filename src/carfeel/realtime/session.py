@@ -585,10 +585,13 @@ def _run_realtime(
     from carfeel.realtime.scheduling import claimed
 
     wheel = run.model == "steering"
-    if receiver is not None and run.car_presets is not None:
-        from carfeel.telemetry.carmap import preset_for_car
+    if receiver is not None:
+        from carfeel.telemetry.carmap import profile_for_car
 
-        preset_name = preset_for_car(run.car_presets, receiver, run.model) or preset_name
+        profile = profile_for_car(run.car_presets, receiver)
+        if profile is not None:
+            preset_name = profile.presets.get(run.model) or preset_name
+            receiver.notes.append(profile.describe(run.model))
     # The device first: the scales come from its limits (its hand, if virtual, comes after).
     device = open_device(
         run.device, None, run.seed, kind, run.device_max_force, run.device_travel, delay,
@@ -810,7 +813,7 @@ def _render(
             driven.close()
     if driven is not None:
         r = driven.source.receiver
-        notes += driven.source.events
+        notes += driven.source.events + r.notes
         notes.append(
             f"telemetry {r.format.name} on {r.where}: {r.packets} good packets, "
             f"{r.bad} bad, {r.ignored} "

@@ -236,6 +236,8 @@ class Receiver:
         self._view = memoryview(self._buffer)
         self._memo: dict[str, bool] = {}
         self.car = ""
+        self.notes: list[str] = []
+        """What the run's summary should say of this source (the car's profile)."""
         self.subscribed = False
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, buffer_bytes)

@@ -277,6 +277,8 @@ class MapReceiver:
         self.packets = self.bad = self.ignored = self.foreign = self.errors = 0
         self.foreign_from: dict[str, int] = {}
         self.first_error = ""
+        self.notes: list[str] = []
+        """What the run's summary should say of this source (the car's profile)."""
         self.first_ns = self.arrival_ns = 0
         self.socket = None
         self.where = source.where
