@@ -10,6 +10,7 @@ from __future__ import annotations
 import csv
 import json
 import random
+import re
 import struct
 import sys
 from pathlib import Path
@@ -363,6 +364,12 @@ def test_run_is_driven_by_the_ibt(
     assert max(game) > 10.0  # the car moved off within the first seconds
     notes = " ".join(summary["notes"])
     assert "telemetry iracing on file " in notes and "car mercedesamggt4" in notes
+    # Packet age, each tick, in simulated time: a 60 Hz file's record is 0-16.7 ms old; the
+    # 0.5 ms bins round up, so p99 lies in 16.0-17.0 ms and the max at 17.0 ms.
+    age = re.search(r"packet age .*: p50 ([\d.]+) ms, p99 ([\d.]+) ms, max ([\d.]+) ms", notes)
+    assert age is not None
+    p50, p99, worst = map(float, age.groups())
+    assert 7.0 <= p50 <= 9.5 and 16.0 <= p99 <= 17.0 and worst <= 17.0
 
 
 def test_the_summary_names_the_car_and_its_profile(capsys: pytest.CaptureFixture[str]) -> None:
