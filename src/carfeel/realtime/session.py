@@ -107,6 +107,8 @@ class RealtimeRun:
     gear_output: str = "none"
     """--model hpattern: none, uinput or vjoy (a virtual joystick's buttons per gear slot)."""
     gear_timing: str = "slot"
+    gear_mapping: str = "buttons"
+    """--gear-mapping: the binding the game expects (buttons, sequential)."""
     car_presets: Path | None = None
     """A TOML file mapping the car a format names to the presets for it."""
     identify: str = "auto"
@@ -844,7 +846,8 @@ def _drive_by_telemetry(
     if not steering:
         output = open_gear_output(run.gear_output, len(renderer.pattern.layout.gears))
         if output is not None:
-            gear_driver = GearDriver(output, renderer.pattern.layout, run.gear_timing)
+            gear_driver = GearDriver(output, renderer.pattern.layout, run.gear_timing,
+                                     run.gear_mapping, run.rate_hz)  # fmt: skip
     return driving.TelemetryDriven(renderer, source, run.model, vibration, gear_driver)
 
 
