@@ -2,8 +2,8 @@
 
 One button per gear slot, held while the lever is in that slot (`slot`) or once the gear is in
 mesh (`engaged`: some games decide grind or shift themselves); neutral releases all. Backends:
-Linux uinput (python-evdev), Windows vJoy (pyvjoy), and a recording fake; the first two are
-imported lazily and come with the `devices` extra.
+Linux uinput (python-evdev, imported lazily, the `devices` extra), Windows vJoy (its own
+interface DLL through ctypes: nothing to install but the driver), and a recording fake.
 
 The mappings a game binds to (`GEAR_MAPPINGS`), each a pure function from a gear change to
 button actions, so that it is tested without a device: `buttons` (a button per gear, held: the
@@ -273,41 +273,84 @@ class UInputGearOutput:
         self.device.close()
 
 
-class VJoyGearOutput:
-    """vJoy's device `rid` (Windows; the vJoy driver and pyvjoy installed)."""
+VJOY_DLL_PATHS = (
+    r"C:\Program Files\vJoy\x64\vJoyInterface.dll",
+    r"C:\Program Files\vJoy\x86\vJoyInterface.dll",
+    "vJoyInterface.dll",
+)
+"""Where the vJoy driver's installer puts its interface DLL (the original's and the maintained
+fork's, which keep its API); the last: wherever Windows' DLL search finds it."""
+VJD_STAT_OWN, VJD_STAT_FREE = 0, 1
 
-    def __init__(self, buttons: int, rid: int = 1) -> None:
+
+def _load_vjoy() -> Any:
+    import ctypes
+
+    loader = getattr(ctypes, "WinDLL", None)
+    if loader is None:
+        raise InputError(
+            "--gear-output vjoy is Windows' (the vJoy driver); on Linux use --gear-output uinput"
+        )
+    for path in VJOY_DLL_PATHS:
         try:
-            pyvjoy: Any = importlib.import_module("pyvjoy")
-        except ImportError as exc:
+            return loader(path)
+        except OSError:
+            continue
+    raise InputError(
+        "--gear-output vjoy: vJoyInterface.dll not found: install the vJoy driver (its "
+        "installer puts the DLL in C:\\Program Files\\vJoy) and configure device 1 with "
+        "enough buttons (vJoyConf)"
+    )
+
+
+class VJoyGearOutput:
+    """vJoy's device `rid` through its own interface DLL (ctypes: AcquireVJD, SetBtn,
+    RelinquishVJD), so nothing but the driver is needed (pyvjoy, a thin wrapper of the same
+    DLL, is unmaintained since 2019; vgamepad emulates an Xbox pad, too few buttons for a
+    truck's 14+2)."""
+
+    def __init__(self, buttons: int, rid: int = 1, dll: Any = None) -> None:
+        self.dll = dll if dll is not None else _load_vjoy()
+        if not self.dll.vJoyEnabled():
+            raise InputError("--gear-output vjoy: the vJoy driver is installed but not enabled")
+        status = self.dll.GetVJDStatus(rid)
+        if status not in (VJD_STAT_OWN, VJD_STAT_FREE) or not self.dll.AcquireVJD(rid):
             raise InputError(
-                "--gear-output vjoy needs the vJoy driver and pyvjoy: pip install pyvjoy"
-            ) from exc
-        try:
-            self.device: Any = pyvjoy.VJoyDevice(rid)
-        except Exception as exc:  # pyvjoy raises its own exception types
-            raise InputError(f"--gear-output vjoy: vJoy device {rid} unavailable ({exc})") from exc
-        self.buttons = buttons
+                f"--gear-output vjoy: vJoy device {rid} is not free (status {status}: another "
+                "program holds it, or it is not configured in vJoyConf)"
+            )
+        have = self.dll.GetVJDButtonNumber(rid)
+        if have < buttons:
+            self.dll.RelinquishVJD(rid)
+            raise InputError(
+                f"--gear-output vjoy: vJoy device {rid} has {have} buttons, {buttons} needed: "
+                "add them in vJoyConf"
+            )
+        self.rid, self.buttons = rid, buttons
         self.held: int | None = None
+
+    def _set(self, button: int, value: int) -> None:
+        self.dll.SetBtn(value, self.rid, button + 1)  # vJoy buttons are 1-based
 
     def press(self, button: int) -> None:
         if self.held is not None and self.held != button:
-            self.device.set_button(self.held + 1, 0)  # vJoy buttons are 1-based
-        self.device.set_button(button + 1, 1)
+            self._set(self.held, 0)
+        self._set(button, 1)
         self.held = button
 
     def hold(self, mask: int) -> None:
         for button in range(self.buttons):
-            self.device.set_button(button + 1, mask >> button & 1)
+            self._set(button, mask >> button & 1)
         self.held = None
 
     def release_all(self) -> None:
         for button in range(self.buttons):
-            self.device.set_button(button + 1, 0)
+            self._set(button, 0)
         self.held = None
 
     def close(self) -> None:
         self.release_all()
+        self.dll.RelinquishVJD(self.rid)
 
 
 def open_gear_output(name: str, buttons: int) -> GearOutput | None:
