@@ -167,6 +167,27 @@ class StampedSource(source.VehicleSource):
         return out
 
 
+def probe_commands(pending: list[float], latencies: list[float]) -> None:
+    """Wrap the session's devices so that each force command takes the latency of the stamps
+    `pending` holds (the sources' arrivals since the last command) into `latencies`."""
+    opened = session.open_device
+
+    def open_stamped(*a: Any, **kw: Any) -> Any:
+        device = opened(*a, **kw)
+        command = device.command
+
+        def stamped(commands: Any, t: float) -> Any:
+            now = time.monotonic()
+            latencies.extend(now - sent for sent in pending)
+            pending.clear()
+            return command(commands, t)
+
+        setattr(device, "command", stamped)  # noqa: B010 - the probe
+        return device
+
+    setattr(session, "open_device", open_stamped)  # noqa: B010 - a benchmark's probe
+
+
 def run(seconds: float, telemetry: str | None) -> Any:
     run = RealtimeRun(model="steering", device="virtual:wheel", duration_s=seconds,
                       calibrate=False, telemetry=telemetry)  # fmt: skip
@@ -369,21 +390,7 @@ def shm_latency(seconds: float) -> None:
     setattr(shm, "SHM_DIR", folder)  # noqa: B010 - the benchmark's bridge folder
     latencies: list[float] = []
     opened = session.open_device
-
-    def open_stamped(*a: Any, **kw: Any) -> Any:
-        device = opened(*a, **kw)
-        command = device.command
-
-        def stamped(commands: Any, t: float) -> Any:
-            now = time.monotonic()
-            latencies.extend(now - sent for sent in MapStampedSource.pending)
-            MapStampedSource.pending.clear()
-            return command(commands, t)
-
-        setattr(device, "command", stamped)  # noqa: B010 - the probe
-        return device
-
-    setattr(session, "open_device", open_stamped)  # noqa: B010
+    probe_commands(MapStampedSource.pending, latencies)
     setattr(source, "VehicleSource", MapStampedSource)  # noqa: B010
     writer = multiprocessing.Process(target=map_writer, args=(str(target), seconds + 30, 60.0))
     writer.start()
@@ -427,22 +434,7 @@ def main() -> None:
 
     ref = run(args.seconds, None).summary
     latencies: list[float] = []
-    opened = session.open_device
-
-    def open_stamped(*a: Any, **kw: Any) -> Any:
-        device = opened(*a, **kw)
-        command = device.command
-
-        def stamped(commands: Any, t: float) -> Any:
-            now = time.monotonic()
-            latencies.extend(now - sent for sent in StampedSource.pending)
-            StampedSource.pending.clear()
-            return command(commands, t)
-
-        setattr(device, "command", stamped)  # noqa: B010 - the probe
-        return device
-
-    setattr(session, "open_device", open_stamped)  # noqa: B010 - a benchmark's probe
+    probe_commands(StampedSource.pending, latencies)
     setattr(source, "VehicleSource", StampedSource)  # noqa: B010
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
         probe.bind(("127.0.0.1", 0))
