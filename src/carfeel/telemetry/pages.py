@@ -68,6 +68,8 @@ class PageLayout:
     """Where in the first page its update counter is (torn-read check)."""
     file_page_bytes: tuple[int, ...] = ()
     """Each page's size in a file image where it is more than what is read (a whole map)."""
+    odd_is_writing: bool = False
+    """The update counter is odd while the game writes (AMS2's mSequenceNumber): torn."""
 
     @property
     def stride(self) -> tuple[int, ...]:
@@ -162,7 +164,7 @@ version major and minor; at 68 gears, gears_reverse, retarderStepCount, truckWhe
 selectorCount; at 104 shifterSlot."""
 _SCS_TABLE = struct.Struct("<32I32I")  # at 184: hshifterPosition[32], hshifterBitmask[32]
 _SCS_RESULTING = struct.Struct("<ii32i")  # at 504: gear, gearDashboard, hshifterResulting[32]
-_SCS_MAX_RPM = struct.Struct("<f")  # at 740: engineRpmMax
+_F32 = struct.Struct("<f")
 _SCS_DRIVE = struct.Struct("<ff16xffff")
 """At 948: speed (m/s, negative reversing), engineRpm, gameSteer 972, gameThrottle,
 gameBrake, gameClutch (what the game applies, 0..1)."""
@@ -196,7 +198,7 @@ def scs_identify(pages: Sequence[bytes]) -> tuple[str, float]:
     """The truck (truckId, e.g. vehicle.scania.s_2016) and the engine's max rpm."""
     page = pages[0]
     truck = _c_text(page[2428:2492]) or ""
-    rpm = _SCS_MAX_RPM.unpack_from(page, 740)[0]
+    rpm = _F32.unpack_from(page, 740)[0]
     return truck, float(rpm) if 0.0 < rpm <= 30_000.0 else NAN
 
 
@@ -272,6 +274,88 @@ SCS = PageLayout("scs", (SCS_READ_BYTES,), _check_scs, _decode_scs, scs_identify
                  sequence_offset=8, file_page_bytes=(SCS_MAP_BYTES,))  # fmt: skip
 
 
+# --- Automobilista 2 / Project CARS 2 shared memory (SharedMemory.h, natural alignment) ------
+AMS2_MAP_NAME = "$pcars2$"
+AMS2_MAP_BYTES = 8192
+AMS2_READ_BYTES = 7324
+"""SharedMemory through mSequenceNumber (at 7320): every field carfeel reads."""
+AMS2_VERSIONS = range(8, 15)
+"""mVersion 8 (Project CARS 2's header) to 14: later headers append after mSequenceNumber."""
+_AMS2_HEAD = struct.Struct("<IIIIIii")
+"""mVersion, mBuildVersionNumber, mGameState, mSessionState, mRaceState,
+mViewedParticipantIndex, mNumParticipants."""
+_AMS2_DRIVE = struct.Struct("<7f2i")
+"""At 6848: mSpeed, mRpm, mMaxRPM, mBrake, mThrottle, mClutch, mSteering, mGear, mNumGears."""
+_AMS2_MOTION = struct.Struct("<3f3f3f3f3f")
+"""At 6908: mOrientation, mLocalVelocity, mWorldVelocity, mAngularVelocity,
+mLocalAcceleration."""
+AMS2_PLAYING, AMS2_PAUSED, AMS2_MENU, AMS2_RESTARTING, AMS2_REPLAY, AMS2_FE_REPLAY = range(2, 8)
+
+
+def _check_ams2(pages: Sequence[bytes]) -> str | None:
+    version = _AMS2_HEAD.unpack_from(pages[0])[0]
+    if version not in AMS2_VERSIONS:
+        return (
+            f"shared memory version {version}: carfeel reads versions "
+            f"{AMS2_VERSIONS[0]}-{AMS2_VERSIONS[-1]} (Project CARS 2 and Automobilista 2); "
+            "Project CARS 1's shared memory is another layout"
+        )
+    return None
+
+
+def ams2_identify(pages: Sequence[bytes]) -> tuple[str, float]:
+    car = _c_text(pages[0][6444:6508]) or ""
+    rpm = _F32.unpack_from(pages[0], 6856)[0]
+    return car, float(rpm) if 0.0 < rpm <= 30_000.0 else NAN
+
+
+def _decode_ams2(pages: Sequence[Any], car: str, max_rpm: float) -> VehicleState | None:
+    page = pages[0]
+    _v, _b, game, _session, _race, viewed, count = _AMS2_HEAD.unpack_from(page)
+    if not (game <= AMS2_FE_REPLAY and -1 <= viewed < 64 and -1 <= count <= 64):
+        return BAD
+    if game < AMS2_PLAYING:
+        return None  # exited or in the front end
+    speed, rpm, top, brake, throttle, clutch, steer, gear, gears = _AMS2_DRIVE.unpack_from(
+        page, 6848
+    )
+    m = _AMS2_MOTION.unpack_from(page, 6908)
+    if not (
+        -1 <= gear <= 24
+        and -1 <= gears <= 24
+        and _within(1.01, brake, throttle, clutch, steer)
+        and 0.0 <= speed <= VELOCITY_BOUND_M_S
+        and 0.0 <= rpm <= 30_000.0
+        and _within(VELOCITY_BOUND_M_S, *m[3:9])
+        and _within(50.0, *m[9:12])
+        and _within(500.0, *m[12:15])
+    ):
+        return BAD
+    # Axes as Project CARS' UDP (the same engine; tests/test_telemetry_pcars.py fixed the
+    # signs on a real capture): x left, y up, z back, so Ay and the yaw rate are ISO already.
+    current = _c_text(page[6444:6508])
+    return VehicleState(
+        speed_m_s=speed,
+        lateral_accel_m_s2=m[12],
+        yaw_rate_rad_s=m[10],
+        engine_speed_rpm=rpm,
+        gear=gear,
+        clutch_pedal=clutch,
+        throttle=throttle,
+        brake=brake,
+        engine_max_rpm=float(top) if 0.0 < top <= 30_000.0 else max_rpm,
+        car=current if current else car,
+        forward_gears=max(0, gears),
+        replay=game in (AMS2_REPLAY, AMS2_FE_REPLAY),
+        paused=game in (AMS2_PAUSED, AMS2_MENU, AMS2_RESTARTING),
+    )
+
+
+AMS2 = PageLayout("ams2", (AMS2_READ_BYTES,), _check_ams2, _decode_ams2, ams2_identify,
+                  sequence_offset=7320, file_page_bytes=(AMS2_MAP_BYTES,),
+                  odd_is_writing=True)  # fmt: skip
+
+
 class PagesReader:
     """The frames of a page layout: a live map's pages (one image each) or a file of frames."""
 
@@ -326,10 +410,13 @@ class PagesReader:
             return [decode(self._pages(i), car, max_rpm) for i in range(start, due)]
         at = self.layout.sequence_offset
         physics = self.images[0]
+        odd = self.layout.odd_is_writing
         for _ in range(2):  # the game may write the page while we copy it: once more
             before = self._seq.unpack_from(physics, at)[0]
             if before == self._sequence:
                 return []  # nothing new
+            if odd and before & 1:
+                continue  # being written now
             pages = self._pages(0)
             if self._seq.unpack_from(physics, at)[0] == before:
                 self._sequence = before

@@ -217,6 +217,14 @@ MAP_FORMATS: dict[str, MapFormat] = {
             lambda images, is_file, where: pages.PagesReader(pages.SCS, images, is_file),
             pages.FRAME_HZ,
         ),
+        MapFormat(
+            "ams2",
+            "Automobilista 2 / Project CARS 2 shared memory ($pcars2$, versions 8-14)",
+            (pages.AMS2_MAP_NAME,),
+            (pages.AMS2_MAP_BYTES,),
+            lambda images, is_file, where: pages.PagesReader(pages.AMS2, images, is_file),
+            pages.FRAME_HZ,
+        ),
     )
 }
 UDP_TOO = frozenset({"assetto"})
