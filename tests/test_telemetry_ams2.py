@@ -8,7 +8,6 @@ not taken from carfeel's constants. The axes are those the Project CARS UDP capt
 
 from __future__ import annotations
 
-import random
 import struct
 from pathlib import Path
 from typing import Any
@@ -19,6 +18,7 @@ from carfeel.errors import InputError
 from carfeel.telemetry import pages
 from carfeel.telemetry.receiver import open_receiver
 from carfeel.telemetry.state import plausible
+from tests.pagefuzz import fuzz_pages
 
 # (name, C type, count), SharedMemory's fields in the header's order up to mSequenceNumber;
 # "participant" is ParticipantInfo (bool, char[64], float[3], float, 3 x uint, int: 100 bytes).
@@ -126,21 +126,5 @@ def test_the_front_end_is_no_state_and_a_write_in_progress_is_torn() -> None:
 
 
 def test_the_reader_survives_a_fuzzed_map() -> None:
-    base = build()
-    rng = random.Random(2)
-    kept = refused = 0
-    for trial in range(300):
-        data = bytearray(base)
-        for _ in range(rng.choice((1, 16, 256))):
-            data[rng.randrange(pages.AMS2_READ_BYTES)] = rng.randrange(256)
-        if trial % 10 == 0:
-            data[: pages.AMS2_READ_BYTES] = rng.randbytes(pages.AMS2_READ_BYTES)
-        try:
-            reader = pages.PagesReader(pages.AMS2, (bytes(data),), True)
-        except ValueError:
-            refused += 1
-            continue
-        for s in reader.read(0.0):
-            if s is not None and plausible(s):
-                kept += 1
+    kept, refused = fuzz_pages(pages.AMS2, build(), pages.AMS2_READ_BYTES, 2, 300)
     assert kept > 50 and refused > 10

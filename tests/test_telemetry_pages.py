@@ -8,7 +8,6 @@ the offsets are computed from it in this file, not taken from carfeel's struct s
 from __future__ import annotations
 
 import math
-import random
 import struct
 from pathlib import Path
 from typing import Any
@@ -20,6 +19,7 @@ from carfeel.errors import InputError
 from carfeel.telemetry import pages, shm
 from carfeel.telemetry.receiver import open_receiver, parse_source
 from carfeel.telemetry.state import plausible
+from tests.pagefuzz import fuzz_pages
 
 # SPageFilePhysics, in the header's order: (name, count); every field 4 bytes.
 PHYSICS_FIELDS = [
@@ -167,22 +167,9 @@ def test_a_torn_page_is_read_again_then_counted_bad() -> None:
 
 @pytest.mark.parametrize("layout", [pages.ACC, pages.ASSETTO], ids=lambda x: x.name)
 def test_the_reader_survives_fuzzed_pages(layout: pages.PageLayout) -> None:
-    rng = random.Random(layout.name)
+    def check(s: Any) -> None:
+        assert math.isfinite(s.speed_m_s) and -1 <= s.gear <= 10
+
     base = frame(layout, **DRIVING)
-    kept = refused = 0
-    for trial in range(400):
-        data = bytearray(base)
-        for _ in range(rng.choice((1, 8, 64))):
-            data[rng.randrange(len(data))] = rng.randrange(256)
-        if trial % 10 == 0:
-            data = bytearray(rng.randbytes(len(data)))
-        try:
-            reader = pages.PagesReader(layout, (bytes(data),), True)
-        except ValueError:
-            refused += 1
-            continue
-        for s in reader.read(0.0):
-            if s is not None and plausible(s):
-                kept += 1
-                assert math.isfinite(s.speed_m_s) and -1 <= s.gear <= 10
+    kept, refused = fuzz_pages(layout, base, len(base), layout.name, 400, check)
     assert kept > 100 and refused > 10

@@ -9,7 +9,6 @@ JSON: a Scania S, 14+2 gears, the game's 32-slot H-shifter table).
 from __future__ import annotations
 
 import json
-import random
 import struct
 from pathlib import Path
 from typing import Any
@@ -19,8 +18,8 @@ import pytest
 from carfeel.errors import InputError
 from carfeel.telemetry import pages
 from carfeel.telemetry.receiver import open_receiver
-from carfeel.telemetry.state import plausible
 from tests.datafiles import data_file
+from tests.pagefuzz import fuzz_pages
 
 SNAPSHOT = "ets2-scs-sdk-plugin-snapshot-scania-s.json"
 MAP_BYTES = 32 * 1024
@@ -148,22 +147,8 @@ def test_the_sdk_inactive_is_no_state(tmp_path: Path, snapshot: dict[str, Any]) 
 
 
 def test_the_reader_survives_a_fuzzed_map(snapshot: dict[str, Any]) -> None:
-    base = build(snapshot)
-    rng = random.Random(29)
-    kept = refused = 0
-    for trial in range(300):
-        data = bytearray(base)
-        for _ in range(rng.choice((1, 16, 256))):
-            data[rng.randrange(3300)] = rng.randrange(256)
-        if trial % 10 == 0:
-            data[:3300] = rng.randbytes(3300)
-        try:
-            reader = pages.PagesReader(pages.SCS, (bytes(data),), True)
-        except ValueError:
-            refused += 1
-            continue
-        for s in reader.read(0.0):
-            if s is not None and plausible(s):
-                kept += 1
-                assert -1 <= s.gear <= 24 and len(s.slots) in (0, 32)
+    def check(s: Any) -> None:
+        assert -1 <= s.gear <= 24 and len(s.slots) in (0, 32)
+
+    kept, refused = fuzz_pages(pages.SCS, build(snapshot), 3300, 29, 300, check)
     assert kept > 50 and refused > 10
