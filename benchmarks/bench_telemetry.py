@@ -12,8 +12,15 @@ Runs, in one process (the sender in a second one, as a game would be):
    process) at 1 and 5 kHz: rows written against packets sent, beside the reference, the
    recorder as it was (the latest state of a poll, a 1 ms sleep between polls, the loop's
    64 KiB buffer) fed by the same sender in the same run.
+5. the shared-memory games (`--only-shm` runs this part alone): decode cost per frame of each
+   (iRacing's live map: header, copy of the latest buffer, its re-check and the unpack; an
+   .ibt record; ACC's and AC's three pages; the SCS map; Project CARS' UDP datagram), each
+   beside its reference measured in the same run: a copy of the same bytes and one struct
+   unpack of as many fields; then the 1 kHz loop reading a live iRacing map that another
+   process rewrites at 60 Hz under /dev/shm (as a Proton bridge does), stamping each buffer
+   with its write time: the latency from the write to the first force command computed from it.
 Asserts nothing; numbers go in notes, not tests.
-    python benchmarks/bench_telemetry.py [--seconds 10] [--only-record]
+    python benchmarks/bench_telemetry.py [--seconds 10] [--only-record] [--only-shm]
 """
 
 from __future__ import annotations
@@ -160,6 +167,27 @@ class StampedSource(source.VehicleSource):
         return out
 
 
+def probe_commands(pending: list[float], latencies: list[float]) -> None:
+    """Wrap the session's devices so that each force command takes the latency of the stamps
+    `pending` holds (the sources' arrivals since the last command) into `latencies`."""
+    opened = session.open_device
+
+    def open_stamped(*a: Any, **kw: Any) -> Any:
+        device = opened(*a, **kw)
+        command = device.command
+
+        def stamped(commands: Any, t: float) -> Any:
+            now = time.monotonic()
+            latencies.extend(now - sent for sent in pending)
+            pending.clear()
+            return command(commands, t)
+
+        setattr(device, "command", stamped)  # noqa: B010 - the probe
+        return device
+
+    setattr(session, "open_device", open_stamped)  # noqa: B010 - a benchmark's probe
+
+
 def run(seconds: float, telemetry: str | None) -> Any:
     run = RealtimeRun(model="steering", device="virtual:wheel", duration_s=seconds,
                       calibrate=False, telemetry=telemetry)  # fmt: skip
@@ -238,35 +266,175 @@ def record_rates(seconds: float) -> None:
               f"{ref_rows} rows ({ref_rows / count:.1%})")  # fmt: skip
 
 
+IBT = DATA / "iracing-mercedesamggt4-sebring.ibt"
+LIVE = DATA / "iracing-live-memmap-monza.bin"
+PCARS = DATA / "projectcars-udp.raw"
+SCS_JSON = DATA / "ets2-scs-sdk-plugin-snapshot-scania-s.json"
+
+
+def _best_us(call: Any, number: int = 20000) -> float:
+    return min(timeit.Timer(call).repeat(number=number, repeat=5)) / number * 1e6
+
+
+def _reference_us(image: Any, offset: int, size: int, fields: int) -> float:
+    """A copy of `size` bytes and one unpack of `fields` 4-byte fields: what a read must cost."""
+    ref = struct.Struct(f"<{fields}f")
+
+    def call() -> Any:
+        return ref.unpack_from(bytes(image[offset : offset + size]), 0)
+
+    return _best_us(call)
+
+
+def shm_costs() -> None:
+    from carfeel.telemetry import irsdk, pages, shm
+
+    print("shared memory, us a frame (best of 5 x 20000), beside a copy + one unpack of as many "
+          "fields of the same bytes:")  # fmt: skip
+    rows: list[tuple[str, float, float]] = []
+    live = bytearray(LIVE.read_bytes())
+    reader = shm.open_iracing((live,), False, "bench")
+    assert isinstance(reader, shm.LiveReader)
+    layout = reader.layout
+
+    def live_read() -> Any:
+        reader.tick = -1  # as if the game had written a new buffer
+        return reader.read(0.0)
+
+    fields = len(layout.frame.unpack_from(bytes(layout.buffer_bytes)))
+    rows.append(("iracing live map (read)", _best_us(live_read),
+                 _reference_us(live, 1138800, layout.buffer_bytes, fields)))  # fmt: skip
+    ibt = IBT.read_bytes()
+    ibt_layout = irsdk.read_layout(ibt)
+    session_info = irsdk.read_session(ibt, ibt_layout)
+    first = irsdk.disk_records(ibt, ibt_layout)[0]
+    rows.append(("iracing .ibt record",
+                 _best_us(lambda: irsdk.decode_record(ibt_layout, ibt, first, session_info)),
+                 _reference_us(ibt, first, ibt_layout.buffer_bytes, fields)))  # fmt: skip
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from tests.test_telemetry_pages import DRIVING, graphics, physics, static
+
+    for layout_ in (pages.ACC, pages.ASSETTO):
+        images = (bytearray(physics(layout_.page_bytes[0], **DRIVING)), graphics(2), static())
+        page_reader = pages.PagesReader(layout_, images, False)
+
+        def pages_read(r: Any = page_reader) -> Any:
+            r._sequence = -1
+            return r.read(0.0)
+
+        rows.append((f"{layout_.name} pages (read)", _best_us(pages_read),
+                     _reference_us(images[0], 0, layout_.frame_bytes, 14)))  # fmt: skip
+    from tests.test_telemetry_scs import build
+
+    scs_map = bytearray(build(json.loads(SCS_JSON.read_text("utf-8"))))
+    scs_reader = pages.PagesReader(pages.SCS, (scs_map,), False)
+
+    def scs_read() -> Any:
+        scs_reader._sequence = -1
+        return scs_reader.read(0.0)
+
+    rows.append(("scs map (read)", _best_us(scs_read),
+                 _reference_us(scs_map, 0, pages.SCS_READ_BYTES, 40)))  # fmt: skip
+    datagram = replay.pcars_datagrams(PCARS)[400]
+    pcars = formats.FORMATS["pcars"]
+    rows.append(("pcars UDP (decode)",
+                 _best_us(lambda: formats.decode_datagram(pcars, datagram, VehicleState())),
+                 _reference_us(datagram, 0, len(datagram), 27)))  # fmt: skip
+    for label, cost, ref in rows:
+        print(f"  {label:26s} {cost:6.2f}   reference {ref:5.2f}   ratio {cost / ref:4.1f}")
+
+
+def map_writer(path: str, seconds: float, rate_hz: float) -> None:
+    """The game (or the bridge): the live map rewritten at rate_hz, each buffer's SessionTime
+    the monotonic time it was written, its tick count advanced after the write."""
+    import mmap as mmap_module
+
+    with open(path, "r+b") as handle:
+        image = mmap_module.mmap(handle.fileno(), 0)
+        status = struct.unpack_from("<10i", image, 0)
+        buffers, buf_len = status[8], status[9]
+        start = time.monotonic()
+        k = 0
+        while time.monotonic() - start < seconds:
+            slot = k % buffers
+            offset = struct.unpack_from("<2i", image, 48 + 16 * slot)[1]
+            struct.pack_into("<d", image, offset, time.monotonic())  # SessionTime at 0
+            struct.pack_into("<i", image, 48 + 16 * slot, 3000 + k)  # the tick, after
+            k += 1
+            delay = start + k / rate_hz - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+        del buf_len
+        image.close()
+
+
+class MapStampedSource(source.VehicleSource):
+    """Notes the write stamp (SessionTime) of each new frame as it arrives."""
+
+    pending: ClassVar[list[float]] = []
+
+    def update(self, t_s: float) -> Any:
+        before = self.receiver.packets
+        out = super().update(t_s)
+        if self.receiver.packets != before:
+            MapStampedSource.pending.append(self.receiver.latest.time_s)
+        return out
+
+
+def shm_latency(seconds: float) -> None:
+    from carfeel.telemetry import shm
+
+    folder = Path(tempfile.mkdtemp(prefix="carfeel-bench-", dir="/dev/shm"))
+    target = folder / "IRSDKMemMapFileName"
+    target.write_bytes(LIVE.read_bytes())
+    setattr(shm, "SHM_DIR", folder)  # noqa: B010 - the benchmark's bridge folder
+    latencies: list[float] = []
+    opened = session.open_device
+    probe_commands(MapStampedSource.pending, latencies)
+    setattr(source, "VehicleSource", MapStampedSource)  # noqa: B010
+    writer = multiprocessing.Process(target=map_writer, args=(str(target), seconds + 30, 60.0))
+    writer.start()
+    try:
+        result = run(seconds, "iracing")
+    finally:
+        writer.terminate()
+        writer.join()
+        setattr(session, "open_device", opened)  # noqa: B010
+        target.unlink()
+        folder.rmdir()
+    s = result.summary
+    ordered = sorted(latencies)
+    print(f"loop on a live iRacing map rewritten at 60 Hz, {seconds:g} s: {s.periods} periods "
+          f"(stopped by {s.stopped} {s.faults}), "
+          f"{s.overruns} overruns, period error p99 {s.period_error_p99_us:.0f} us")  # fmt: skip
+    if ordered:
+        p50 = ordered[len(ordered) // 2] * 1e6
+        p99 = ordered[int(0.99 * (len(ordered) - 1))] * 1e6
+        print(f"  map write to force command: {len(ordered)} frames, p50 {p50:.0f} us, p99 "
+              f"{p99:.0f} us, max {ordered[-1] * 1e6:.0f} us (bound: one period + 0.2 ms = "
+              "1200 us)")  # fmt: skip
+    print("  notes: " + "; ".join(n for n in s.notes if "telemetry" in n or "car " in n))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=10.0)
     parser.add_argument("--only-record", action="store_true", help="part 4 only")
+    parser.add_argument("--only-shm", action="store_true", help="part 5 only")
     args = parser.parse_args()
     print(f"CPython {platform.python_version()} on {platform.machine()}")
     if args.only_record:
         record_rates(min(args.seconds, 5.0))
         return
+    if args.only_shm:
+        shm_costs()
+        shm_latency(args.seconds)
+        return
     decode_costs()
 
     ref = run(args.seconds, None).summary
     latencies: list[float] = []
-    opened = session.open_device
-
-    def open_stamped(*a: Any, **kw: Any) -> Any:
-        device = opened(*a, **kw)
-        command = device.command
-
-        def stamped(commands: Any, t: float) -> Any:
-            now = time.monotonic()
-            latencies.extend(now - sent for sent in StampedSource.pending)
-            StampedSource.pending.clear()
-            return command(commands, t)
-
-        setattr(device, "command", stamped)  # noqa: B010 - the probe
-        return device
-
-    setattr(session, "open_device", open_stamped)  # noqa: B010 - a benchmark's probe
+    probe_commands(StampedSource.pending, latencies)
     setattr(source, "VehicleSource", StampedSource)  # noqa: B010
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
         probe.bind(("127.0.0.1", 0))
@@ -315,6 +483,8 @@ def main() -> None:
         print(f"under the flood, send to force command: p50 {ordered[len(ordered) // 2] * 1e6:.0f}"
               f" us, p99 {ordered[int(0.99 * (len(ordered) - 1))] * 1e6:.0f} us")  # fmt: skip
     record_rates(min(args.seconds, 5.0))
+    shm_costs()
+    shm_latency(args.seconds)
 
 
 if __name__ == "__main__":

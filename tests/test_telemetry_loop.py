@@ -254,29 +254,68 @@ def test_uinput_backend_against_a_recorded_fake(monkeypatch: pytest.MonkeyPatch)
     ]  # fmt: skip
 
 
-def test_vjoy_backend_against_a_recorded_fake(monkeypatch: pytest.MonkeyPatch) -> None:
-    calls: list[tuple[int, int]] = []
-    fake = types.ModuleType("pyvjoy")
+class FakeVJoyDll:
+    """vJoyInterface.dll's functions as the SDK documents them (its names), recording SetBtn."""
 
-    class Device:
-        def __init__(self, rid: int) -> None:
-            assert rid == 1
+    def __init__(self, status: int = 1, buttons: int = 32, enabled: bool = True) -> None:
+        self.calls: list[tuple[str, tuple[int, ...]]] = []
+        self.status, self.buttons, self.enabled = status, buttons, enabled
 
-        def set_button(self, button: int, value: int) -> None:
-            calls.append((button, value))
+    def vJoyEnabled(self) -> bool:
+        return self.enabled
 
-    fake.VJoyDevice = Device  # type: ignore[attr-defined]
-    monkeypatch.setitem(sys.modules, "pyvjoy", fake)
-    out = gearout.VJoyGearOutput(2)
+    def GetVJDStatus(self, rid: int) -> int:
+        return self.status
+
+    def AcquireVJD(self, rid: int) -> bool:
+        self.calls.append(("AcquireVJD", (rid,)))
+        return True
+
+    def GetVJDButtonNumber(self, rid: int) -> int:
+        return self.buttons
+
+    def SetBtn(self, value: int, rid: int, button: int) -> bool:
+        self.calls.append(("SetBtn", (value, rid, button)))
+        return True
+
+    def RelinquishVJD(self, rid: int) -> None:
+        self.calls.append(("RelinquishVJD", (rid,)))
+
+
+def test_vjoy_backend_against_a_recorded_fake() -> None:
+    dll = FakeVJoyDll()
+    out = gearout.VJoyGearOutput(2, dll=dll)
     out.press(1)
     out.press(0)
     out.close()
-    assert calls == [(2, 1), (2, 0), (1, 1), (1, 0), (2, 0)]  # 1-based buttons
+    sets = [args for name, args in dll.calls if name == "SetBtn"]
+    assert sets == [(1, 1, 2), (0, 1, 2), (1, 1, 1), (0, 1, 1), (0, 1, 2)]  # 1-based buttons
+    assert dll.calls[0] == ("AcquireVJD", (1,)) and dll.calls[-1] == ("RelinquishVJD", (1,))
+
+
+def test_vjoy_refuses_a_busy_or_small_device() -> None:
+    with pytest.raises(InputError, match="not free"):
+        gearout.VJoyGearOutput(7, dll=FakeVJoyDll(status=2))
+    small = FakeVJoyDll(buttons=4)
+    with pytest.raises(InputError, match="4 buttons, 7 needed"):
+        gearout.VJoyGearOutput(7, dll=small)
+    assert small.calls[-1] == ("RelinquishVJD", (1,))  # given back
+    with pytest.raises(InputError, match="not enabled"):
+        gearout.VJoyGearOutput(7, dll=FakeVJoyDll(enabled=False))
 
 
 def test_missing_backends_say_what_to_install(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setitem(sys.modules, "pyvjoy", None)
-    with pytest.raises(InputError, match="pyvjoy"):
+    import ctypes
+
+    monkeypatch.delattr(ctypes, "WinDLL", raising=False)  # as on Linux and macOS
+    with pytest.raises(InputError, match="Windows"):
+        gearout.VJoyGearOutput(2)
+
+    def missing(path: str) -> Any:
+        raise OSError(f"no {path}")
+
+    monkeypatch.setattr(ctypes, "WinDLL", missing, raising=False)  # Windows without vJoy
+    with pytest.raises(InputError, match=r"vJoyInterface\.dll not found"):
         gearout.VJoyGearOutput(2)
 
 

@@ -119,10 +119,18 @@ def register(commands: Any) -> None:
         help="press the gear's button at slot entry (default) or once in gear",
     )
     run.add_argument(
+        "--gear-mapping",
+        default="buttons",
+        choices=("buttons", "sequential"),
+        help="--gear-output: the binding the game expects: a button per gear, held (buttons, "
+        "the default) or up/down pulses (sequential: button 1 up, 2 down)",
+    )
+    run.add_argument(
         "--car-presets",
         metavar="FILE.toml",
         default=None,
-        help="--telemetry: presets per car the format names (README)",
+        help="--telemetry: your car map (profiles per car the game names: layout, presets, "
+        "torque scale), over the one carfeel ships",
     )
     run.add_argument("--identify", choices=("auto", "full", "off"), default="auto",
                      help="how the device is known: auto (default: its stored profile checked "
@@ -209,6 +217,7 @@ def _run(args: argparse.Namespace) -> int:
         telemetry=_with_accept(args.telemetry, args.accept_from),
         gear_output=args.gear_output,
         gear_timing=args.gear_timing,
+        gear_mapping=args.gear_mapping,
         car_presets=Path(args.car_presets) if args.car_presets else None,
         identify=args.identify,
         loop_cpu=args.loop_cpu,

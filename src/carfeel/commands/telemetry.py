@@ -19,10 +19,12 @@ def register(commands: Any) -> None:
         "telemetry",
         help="receive a game's telemetry (listen) or send a capture as the game would (replay)",
         description="SOURCE is FORMAT:HOST:PORT (or FORMAT:PORT on 127.0.0.1) with FORMAT one "
-        "of codemasters, f1, assetto, forza, outgauge, outsim, beamng, carfeel. For assetto, "
-        "HOST:PORT is the game's (port 9996); for the others, where to listen. Packets are "
-        "taken from the game's host only (127.0.0.1 on loopback); beyond loopback name it with "
-        "--accept-from ADDR (or ,from=ADDR after the source).",
+        "of codemasters, f1, assetto, forza, outgauge, outsim, beamng, pcars, carfeel. For "
+        "assetto, HOST:PORT is the game's (port 9996); for the others, where to listen. Packets "
+        "are taken from the game's host only (127.0.0.1 on loopback); beyond loopback name it with "
+        "--accept-from ADDR (or ,from=ADDR after the source). The shared-memory games (iracing) "
+        "are FORMAT (the live map: Windows' named memory, on Linux the bridge's file under "
+        "/dev/shm) or FORMAT:file:PATH (a file image: an iRacing .ibt is replayed at its rate).",
     )
     actions = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
     listen = actions.add_parser("listen", help="print what arrives; record the vehicle state")
@@ -74,21 +76,29 @@ LISTEN_BUFFER_BYTES = 4 * 1024 * 1024
 """The listener's kernel receive buffer (asked for; the system may give less, e.g. Linux's
 rmem_max): a recorder wants every packet, where the loop wants only the newest (64 KiB)."""
 WAIT_S = 0.1
+MAP_TICK_S = 0.002
+"""How often the listener reads a shared-memory map (500 Hz: above every game's rate)."""
 """The longest the listener sleeps in `select` between two looks at the clock."""
 
 
 def _listen(args: argparse.Namespace) -> int:
     from carfeel.io.outputs import Outputs
-    from carfeel.telemetry.receiver import Receiver, Source
+    from carfeel.telemetry.receiver import Receiver, parse_source
+    from carfeel.telemetry.shm import MapReceiver, MapSource
 
     if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
         raise InputError(f"--duration {args.duration:g}: must be a positive number of seconds")
-    source = Source.parse(args.source, accept_from=args.accept_from)
+    source = parse_source(args.source, accept_from=args.accept_from)
     record = Path(args.record) if args.record else None
     outputs = Outputs()
     # A killed listener leaves NAME.part.csv readable; one that ends (duration, Ctrl-C) NAME.csv.
     staged = outputs.add(record, ".csv", partial=True) if record is not None else None
-    with Receiver(source, LISTEN_BUFFER_BYTES) as receiver, outputs:
+    receiver: Any = (
+        MapReceiver(source)
+        if isinstance(source, MapSource)
+        else Receiver(source, LISTEN_BUFFER_BYTES)
+    )
+    with receiver, outputs:
         summary = _receive(args, receiver, staged)
     if args.json:
         print(json.dumps(summary))
@@ -120,15 +130,20 @@ def _receive(args: argparse.Namespace, receiver: Any, staged: Path | None) -> di
     if writer is not None:
         writer.writerow(("time_s", "packet_time_s", *FIELDS))
     counted = 0
+    mapped = receiver.socket is None  # shared memory or a file image: read each tick
     if not args.json:
-        host, port = receiver.address
-        print(f"listening for {receiver.format.describe} on {host}:{port} (accepting "
+        print(f"listening for {receiver.format.describe} on {receiver.where} (accepting "
               f"{receiver.source.describe_accept()}); Ctrl-C stops", flush=True)  # fmt: skip
     end = math.inf if args.duration is None else start + args.duration
     try:
         while (now := time.monotonic()) < end:
-            readable, _, _ = select.select([receiver.socket], [], [], min(WAIT_S, end - now))
-            if readable:
+            if mapped:
+                receiver.poll(write)
+                if receiver.finished:
+                    break  # a file image replayed to its end
+                time.sleep(min(MAP_TICK_S, max(0.0, end - now)))
+                now = time.monotonic()
+            elif select.select([receiver.socket], [], [], min(WAIT_S, end - now))[0]:
                 while receiver.poll(write):  # drain: MAX_PER_POLL at a time until empty
                     pass
             now = time.monotonic()
@@ -180,11 +195,15 @@ def _replay(args: argparse.Namespace) -> int:
     path = Path(args.file)
     if not path.is_file():
         raise InputError(f"{path}: no such capture")
-    size = replay.datagram_size(path, fmt, args.size)
+    if fmt.name == "pcars" and args.size is None:  # three packet types of three sizes
+        packets = replay.pcars_datagrams(path)
+        size = len(packets[0]) if packets else 0
+    else:
+        size = replay.datagram_size(path, fmt, args.size)
+        packets = replay.datagrams(path, size)
     rate = args.rate_hz or replay.NATURAL_RATE_HZ.get(fmt.name, 100.0)
     if not (math.isfinite(rate) and 0.0 < rate <= 10_000.0):
         raise InputError(f"--rate-hz {rate:g}: allowed 0 < value <= 10000")
-    packets = replay.datagrams(path, size)
     try:
         if fmt.name == "assetto":
             print(f"serving {len(packets)} RTCarInfo packets as Assetto Corsa on {to[0]}:{to[1]}",
@@ -196,5 +215,6 @@ def _replay(args: argparse.Namespace) -> int:
         raise InputError(f"--to {args.to}: {exc}") from exc
     except KeyboardInterrupt:
         return 130
-    print(f"sent {sent} of {len(packets)} {size}-byte datagrams at {rate:g} Hz to {args.to}")
+    sizes = "-".join(map(str, sorted({len(p) for p in packets}))) or str(size)
+    print(f"sent {sent} of {len(packets)} {sizes}-byte datagrams at {rate:g} Hz to {args.to}")
     return 0

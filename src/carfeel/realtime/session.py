@@ -107,6 +107,8 @@ class RealtimeRun:
     gear_output: str = "none"
     """--model hpattern: none, uinput or vjoy (a virtual joystick's buttons per gear slot)."""
     gear_timing: str = "slot"
+    gear_mapping: str = "buttons"
+    """--gear-mapping: the binding the game expects (buttons, sequential)."""
     car_presets: Path | None = None
     """A TOML file mapping the car a format names to the presets for it."""
     identify: str = "auto"
@@ -366,9 +368,9 @@ def _check_telemetry(run: RealtimeRun) -> None:
     if run.car_presets is not None and run.telemetry is None:
         raise InputError("--car-presets needs --telemetry (the format names the car)")
     if run.telemetry is not None:
-        from carfeel.telemetry.receiver import Source
+        from carfeel.telemetry.receiver import parse_source
 
-        Source.parse(run.telemetry)
+        parse_source(run.telemetry)
         if run.model not in ("steering", "hpattern"):
             raise InputError("--telemetry drives --model steering or hpattern")
 
@@ -561,9 +563,9 @@ def run_realtime(
     receiver = None
     if run.telemetry is not None:
         # Before the device: a port in use or a bad source stops the run before anything starts.
-        from carfeel.telemetry.receiver import Receiver, Source
+        from carfeel.telemetry.receiver import open_receiver
 
-        receiver = Receiver(Source.parse(run.telemetry))
+        receiver = open_receiver(run.telemetry)
     try:
         return _run_realtime(run, announce, receiver, preset_name, kind, delay, observer, say)
     finally:
@@ -585,10 +587,13 @@ def _run_realtime(
     from carfeel.realtime.scheduling import claimed
 
     wheel = run.model == "steering"
-    if receiver is not None and run.car_presets is not None:
-        from carfeel.telemetry.carmap import preset_for_car
+    if receiver is not None:
+        from carfeel.telemetry.carmap import profile_for_car
 
-        preset_name = preset_for_car(run.car_presets, receiver, run.model) or preset_name
+        profile = profile_for_car(run.car_presets, receiver)
+        if profile is not None:
+            preset_name = profile.presets.get(run.model) or preset_name
+            receiver.notes.append(profile.describe(run.model))
     # The device first: the scales come from its limits (its hand, if virtual, comes after).
     device = open_device(
         run.device, None, run.seed, kind, run.device_max_force, run.device_travel, delay,
@@ -810,9 +815,9 @@ def _render(
             driven.close()
     if driven is not None:
         r = driven.source.receiver
-        notes += driven.source.events
+        notes += driven.source.events + r.notes
         notes.append(
-            f"telemetry {r.format.name} on {r.bound[0]}:{r.bound[1]}: {r.packets} good packets, "
+            f"telemetry {r.format.name} on {r.where}: {r.packets} good packets, "
             f"{r.bad} bad, {r.ignored} "
             f"ignored{'; car ' + r.latest.car if r.latest.car else ''}"
         )
@@ -841,7 +846,8 @@ def _drive_by_telemetry(
     if not steering:
         output = open_gear_output(run.gear_output, len(renderer.pattern.layout.gears))
         if output is not None:
-            gear_driver = GearDriver(output, renderer.pattern.layout, run.gear_timing)
+            gear_driver = GearDriver(output, renderer.pattern.layout, run.gear_timing,
+                                     run.gear_mapping, run.rate_hz)  # fmt: skip
     return driving.TelemetryDriven(renderer, source, run.model, vibration, gear_driver)
 
 

@@ -28,8 +28,16 @@ from carfeel.telemetry.state import BAD, NAN, NEUTRAL, REVERSE, VehicleState
 G = 9.80665
 KMH = 1.0 / 3.6
 DEG = math.pi / 180.0
-_make = VehicleState._make
-"""Positional, as the fields' order: a third of the keyword constructor's cost."""
+_TAIL = tuple(VehicleState._field_defaults[f] for f in VehicleState._fields[14:])
+"""The fields after time_s, which the UDP formats leave at their defaults."""
+_new = VehicleState._make
+
+
+def _make(values: tuple[Any, ...]) -> VehicleState:
+    """Positional, as the fields' order up to time_s (a third of the keyword constructor's
+    cost); the later fields at their defaults."""
+    return _new(values + _TAIL)
+
 
 Decoder = Callable[[Any, VehicleState], VehicleState | None]
 
@@ -443,6 +451,90 @@ def decode_beamng(data: Any, last: VehicleState) -> VehicleState | None:
                   0, True, NAN))  # fmt: skip
 
 
+# --- Project CARS 1 UDP (also sent by Project CARS 2 and Automobilista 2 in "PCARS1" mode) -----
+PCARS_TELEMETRY, PCARS_STRINGS, PCARS_MORE_STRINGS = 0, 1, 2
+PCARS_SIZES = {PCARS_TELEMETRY: 1367, PCARS_STRINGS: 1347, PCARS_MORE_STRINGS: 1028}
+"""sTelemetryData (1,367 bytes as sent: its 2 pad bytes are not), sParticipantInfoStrings,
+sParticipantInfoStringsAdditional; the type is the low 2 bits of byte 2 (the rest a count)."""
+_PC_HEAD = struct.Struct("<HBBbb")
+"""sBuildVersionNumber, sPacketType, sGameSessionState, sViewedParticipantIndex,
+sNumParticipants."""
+_PC_TIME = struct.Struct("<f")  # sCurrentTime at 20 (-1 when not timing)
+_PC_CAR = struct.Struct("<BBBbffHHBBbB")
+"""At 112: sBrake, sThrottle, sClutch (0..255), sSteering (-127..127), sFuelLevel, sSpeed (m/s),
+sRpm, sMaxRpm, sGearNumGears (low nibble the gear, 15 reverse; high the gear count),
+sBoostAmount, sEnforcedPitStopLap, sCrashState."""
+_PC_MOTION = struct.Struct("<3f3f3f3f3f")
+"""At 136: sOrientation, sLocalVelocity, sWorldVelocity, sAngularVelocity, sLocalAcceleration."""
+PC_REVERSE_NIBBLE = 15
+PC_PLAYING, PC_PAUSED, PC_MENU_TICKING, PC_REPLAY, PC_FRONT_END_REPLAY = 2, 3, 4, 6, 7
+
+
+def _c_strings(data: Any, start: int, count: int) -> bool:
+    """`count` 64-byte C strings from `start`: each NUL-terminated, printable ASCII before it."""
+    for i in range(start, start + 64 * count, 64):
+        text, nul, _ = bytes(data[i : i + 64]).partition(b"\x00")
+        if not nul or not text.isascii() or not text.decode("ascii").isprintable():
+            return False
+    return True
+
+
+def decode_pcars(data: Any, last: VehicleState) -> VehicleState | None:
+    _build, kind, session, viewed, count = _PC_HEAD.unpack_from(data)
+    packet = kind & 3
+    if len(data) != PCARS_SIZES.get(packet):
+        return BAD  # a size that is not its type's
+    if packet != PCARS_TELEMETRY:
+        # Pages of names: 64-char C strings (printable ASCII up to a NUL; the game leaves stale
+        # bytes after it: "Audi A1 quattro\0a\0..." on the capture), random bytes never are.
+        if packet == PCARS_MORE_STRINGS:  # sOffset (the first name's index, by 16), 16 names
+            if session % 16 or not _c_strings(data, 4, 16):
+                return BAD
+            return None  # more drivers' names: nothing of the car
+        if not _c_strings(data, 3, 20):  # car, class, track, variation, 16 names
+            return BAD
+        return last._replace(car=bytes(data[3:67]).split(b"\x00", 1)[0].decode("ascii"))
+    brake, throttle, clutch, _steer, fuel, speed, rpm, max_rpm, gears, _b, _pit, crash = (
+        _PC_CAR.unpack_from(data, 112)
+    )
+    m = _PC_MOTION.unpack_from(data, 136)
+    game = session & 0x0F
+    gear_nibble, gear_count = gears & 0x0F, gears >> 4
+    # The game's own ranges: game states 0..7, the viewed participant -1..55 of at most 56, a
+    # gear 0..12 or 15 (reverse), a crash state 0..4, the fuel 0..1. sSpeed is not checked
+    # against the local velocity's length: it is the wheels' (3.4 m/s below the body's under
+    # full braking on the capture), so a locked or spinning wheel may differ by any amount.
+    if (
+        game > PC_FRONT_END_REPLAY
+        or not (-1 <= viewed < 56 and -1 <= count <= 56)
+        or not (gear_nibble <= 12 or gear_nibble == PC_REVERSE_NIBBLE)
+        or crash > 4
+        or not 0.0 <= fuel <= 1.0  # sFuelLevel: a fraction of the tank
+        or not _within(ANGLE_BOUND_RAD, *m[0:3])
+        or not _within(VELOCITY_BOUND_M_S, *m[3:9])
+        or not _within(ANGULAR_RATE_BOUND_RAD_S, *m[9:12])
+        or not _within(ACCEL_BOUND_M_S2, *m[12:15])
+        or not 0.0 <= speed <= VELOCITY_BOUND_M_S
+    ):
+        return BAD
+    if game not in (PC_PLAYING, PC_PAUSED, PC_MENU_TICKING, PC_REPLAY, PC_FRONT_END_REPLAY):
+        return None  # exited or in the front end: no car being driven
+    time_s = _PC_TIME.unpack_from(data, 20)[0]
+    gear = REVERSE if gear_nibble == PC_REVERSE_NIBBLE else gear_nibble
+    # Car axes: x left, y up, z backward (the local velocity's z is minus the speed). Signs
+    # from the capture (tests/test_telemetry_pcars.py): in a left turn, where the right wheels
+    # turn faster, x acceleration and the angular velocity about y are positive: ISO already.
+    # The steering is a normalized input (negative left), not an angle.
+    state = _make((speed, m[12], m[10], float(rpm), gear, clutch / 255.0, throttle / 255.0,
+                   brake / 255.0, NAN, float(max_rpm) if max_rpm else NAN, last.car, 0, False,
+                   time_s if time_s >= 0.0 else NAN))  # fmt: skip
+    return state._replace(
+        forward_gears=gear_count if gear_count <= 12 else 0,
+        replay=game in (PC_REPLAY, PC_FRONT_END_REPLAY),
+        paused=game in (PC_PAUSED, PC_MENU_TICKING),
+    )
+
+
 # --- carfeel's own format, version 1 (56 bytes) ------------------------------------------------
 CARFEEL_MAGIC = b"CRFL"
 CARFEEL_VERSION = 1
@@ -490,6 +582,8 @@ FORMATS: dict[str, Format] = {
                "Live for Speed / BeamNG OutGauge"),
         Format("outsim", frozenset({64, 68}), decode_outsim, 4123, "Live for Speed OutSim"),
         Format("beamng", frozenset({88}), decode_beamng, 4444, "BeamNG MotionSim (BNG1)"),
+        Format("pcars", frozenset(PCARS_SIZES.values()), decode_pcars, 5606,
+               "Project CARS 1 UDP (Project CARS 2 and Automobilista 2 in its PCARS1 mode)"),
         Format("carfeel", frozenset({CARFEEL.size}), decode_carfeel, 5606,
                "carfeel v1 (README)"),
     )

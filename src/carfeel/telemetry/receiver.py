@@ -23,6 +23,7 @@ import socket
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 from carfeel.errors import InputError
 from carfeel.telemetry.formats import (
@@ -126,7 +127,9 @@ class Source:
         else:
             raise InputError(
                 f"telemetry source {text!r}: the format {name!r} is not one of "
-                f"{', '.join(FORMATS)} (SOURCE is FORMAT:HOST:PORT, e.g. forza:127.0.0.1:5300)"
+                f"{', '.join(FORMATS)} (SOURCE is FORMAT:HOST:PORT, e.g. forza:127.0.0.1:5300), "
+                f"nor a shared-memory game ({', '.join(_map_formats())}: FORMAT or "
+                "FORMAT:file:PATH)"
             )
         return cls._address(text, fmt, rest, accept_from, network)
 
@@ -183,6 +186,12 @@ class Source:
         )
 
 
+def _map_formats() -> list[str]:
+    from carfeel.telemetry.shm import MAP_FORMATS
+
+    return list(MAP_FORMATS)
+
+
 def _accept(text: str, value: str) -> tuple[Network, ...] | None:
     """`--accept-from`'s value: None for any."""
     value = value.strip()
@@ -227,6 +236,8 @@ class Receiver:
         self._view = memoryview(self._buffer)
         self._memo: dict[str, bool] = {}
         self.car = ""
+        self.notes: list[str] = []
+        """What the run's summary should say of this source (the car's profile)."""
         self.subscribed = False
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, buffer_bytes)
@@ -279,9 +290,17 @@ class Receiver:
         if address in self.foreign_from or len(self.foreign_from) < FOREIGN_SHOWN:
             self.foreign_from[address] = self.foreign_from.get(address, 0) + 1
 
-    def poll(self, sink: Callable[[VehicleState], object] | None = None) -> int:
+    @property
+    def where(self) -> str:
+        host, port = self.bound
+        return f"{host}:{port}"
+
+    def poll(
+        self, sink: Callable[[VehicleState], object] | None = None, now_s: float | None = None
+    ) -> int:
         """Read what waits (at most MAX_PER_POLL datagrams); `sink` is given every good state in
-        the order they came (a recorder: none is lost between polls). Never raises."""
+        the order they came (a recorder: none is lost between polls). `now_s` is for the file
+        replays' clock (a socket has its own). Never raises."""
         fresh = 0
         fmt = self.format
         recv = self.socket.recvfrom_into
@@ -374,6 +393,32 @@ class Receiver:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def parse_source(text: str, accept_from: str | None = None) -> Any:
+    """A UDP `Source` or a shared-memory `MapSource` from the command line's SOURCE."""
+    from carfeel.telemetry.shm import parse_map_source
+
+    mapped = parse_map_source(text)
+    if mapped is not None:
+        if accept_from is not None or ",from=" in text:
+            raise InputError(
+                f"telemetry source {text!r} reads shared memory or a file: --accept-from (and "
+                ",from=) are for the UDP games"
+            )
+        return mapped
+    return Source.parse(text, accept_from=accept_from)
+
+
+def open_receiver(text: str, buffer_bytes: int = RECEIVE_BUFFER_BYTES) -> Any:
+    """The receiver for SOURCE: a UDP `Receiver`, or a `MapReceiver` for a shared-memory game
+    (its live map or a file image); both poll alike."""
+    from carfeel.telemetry.shm import MapReceiver, MapSource
+
+    source = parse_source(text)
+    if isinstance(source, MapSource):
+        return MapReceiver(source)
+    return Receiver(source, buffer_bytes)
 
 
 def _bind_error(source: Source, exc: OSError) -> str:

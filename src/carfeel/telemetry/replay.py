@@ -19,7 +19,8 @@ from carfeel.telemetry.formats import (
     Format,
 )
 
-NATURAL_RATE_HZ = {"forza": 60.0, "assetto": 60.0, "f1": 60.0, "codemasters": 60.0}
+NATURAL_RATE_HZ = {"forza": 60.0, "assetto": 60.0, "f1": 60.0, "codemasters": 60.0,
+                   "pcars": 30.0}  # fmt: skip
 """The games' usual send rates; 100 Hz for the rest (LFS, BeamNG, carfeel)."""
 
 
@@ -43,6 +44,25 @@ def datagram_size(path: Path, fmt: Format, size: int | None = None) -> int:
 def datagrams(path: Path, size: int) -> list[bytes]:
     data = path.read_bytes()
     return [data[i : i + size] for i in range(0, len(data), size)]
+
+
+def pcars_datagrams(path: Path) -> list[bytes]:
+    """A Project CARS capture split by each datagram's type (the low 2 bits of its byte 2)."""
+    from carfeel.telemetry.formats import PCARS_SIZES
+
+    data = path.read_bytes()
+    out: list[bytes] = []
+    i = 0
+    while i < len(data):
+        size = PCARS_SIZES.get(data[i + 2] & 3) if i + 2 < len(data) else None
+        if size is None or i + size > len(data):
+            raise InputError(
+                f"{path}: byte {i} does not start a Project CARS datagram (type "
+                f"{data[i + 2] & 3 if i + 2 < len(data) else '?'}, {len(data) - i} bytes left)"
+            )
+        out.append(data[i : i + size])
+        i += size
+    return out
 
 
 def paced(count: int, rate_hz: float) -> Iterator[int]:

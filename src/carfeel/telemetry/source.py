@@ -14,6 +14,10 @@ from collections.abc import Callable
 from carfeel.telemetry.receiver import Receiver
 from carfeel.telemetry.state import VehicleState
 
+AGE_BIN_S = 0.0005
+AGE_BINS = 2000
+"""Packet ages are counted in 0.5 ms bins to 1 s (then one bin for older): a bounded memory for
+any session length, percentiles to half a millisecond."""
 STALE_AFTER_S = 0.1
 """Six missed packets of a 60 Hz game; 100 of a 1 kHz simulator."""
 FADE_S = 0.2
@@ -41,6 +45,9 @@ class VehicleSource:
         """What happened, with the loop's time: telemetry lost, back, bad packets."""
         self._bad_seen = 0
         self._started = False
+        self.age_s = math.inf
+        """The loop's time since the newest good packet came (0 on the tick it comes)."""
+        self._ages = [0] * (AGE_BINS + 1)
 
     def update(self, t_s: float) -> tuple[VehicleState, float]:
         dt = max(0.0, t_s - self._t)
@@ -49,12 +56,15 @@ class VehicleSource:
         if not self._started:  # what queued while the run was being set up is old news
             receiver.flush()
             self._started = True
-        if receiver.poll():
+        if receiver.poll(now_s=t_s):
             state = receiver.latest
             if self.needs(state):
                 self.state = state
                 self._last_good_s = t_s
-        healthy = t_s - self._last_good_s <= self.stale_after_s
+        age = self.age_s = t_s - self._last_good_s
+        if age < math.inf:
+            self._ages[min(AGE_BINS, int(age / AGE_BIN_S))] += 1
+        healthy = age <= self.stale_after_s
         if healthy != self.healthy:
             what = "back" if healthy else f"stale (no good packet for {self.stale_after_s:g} s)"
             self.events.append(f"telemetry {what} at t = {t_s:.3f} s")
@@ -68,11 +78,42 @@ class VehicleSource:
         self.weight = 1.0 if weight > 1.0 - 1e-9 else 0.0 if weight < 1e-9 else weight
         return self.state, self.weight
 
+    def age_percentiles(self) -> dict[str, float]:
+        """p50, p99 and max of the packet age over the ticks since the first good packet, s
+        (to the 0.5 ms bin's upper edge; inf past 1 s); empty before any packet."""
+        total = sum(self._ages)
+        if not total:
+            return {}
+        out: dict[str, float] = {}
+        seen = 0
+        wanted = (("p50", 0.5), ("p99", 0.99))
+        for i, count in enumerate(self._ages):
+            seen += count
+            for name, q in wanted:
+                if name not in out and seen >= q * total:
+                    out[name] = (i + 1) * AGE_BIN_S if i < AGE_BINS else math.inf
+            if count:
+                out["max"] = (i + 1) * AGE_BIN_S if i < AGE_BINS else math.inf
+        return out
+
+    def status(self) -> dict[str, float | int | bool | str]:
+        """What a panel shows of the source now: health, weight, packet age, counters."""
+        r = self.receiver
+        return {"healthy": self.healthy, "weight": self.weight, "age_s": self.age_s,
+                "packets": r.packets, "bad": r.bad, "car": r.latest.car}  # fmt: skip
+
     def close(self) -> None:
         """Close the socket; what the summary must say beyond the counts (packets from
         addresses not accepted, a decoder that raised) goes to `events`."""
         r = self.receiver
         r.close()
+        ages = self.age_percentiles()
+        if ages:
+            self.events.append(
+                f"telemetry packet age (loop time since the newest good packet, each tick): "
+                f"p50 {ages['p50'] * 1e3:.1f} ms, p99 {ages['p99'] * 1e3:.1f} ms, max "
+                f"{ages['max'] * 1e3:.1f} ms"
+            )
         if r.foreign:
             shown = ", ".join(f"{a} ({k})" for a, k in r.foreign_from.items())
             self.events.append(

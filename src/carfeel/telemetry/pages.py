@@ -1,0 +1,424 @@
+"""Shared-memory games whose state is a few fixed pages (Assetto Corsa and ACC: physics,
+graphics, static), one decoder per layout, from the games' published headers.
+
+A live game has one named map per page; a file image is the pages concatenated in their order
+(one frame), or several such frames one after the other, replayed at `FRAME_HZ`. Each layout's
+pages are read at the sizes of the fields carfeel uses (a prefix of the game's page: the live
+map is mapped at that size), and checked once at open (the static page's version string) and
+each frame (the graphics page's status, the physics page's own ranges). A torn frame (the
+physics page's packetId moved while it was copied) is copied again once, then counted bad.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from carfeel.telemetry.formats import KMH, VELOCITY_BOUND_M_S, G, _within
+from carfeel.telemetry.state import BAD, NAN, REVERSE, VehicleState
+
+FRAME_HZ = 60.0
+"""A file image's frames are replayed at 60 Hz (the games' graphics rate; a dump tool writes
+one frame per graphics update)."""
+
+# --- Assetto Corsa / ACC (SharedFileOut.h, #pragma pack(4)) ----------------------------------
+AC_PHYSICS = struct.Struct("<i4x4x4xiiff12x3f240x3f56xf")
+"""packetId 0, gear 16, rpms 20, steerAngle 24, speedKmh 28, accG 44..55, localAngularVel
+296..307, clutch 364 (the other fields skipped)."""
+AC_INPUTS = struct.Struct("<4xff")  # gas 4, brake 8
+ACC_PHYSICS_BYTES = 800
+"""ACC's SPageFilePhysics (to absVibrations)."""
+AC_PHYSICS_BYTES = 580
+"""Assetto Corsa's SPageFilePhysics to localVelocity (AC 1.7's header; later versions add
+fields after it, not read)."""
+GRAPHICS_BYTES = 12
+"""SPageFileGraphic's packetId, status (0 off, 1 replay, 2 live, 3 pause), session."""
+STATIC_BYTES = 416
+"""SPageFileStatic to maxRpm: smVersion and acVersion (wchar_t[15] each), numberOfSessions,
+numCars, carModel, track, playerName, playerSurname, playerNick (wchar_t[33] each),
+sectorCount, maxTorque, maxPower, maxRpm."""
+_STATUS = struct.Struct("<4xi")
+_MAX_RPM = struct.Struct("<i")  # at 412
+AC_OFF, AC_REPLAY, AC_LIVE, AC_PAUSE = 0, 1, 2, 3
+
+
+def _wide(raw: bytes) -> str | None:
+    """A wchar_t (UTF-16LE) C string, or None where it is not one (no NUL, unprintable)."""
+    text = raw.decode("utf-16-le", "replace")
+    head, nul, _ = text.partition("\x00")
+    if not nul or "\ufffd" in head or not head.isprintable():
+        return None
+    return head
+
+
+@dataclass(frozen=True, slots=True)
+class PageLayout:
+    name: str
+    page_bytes: tuple[int, ...]
+    """Each page's size as read (physics, graphics, static)."""
+    check: Callable[[Sequence[bytes]], str | None]
+    """Why the static pages are not this layout's (None: they are), checked at open."""
+    decode: Callable[[Sequence[Any], str, float], VehicleState | None]
+    """(pages, car, max rpm) -> a state, None (no car driven) or BAD."""
+    identify: Callable[[Sequence[bytes]], tuple[str, float]] = lambda pages: ("", NAN)
+    """(car, max rpm) from the pages at open (the static page where the game has one)."""
+    sequence_offset: int = 0
+    """Where in the first page its update counter is (torn-read check)."""
+    file_page_bytes: tuple[int, ...] = ()
+    """Each page's size in a file image where it is more than what is read (a whole map)."""
+    odd_is_writing: bool = False
+    """The update counter is odd while the game writes (AMS2's mSequenceNumber): torn."""
+
+    @property
+    def stride(self) -> tuple[int, ...]:
+        return self.file_page_bytes or self.page_bytes
+
+    @property
+    def frame_bytes(self) -> int:
+        return sum(self.stride)
+
+
+def _check_ac(version_prefix: str) -> Callable[[Sequence[bytes]], str | None]:
+    def check(pages: Sequence[bytes]) -> str | None:
+        static = pages[2]
+        version = _wide(static[0:30])
+        if version is None:
+            return "its static page's smVersion is not a string (not this game's pages)"
+        if not version.startswith(version_prefix):
+            return (
+                f"its shared-memory version {version!r} is not {version_prefix}x, the layout "
+                "carfeel reads"
+            )
+        return None
+
+    return check
+
+
+def _decode_ac(pages: Sequence[Any], car: str, max_rpm: float) -> VehicleState | None:
+    physics, graphics = pages[0], pages[1]
+    status = _STATUS.unpack_from(graphics)[0]
+    if not AC_OFF <= status <= AC_PAUSE:
+        return BAD
+    if status == AC_OFF:
+        return None  # the game is in its menus
+    _id, raw_gear, rpm, steer, kmh, ax, ay, az, wx, wy, wz, clutch = AC_PHYSICS.unpack_from(physics)
+    gas, brake = AC_INPUTS.unpack_from(physics)
+    # gear 0 R, 1 N, 2 first; rpm whole; steer the normalized input -1..1; the accelerations in g.
+    if not (
+        0 <= raw_gear <= 11
+        and 0 <= rpm <= 30_000
+        and -1.01 <= steer <= 1.01
+        and 0.0 <= kmh <= VELOCITY_BOUND_M_S * 3.6
+        and _within(50.0, ax, ay, az)
+        and _within(50.0, wx, wy, wz)
+    ):
+        return BAD
+    # Car axes x right, y up, z forward (DirectX, left-handed): Ay left = -accG x * g; the yaw
+    # rate about y is positive turning right, so left positive is its negative. As Assetto
+    # Corsa's UDP accG_horizontal, whose sign the real capture fixed (tests/test_telemetry.py);
+    # no real dump of the pages was found to check the yaw rate's.
+    gear = raw_gear - 1 if raw_gear >= 1 else REVERSE
+    return VehicleState(
+        speed_m_s=kmh * KMH,
+        lateral_accel_m_s2=-ax * G,
+        yaw_rate_rad_s=-wy,
+        engine_speed_rpm=float(rpm),
+        gear=gear,
+        clutch_pedal=clutch,
+        throttle=gas,
+        brake=brake,
+        engine_max_rpm=max_rpm,
+        car=car,
+        replay=status == AC_REPLAY,
+        paused=status == AC_PAUSE,
+    )
+
+
+def ac_static(pages: Sequence[bytes]) -> tuple[str, float]:
+    """The car (carModel, wchar_t[33] at 68) and its max rpm (at 412)."""
+    static = pages[2]
+    car = _wide(static[68:134]) or ""
+    rpm = _MAX_RPM.unpack_from(static, 412)[0]
+    return car, float(rpm) if 0 < rpm <= 30_000 else NAN
+
+
+ACC = PageLayout("acc", (ACC_PHYSICS_BYTES, GRAPHICS_BYTES, STATIC_BYTES), _check_ac("1."),
+                 _decode_ac, ac_static)  # fmt: skip
+ASSETTO = PageLayout("assetto", (AC_PHYSICS_BYTES, GRAPHICS_BYTES, STATIC_BYTES),
+                     _check_ac("1."), _decode_ac, ac_static)  # fmt: skip
+AC_MAP_NAMES = ("Local\\acpmf_physics", "Local\\acpmf_graphics", "Local\\acpmf_static")
+
+
+# --- Euro Truck Simulator 2 / American Truck Simulator: scs-sdk-plugin revision 12 -----------
+SCS_MAP_NAME = "Local\\SCSTelemetry"
+SCS_MAP_BYTES = 32 * 1024
+SCS_READ_BYTES = 3212
+"""scsTelemetryMap_t through config_s.shifterType (zone 9), of the plugin's 32 KiB map."""
+SCS_REVISION = 12
+_SCS_HEAD = struct.Struct("<?3x?3xQ16x8xIIIIII4xIIIII16xI")
+"""sdkActive 0, paused 4, time 8 (a stamp that moves each update), then at 40 the plugin
+revision, the game's version major and minor, the game (1 ETS2, 2 ATS), its telemetry
+version major and minor; at 68 gears, gears_reverse, retarderStepCount, truckWheelCount,
+selectorCount; at 104 shifterSlot."""
+_SCS_TABLE = struct.Struct("<32I32I")  # at 184: hshifterPosition[32], hshifterBitmask[32]
+_SCS_RESULTING = struct.Struct("<ii32i")  # at 504: gear, gearDashboard, hshifterResulting[32]
+_F32 = struct.Struct("<f")
+_SCS_DRIVE = struct.Struct("<ff16xffff")
+"""At 948: speed (m/s, negative reversing), engineRpm, gameSteer 972, gameThrottle,
+gameBrake, gameClutch (what the game applies, 0..1)."""
+_SCS_TOGGLES = struct.Struct("<??")  # at 1606: shifterToggle[2] (range, splitter)
+_SCS_MOTION = struct.Struct("<3f3f3f")
+"""At 1868: linear velocity, angular velocity, linear acceleration (truck frame)."""
+SHIFTER_TYPES = {"hshifter": "h", "manual": "sequential", "automatic": "", "arcade": ""}
+
+
+def _c_text(raw: bytes) -> str | None:
+    text, nul, _ = raw.partition(b"\x00")
+    if not nul or not text.isascii() or not text.decode("ascii").isprintable():
+        return None
+    return text.decode("ascii")
+
+
+def _check_scs(pages: Sequence[bytes]) -> str | None:
+    head = _SCS_HEAD.unpack_from(pages[0])
+    revision, game = head[3], head[6]
+    if revision != SCS_REVISION:
+        return (
+            f"scs-sdk-plugin revision {revision}: carfeel reads revision {SCS_REVISION} (its "
+            "layout moved between revisions); update the plugin"
+        )
+    if game not in (1, 2):
+        return f"game id {game}: not Euro Truck Simulator 2 (1) or American Truck Simulator (2)"
+    return None
+
+
+def scs_identify(pages: Sequence[bytes]) -> tuple[str, float]:
+    """The truck (truckId, e.g. vehicle.scania.s_2016) and the engine's max rpm."""
+    page = pages[0]
+    truck = _c_text(page[2428:2492]) or ""
+    rpm = _F32.unpack_from(page, 740)[0]
+    return truck, float(rpm) if 0.0 < rpm <= 30_000.0 else NAN
+
+
+_slot_cache: dict[bytes, tuple[tuple[int, int, int], ...]] = {}
+
+
+def scs_slots(page: bytes) -> tuple[tuple[int, int, int], ...]:
+    """The H-shifter's slot table (handle position, selector bitmask, gear), as the game gives
+    it (32 slots; cached by its bytes: it changes with the truck only)."""
+    raw = page[184:440] + page[512:640]
+    cached = _slot_cache.get(raw)
+    if cached is None:
+        table = _SCS_TABLE.unpack_from(page, 184)
+        gears = _SCS_RESULTING.unpack_from(page, 504)[2:]
+        cached = tuple((table[i], table[32 + i], gears[i]) for i in range(32))
+        if len(_slot_cache) > 16:
+            _slot_cache.clear()
+        _slot_cache[raw] = cached
+    return cached
+
+
+def _decode_scs(pages: Sequence[Any], car: str, max_rpm: float) -> VehicleState | None:
+    page = pages[0]
+    active, paused, _stamp, *_rest = _SCS_HEAD.unpack_from(page)
+    if not active:
+        return None  # the game is not running the SDK
+    gears, reverse, _steps, _wheels, selectors, slot = _SCS_HEAD.unpack_from(page)[9:15]
+    gear = _SCS_RESULTING.unpack_from(page, 504)[0]
+    speed, rpm, steer, throttle, brake, clutch = _SCS_DRIVE.unpack_from(page, 948)
+    range_high, splitter_high = _SCS_TOGGLES.unpack_from(page, 1606)
+    m = _SCS_MOTION.unpack_from(page, 1868)
+    kind = _c_text(page[3196:3212])
+    # The game's own ranges: gear counts and the slot within the table; the gear within them;
+    # the controls 0..1 (steer -1..1); the shifter type one of the SDK's four.
+    if (
+        not (0 <= gears <= 24 and 0 <= reverse <= 8 and 0 <= selectors <= 4 and slot <= 32)
+        or not -reverse <= gear <= gears
+        or kind not in SHIFTER_TYPES
+        or not _within(1.01, steer, throttle, brake, clutch)
+        or not _within(VELOCITY_BOUND_M_S, speed, *m[0:3])
+        or not _within(50.0, *m[3:6])
+        or not _within(500.0, *m[6:9])
+        or not 0.0 <= rpm <= 30_000.0
+    ):
+        return BAD
+    # Truck axes: x right, y up, z backward (the SDK's, right-handed): Ay left is minus the x
+    # acceleration; the angular velocity about y (up) is positive anticlockwise: left already.
+    gearbox = SHIFTER_TYPES[kind]
+    if gearbox == "h" and selectors:
+        gearbox = "truck"
+    return VehicleState(
+        speed_m_s=abs(speed),
+        lateral_accel_m_s2=-m[6],
+        yaw_rate_rad_s=m[4],
+        engine_speed_rpm=rpm,
+        gear=REVERSE if gear < 0 else gear,
+        clutch_pedal=clutch,
+        throttle=throttle,
+        brake=brake,
+        engine_max_rpm=max_rpm,
+        car=car,
+        forward_gears=gears,
+        gearbox=gearbox,
+        truck_slot=slot,
+        range_high=range_high,
+        splitter_high=splitter_high,
+        slots=scs_slots(page) if selectors or gearbox == "h" else (),
+        paused=paused,
+    )
+
+
+SCS = PageLayout("scs", (SCS_READ_BYTES,), _check_scs, _decode_scs, scs_identify,
+                 sequence_offset=8, file_page_bytes=(SCS_MAP_BYTES,))  # fmt: skip
+
+
+# --- Automobilista 2 / Project CARS 2 shared memory (SharedMemory.h, natural alignment) ------
+AMS2_MAP_NAME = "$pcars2$"
+AMS2_MAP_BYTES = 8192
+AMS2_READ_BYTES = 7324
+"""SharedMemory through mSequenceNumber (at 7320): every field carfeel reads."""
+AMS2_VERSIONS = range(8, 15)
+"""mVersion 8 (Project CARS 2's header) to 14: later headers append after mSequenceNumber."""
+_AMS2_HEAD = struct.Struct("<IIIIIii")
+"""mVersion, mBuildVersionNumber, mGameState, mSessionState, mRaceState,
+mViewedParticipantIndex, mNumParticipants."""
+_AMS2_DRIVE = struct.Struct("<7f2i")
+"""At 6848: mSpeed, mRpm, mMaxRPM, mBrake, mThrottle, mClutch, mSteering, mGear, mNumGears."""
+_AMS2_MOTION = struct.Struct("<3f3f3f3f3f")
+"""At 6908: mOrientation, mLocalVelocity, mWorldVelocity, mAngularVelocity,
+mLocalAcceleration."""
+AMS2_PLAYING, AMS2_PAUSED, AMS2_MENU, AMS2_RESTARTING, AMS2_REPLAY, AMS2_FE_REPLAY = range(2, 8)
+
+
+def _check_ams2(pages: Sequence[bytes]) -> str | None:
+    version = _AMS2_HEAD.unpack_from(pages[0])[0]
+    if version not in AMS2_VERSIONS:
+        return (
+            f"shared memory version {version}: carfeel reads versions "
+            f"{AMS2_VERSIONS[0]}-{AMS2_VERSIONS[-1]} (Project CARS 2 and Automobilista 2); "
+            "Project CARS 1's shared memory is another layout"
+        )
+    return None
+
+
+def ams2_identify(pages: Sequence[bytes]) -> tuple[str, float]:
+    car = _c_text(pages[0][6444:6508]) or ""
+    rpm = _F32.unpack_from(pages[0], 6856)[0]
+    return car, float(rpm) if 0.0 < rpm <= 30_000.0 else NAN
+
+
+def _decode_ams2(pages: Sequence[Any], car: str, max_rpm: float) -> VehicleState | None:
+    page = pages[0]
+    _v, _b, game, _session, _race, viewed, count = _AMS2_HEAD.unpack_from(page)
+    if not (game <= AMS2_FE_REPLAY and -1 <= viewed < 64 and -1 <= count <= 64):
+        return BAD
+    if game < AMS2_PLAYING:
+        return None  # exited or in the front end
+    speed, rpm, top, brake, throttle, clutch, steer, gear, gears = _AMS2_DRIVE.unpack_from(
+        page, 6848
+    )
+    m = _AMS2_MOTION.unpack_from(page, 6908)
+    if not (
+        -1 <= gear <= 24
+        and -1 <= gears <= 24
+        and _within(1.01, brake, throttle, clutch, steer)
+        and 0.0 <= speed <= VELOCITY_BOUND_M_S
+        and 0.0 <= rpm <= 30_000.0
+        and _within(VELOCITY_BOUND_M_S, *m[3:9])
+        and _within(50.0, *m[9:12])
+        and _within(500.0, *m[12:15])
+    ):
+        return BAD
+    # Axes as Project CARS' UDP (the same engine; tests/test_telemetry_pcars.py fixed the
+    # signs on a real capture): x left, y up, z back, so Ay and the yaw rate are ISO already.
+    current = _c_text(page[6444:6508])
+    return VehicleState(
+        speed_m_s=speed,
+        lateral_accel_m_s2=m[12],
+        yaw_rate_rad_s=m[10],
+        engine_speed_rpm=rpm,
+        gear=gear,
+        clutch_pedal=clutch,
+        throttle=throttle,
+        brake=brake,
+        engine_max_rpm=float(top) if 0.0 < top <= 30_000.0 else max_rpm,
+        car=current if current else car,
+        forward_gears=max(0, gears),
+        replay=game in (AMS2_REPLAY, AMS2_FE_REPLAY),
+        paused=game in (AMS2_PAUSED, AMS2_MENU, AMS2_RESTARTING),
+    )
+
+
+AMS2 = PageLayout("ams2", (AMS2_READ_BYTES,), _check_ams2, _decode_ams2, ams2_identify,
+                  sequence_offset=7320, file_page_bytes=(AMS2_MAP_BYTES,),
+                  odd_is_writing=True)  # fmt: skip
+
+
+class PagesReader:
+    """The frames of a page layout: a live map's pages (one image each) or a file of frames."""
+
+    def __init__(self, layout: PageLayout, images: Sequence[Any], is_file: bool) -> None:
+        self.layout, self.images, self.is_file = layout, images, is_file
+        self.finished = False
+        self.next = 0
+        self.skipped = 0
+        sizes = layout.page_bytes
+        if is_file:
+            (image,) = images
+            if len(image) == 0 or len(image) % layout.frame_bytes:
+                raise ValueError(
+                    f"{len(image)} bytes is not a whole number of {layout.name} frames of "
+                    f"{layout.frame_bytes} bytes (pages of {', '.join(map(str, sizes))})"
+                )
+            self.frames = len(image) // layout.frame_bytes
+        else:
+            for image, size in zip(images, sizes, strict=True):
+                if len(image) < size:
+                    raise ValueError(f"a page of {len(image)} bytes, under the {size} read")
+            self.frames = 0
+        first = self._pages(0)
+        why = layout.check(first)
+        if why is not None:
+            raise ValueError(why)
+        self.car, self.max_rpm = layout.identify(first)
+        self._sequence = -1
+        self._seq = struct.Struct("<i")
+
+    def _pages(self, frame: int) -> list[bytes]:
+        sizes = self.layout.page_bytes
+        if self.is_file:
+            at = frame * self.layout.frame_bytes
+            out = []
+            for size, stride in zip(sizes, self.layout.stride, strict=True):
+                out.append(bytes(self.images[0][at : at + size]))
+                at += stride
+            return out
+        return [bytes(image[0:size]) for image, size in zip(self.images, sizes, strict=True)]
+
+    def read(self, now_s: float) -> list[VehicleState | None]:
+        decode, car, max_rpm = self.layout.decode, self.car, self.max_rpm
+        if self.is_file:
+            due = min(self.frames, int(now_s * FRAME_HZ + 1e-9) + 1)
+            if due <= self.next:
+                self.finished = self.next >= self.frames
+                return []
+            start = max(self.next, due - 64)
+            self.skipped += start - self.next
+            self.next = due
+            return [decode(self._pages(i), car, max_rpm) for i in range(start, due)]
+        at = self.layout.sequence_offset
+        physics = self.images[0]
+        odd = self.layout.odd_is_writing
+        for _ in range(2):  # the game may write the page while we copy it: once more
+            before = self._seq.unpack_from(physics, at)[0]
+            if before == self._sequence:
+                return []  # nothing new
+            if odd and before & 1:
+                continue  # being written now
+            pages = self._pages(0)
+            if self._seq.unpack_from(physics, at)[0] == before:
+                self._sequence = before
+                return [decode(pages, car, max_rpm)]
+        return [BAD]
