@@ -105,6 +105,9 @@ def _run(
     for key, value in feed.items():
         monkeypatch.setattr(FeedingSource, key, value)
     monkeypatch.setattr(source, "VehicleSource", FeedingSource)
+    # Each run identifies its device afresh: with the profile the one before saved, a run
+    # starts from a check instead, and its first ticks differ from the other's.
+    monkeypatch.setenv("CARFEEL_CONFIG_DIR", str(tmp_path / f"{name}-config"))
     record = tmp_path / f"{name}.csv"
     code = cli.main(["run", "--model", "steering", "--device", "virtual:wheel", "--clock",
                      "simulated", "--telemetry", "forza:127.0.0.1:0", "--duration",
