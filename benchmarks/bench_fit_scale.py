@@ -24,6 +24,7 @@ import subprocess
 import sys
 import tempfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -71,7 +72,7 @@ def build_log(minutes: float, path: Path) -> None:
             )
             columns["lateral_accel_m_s2"].append(r["lateral_accel_m_s2"][sel] + noise(NOISE["ay"]))
             t_end = float(t[keep][-1]) + GAP_S
-    np.savez(path, **{k: np.concatenate(v) for k, v in columns.items()})
+    np.savez(path, **{k: np.concatenate(v) for k, v in columns.items()})  # type: ignore[arg-type]
 
 
 def child(path: str, fit: str) -> None:
@@ -81,7 +82,7 @@ def child(path: str, fit: str) -> None:
     import time
 
     from carfeel.identification.physical_fit import reference, runs_of
-    from carfeel.identification.steering_fit import fit_steering, read_log
+    from carfeel.identification.steering_fit import SteeringFit, fit_steering, read_log
     from carfeel.simulation.result import Result
     from tests.physical_logs import base_car
 
@@ -107,7 +108,7 @@ def child(path: str, fit: str) -> None:
     if fit == "physical":
         from carfeel.identification.physical_fit import fit_physical
 
-        result = fit_physical([log], base)
+        result: SteeringFit = fit_physical([log], base)
     else:
         result = fit_steering([log], base)
     wall = time.perf_counter() - t0
@@ -134,9 +135,9 @@ def _time_in_model(fit: str) -> list[float]:
 
     total = [0.0, 0.0]
 
-    def timed(function, count):  # type: ignore[no-untyped-def]
+    def timed(function: Any, count: float) -> Any:
         @functools.wraps(function)
-        def wrapper(*args, **kwargs):  # type: ignore[no-untyped-def]
+        def wrapper(*args: Any, **kwargs: Any) -> Any:
             t0 = time.perf_counter()
             try:
                 return function(*args, **kwargs)
