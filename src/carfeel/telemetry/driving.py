@@ -1,7 +1,8 @@
 """Telemetry into the renderers: a wrapper the session puts around the H-pattern or steering
 renderer. Each tick it polls the `VehicleSource` and, blended by its weight with the renderer's
 own values (the passive fallback), sets what the model takes from the game:
-  steering  speed and Ay (tau0's Ay is the game's, or speed x yaw rate if the game has no Ay);
+  steering  speed and Ay (tau0's Ay is the game's, or speed x yaw rate if the game has no Ay,
+            lagged as the front tyres pass it to the rim: `TyreLag`);
             with no telemetry tau0 fades to zero and the wheel keeps its friction, damping, stop;
             the physical model (`takes_lateral_accel` False) takes the speed only: its Ay is
             its own tyres' (DESIGN.md, issue 13 in the loop);
@@ -26,6 +27,33 @@ DEFAULT_CYLINDERS = 4
 LIMITER_HZ = 12.0
 """The rev limiter's cut felt as an on-off pulse at 12 Hz (a fuel cut's typical rate)."""
 LIMITER_FRACTION = 0.97
+RELAXATION_LENGTH_M = 0.45
+"""The front tyres' lateral relaxation length (the d-segment preset's, a 17-inch tyre): the
+rolling distance over which their force follows a change of slip."""
+RELAXATION_MIN_SPEED_M_S = 0.45
+"""Below it the lag's time constant stays at its 1 s (relaxation length over this speed): a
+standing tyre builds no force from the game's sample noise, but the lag does not freeze."""
+
+
+class TyreLag:
+    """The game's Ay as the front tyres pass it to the rim: a first-order lag of time constant
+    relaxation length / speed (about 15 ms at 30 m/s, 1 s at a walking pace). A game's Ay at
+    the launch is the chassis's (clutch judder at 20-30 Hz, +-1 m/s^2 frame to frame on
+    iRacing's .ibt) and held for a frame at 60 Hz: neither reaches the rim through a rolling
+    tyre, and the steering law would render both as a torque the oscillation guard stops."""
+
+    def __init__(self, relaxation_length_m: float = RELAXATION_LENGTH_M) -> None:
+        self.relaxation_length_m = relaxation_length_m
+        self.value = 0.0
+
+    def step(self, target: float, speed_m_s: float, dt_s: float) -> float:
+        """The lagged value after `dt_s` rolling at `speed_m_s` towards `target` (its unit)."""
+        speed = max(abs(speed_m_s), RELAXATION_MIN_SPEED_M_S)
+        self.value += min(1.0, speed * dt_s / self.relaxation_length_m) * (target - self.value)
+        return self.value
+
+    def reset(self) -> None:
+        self.value = 0.0
 
 
 class EngineVibration:
@@ -85,7 +113,7 @@ class TelemetryDriven:
     EXTRA = (
         "telemetry_weight", "game_speed_m_s", "game_lateral_accel_m_s2", "game_engine_speed_rpm",
         "game_gear", "game_clutch_pedal", "engine_vibration", "model_speed_m_s",
-        "model_engine_speed_rad_s", "model_clutch_pedal",
+        "model_engine_speed_rad_s", "model_clutch_pedal", "game_lateral_accel_lagged_m_s2",
     )  # fmt: skip
 
     def __init__(
@@ -105,6 +133,7 @@ class TelemetryDriven:
         self.fallback_engine = float(getattr(inner, "engine", 0.0))
         self.hand = getattr(inner, "clutch", None)
         self.pedal = _Pedal()
+        self.tyre_lag = TyreLag()
 
     @property
     def gears(self) -> list[str]:
@@ -130,7 +159,11 @@ class TelemetryDriven:
             ay = state.lateral_accel_m_s2
             if math.isnan(ay):
                 ay = state.speed_m_s * state.yaw_rate_rad_s
-            inner.lateral_accel_m_s2 = w * ay if w > 0.0 else 0.0
+            if w > 0.0:
+                inner.lateral_accel_m_s2 = w * self.tyre_lag.step(ay, state.speed_m_s, dt_s)
+            else:  # faded out: the lag starts afresh when the game comes back
+                self.tyre_lag.reset()
+                inner.lateral_accel_m_s2 = 0.0
         else:
             engine = state.engine_speed_rpm * math.pi / 30.0 if w > 0.0 else self.fallback_engine
             inner.engine = w * engine + (1.0 - w) * self.fallback_engine
@@ -147,7 +180,8 @@ class TelemetryDriven:
             self.gear_driver.update(inner.state)
         extra = (w, state.speed_m_s, state.lateral_accel_m_s2, state.engine_speed_rpm,
                  state.gear, state.clutch_pedal, vibration, inner.speed,
-                 getattr(inner, "engine", math.nan), self.pedal.clutch_pedal)  # fmt: skip
+                 getattr(inner, "engine", math.nan), self.pedal.clutch_pedal,
+                 self.tyre_lag.value)  # fmt: skip
         return commands, (*row, *extra)
 
     def close(self) -> None:
