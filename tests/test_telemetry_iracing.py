@@ -378,3 +378,87 @@ def test_the_summary_names_the_car_and_its_profile(capsys: pytest.CaptureFixture
         "car mercedesamggt4: profile from the carfeel car map (iracing, Mercedes-AMG GT4, "
         "sequential): hpattern preset 6r, torque scale 20 Nm"
     ]
+
+
+def _game_torque_run(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> tuple[Any, Any]:
+    record = tmp_path / "run.csv"
+    path = data_file("telemetry", IBT)
+    code = cli.main(["run", "--model", "steering", "--device", "virtual:wheel", "--clock",
+                     "simulated", "--telemetry", f"iracing:file:{path}", "--duration", "13",
+                     "--game-torque", "1", "--record", str(record), "--json"])  # fmt: skip
+    assert code == 0, capsys.readouterr().err
+    with record.open() as handle:
+        rows = [r for r in csv.DictReader(handle) if r["torque_Nm"] not in ("", "nan")]
+    return json.loads(capsys.readouterr().out), rows
+
+
+def test_the_games_own_torque_drives_the_wheel_from_the_ibt(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    summary, rows = _game_torque_run(tmp_path, capsys)
+    # The matrix's criteria over 13 s of Sebring (to the braking at 12.8 s, where the recorded
+    # driver's 4-6 Hz corrections are): no fault, never at the force limit.
+    assert not summary["faults"] and summary["time_at_limit_s"] == 0.0
+    full = 4.0 / summary["force_scale"]  # the model's torque at the virtual wheel's 4 Nm
+    driven = [r for r in rows if float(r["telemetry_weight"]) == 1.0]
+    assert len(driven) > 12_000
+    game = np.array([float(r["game_torque_model_Nm"]) for r in driven])
+    # --game-torque 1: tau0 is the game's (the CSV keeps 9 significant digits).
+    aligning = np.array([float(r["torque_aligning_Nm"]) for r in driven])
+    assert np.allclose(aligning, game, rtol=1e-7, atol=1e-9)
+    # Its sign and shape are the law's: it resists as tau0 of the game's Ay does.
+    ay = np.array([float(r["game_lateral_accel_lagged_m_s2"]) for r in driven])
+    assert np.corrcoef(game, ay)[0, 1] > 0.9
+    # Scaled by the car profile's 20 N*m, from the 360 Hz samples: the file's peak sample over
+    # these frames, less at most the step to its neighbour (the ticks fall between samples).
+    a, _ = independent(data_file("telemetry", IBT))
+    st = a["SteeringWheelTorque_ST"][: 13 * 60].astype(float).ravel()
+    peak = int(np.argmax(np.abs(st)))
+    step = max(abs(st[peak] - st[peak - 1]), abs(st[peak + 1] - st[peak]))
+    seen = float(np.max(np.abs(game))) * 20.0 / full
+    assert abs(st[peak]) - step - 1e-4 <= seen <= abs(st[peak]) + 1e-4
+
+
+def test_a_live_games_torque_is_heard_by_the_guard(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Why the recorded torque is an input the guard looks past: heard whole, as a live game's
+    is (its torque is in a loop through the game), the recorded driver's corrections at 4-6 Hz
+    on a held wheel read as a limit cycle and the guard stops the run."""
+    from carfeel.telemetry import driving
+
+    real = driving.GameTorque
+
+    def live(share: float, full: float, scale: float, exogenous: bool) -> Any:
+        return real(share, full, scale, False)
+
+    monkeypatch.setattr(driving, "GameTorque", live)
+    record = tmp_path / "run.csv"
+    path = data_file("telemetry", IBT)
+    code = cli.main(["run", "--model", "steering", "--device", "virtual:wheel", "--clock",
+                     "simulated", "--telemetry", f"iracing:file:{path}", "--duration", "13",
+                     "--game-torque", "1", "--record", str(record), "--json"])  # fmt: skip
+    summary = json.loads(capsys.readouterr().out)
+    assert code == 3 and summary["stopped"] == "fault"  # 3: stopped by a fault
+    assert "oscillation" in summary["faults"][0]
+
+
+@pytest.mark.parametrize(
+    ("args", "says"),
+    [
+        (["--game-torque", "1.5"], "a share from 0"),
+        (["--game-torque", "nan"], "a share from 0"),
+        (["--game-torque", "0.5", "--model", "hpattern"], "needs --model steering"),
+        (["--game-torque", "0.5", "--steering-model", "physical"], "needs --model steering"),
+    ],
+)
+def test_game_torque_refuses_what_it_cannot_do(
+    capsys: pytest.CaptureFixture[str], args: list[str], says: str
+) -> None:
+    path = data_file("telemetry", IBT)
+    base = ["run", "--model", "steering", "--device", "virtual:wheel", "--clock", "simulated",
+            "--telemetry", f"iracing:file:{path}", "--duration", "0.1"]  # fmt: skip
+    assert cli.main([*base, *args]) == 2
+    assert says in capsys.readouterr().err
+    assert cli.main(["run", "--model", "steering", "--game-torque", "0.5"]) == 2
+    assert "--telemetry" in capsys.readouterr().err

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import math
 
+import pytest
+
 from carfeel.telemetry.driving import RELAXATION_LENGTH_M, TyreLag
 
 
@@ -45,3 +47,102 @@ def test_a_standing_tyre_still_relaxes_and_reset_clears() -> None:
     lag.reset()
     assert lag.value == 0.0
     assert TyreLag().step(3.0, 1e6, 1e-3) == 3.0  # never past the target
+
+
+# --- the game's own force-feedback torque (--game-torque) -----------------------------------
+
+
+def _torque(samples: tuple[float, ...] = (), torque: float = math.nan, game_max: float = 10.0):
+    from carfeel.telemetry.state import VehicleState
+
+    return VehicleState(
+        speed_m_s=20.0, wheel_torque_Nm=torque, wheel_torque_samples_Nm=samples,
+        wheel_torque_max_Nm=game_max,
+    )  # fmt: skip
+
+
+def test_the_games_samples_play_at_their_rate_scaled_by_the_cars_torque() -> None:
+    from carfeel.telemetry.driving import GAME_TORQUE_SAMPLE_HZ, GameTorque
+
+    g = GameTorque(1.0, 5.0, math.nan, exogenous=True)  # the game's own scale (10 N*m)
+    state = _torque((0.0, 1.0, 2.0, 3.0, 4.0, 5.0), 5.0)
+    assert g.value(state, 0.0) == 0.0  # the frame's oldest sample on its arrival
+    # Halfway between samples 1 and 2: 1.5 N*m of 10 at the game's full force; the law's sign
+    # is the game's negated (the game: positive to the left; the law: resisting a left turn).
+    assert g.value(state, 1.5 / GAME_TORQUE_SAMPLE_HZ) == pytest.approx(-0.15 * 5.0, rel=1e-12)
+    assert g.value(state, 1.0) == pytest.approx(-0.5 * 5.0)  # after the last: held
+    assert g.ticks == 3
+    profile = GameTorque(1.0, 5.0, 20.0, exogenous=False)  # the car profile's scale first
+    assert profile.value(_torque(torque=4.0), 0.0) == pytest.approx(-0.2 * 5.0)
+    assert profile.value(_torque(torque=-400.0), 0.0) == 5.0  # clipped as the game's FFB does
+    none = GameTorque(1.0, 5.0, math.nan, exogenous=False)
+    assert math.isnan(none.value(_torque(), 0.0))  # the game sends no torque
+    assert math.isnan(none.value(_torque(torque=3.0, game_max=math.nan), 0.0))  # nor a scale
+    assert none.ticks == 0
+
+
+def test_a_wheel_torque_out_of_any_cars_range_is_not_plausible() -> None:
+    from carfeel.telemetry.state import plausible
+
+    assert plausible(_torque((1.0, -2.0), 3.0))
+    assert not plausible(_torque(torque=math.inf))
+    assert not plausible(_torque((1.0, 1e6), 3.0))
+    assert plausible(_torque())  # NaN: not sent
+
+
+class _Inner:
+    """A steering renderer's face to TelemetryDriven: its tau0 blend as SteeringRenderer's."""
+
+    axes = 1
+    columns = ("torque_aligning_Nm",)
+    takes_lateral_accel = True
+
+    def __init__(self) -> None:
+        from carfeel.realtime.rendering import Scaling
+
+        self.speed, self.effect = 10.0, 0.0
+        self.gears: list[str] = []
+        self.scaling = Scaling(0.5, 1.0)
+        self.lateral_accel_m_s2: float | None = None
+        self.game_torque_Nm: float | None = None
+        self.game_torque_share = 0.0
+
+    def tick(self, sample: object, dt_s: float) -> tuple[tuple[float, ...], tuple[object, ...]]:
+        aligning = 2.0 * (self.lateral_accel_m_s2 or 0.0)
+        if self.game_torque_Nm is not None:
+            aligning += self.game_torque_share * (self.game_torque_Nm - aligning)
+        return (-aligning * self.scaling.force_scale,), (aligning,)
+
+
+class _Source:
+    def __init__(self, state: object) -> None:
+        self.state, self.age_s = state, 0.0
+        self.events: list[str] = []
+
+    def update(self, t_s: float) -> tuple[object, float]:
+        return self.state, 1.0
+
+
+def test_the_guard_looks_past_a_recorded_torque_but_hears_a_live_games() -> None:
+    from carfeel.contracts import DeviceSample
+    from carfeel.telemetry.driving import GameTorque, TelemetryDriven
+    from carfeel.telemetry.state import VehicleState
+
+    state = VehicleState(speed_m_s=20.0, lateral_accel_m_s2=1.0, wheel_torque_Nm=-4.0,
+                         wheel_torque_max_Nm=10.0)  # fmt: skip
+    sample = DeviceSample(0.0, (0.0,), (0.0,))
+    effects = {}
+    for exogenous in (True, False):
+        driven = TelemetryDriven(
+            _Inner(), _Source(state), "steering",  # type: ignore[arg-type]
+            game_torque=GameTorque(0.5, 5.0, math.nan, exogenous),
+        )  # fmt: skip
+        commands, row = driven.tick(sample, 1e-3)
+        # The game's 4 of 10 N*m resists (+2 model N*m); half of it with half the law's.
+        law = 2.0 * driven.tyre_lag.value
+        aligning = float(row[0])  # type: ignore[arg-type]
+        assert aligning == pytest.approx(0.5 * law + 0.5 * 2.0)
+        assert commands[0] == pytest.approx(-0.5 * aligning)  # force scale 0.5, the law's sign
+        effects[exogenous] = driven.effect
+    assert effects[True] == pytest.approx(-0.5 * 2.0 * 0.5)  # the game's part of the command
+    assert effects[False] == 0.0  # live: in the loop through the game, heard whole

@@ -372,6 +372,10 @@ class SteeringRenderer:
         self.effect = 0.0
         self.lateral_accel_m_s2: float | None = None
         """The game's Ay for tau0 (telemetry, already faded by its weight); None: the car's."""
+        self.game_torque_Nm: float | None = None
+        """The game's own FFB torque (model N*m, this law's sign, faded; telemetry/driving.py),
+        blended into tau0 by `game_torque_share`; None: tau0 is the law's alone."""
+        self.game_torque_share = 0.0
         fs, ps = scaling.force_scale, scaling.position_scale
         k = car.torque
         friction_level = fs * k.k7_Nm * math.pi / 2.0
@@ -443,6 +447,8 @@ class SteeringRenderer:
         else:
             ay = single_track.steady_state_lateral_accel(speed, angle, vehicle)
         aligning = k.k1_Nm_s2_m * ay / (1.0 + k.k2 * abs(ay) ** k.k3)
+        if self.game_torque_Nm is not None:
+            aligning += self.game_torque_share * (self.game_torque_Nm - aligning)
         if speed != self._scheduled_for:  # the schedule's values only change with the speed
             self._scheduled_for = speed
             self._spin_rate = self.tire_spin_rate(speed)

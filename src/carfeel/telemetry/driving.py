@@ -86,6 +86,57 @@ class EngineVibration:
         return weight * out
 
 
+GAME_TORQUE_SAMPLE_HZ = 360.0
+"""iRacing's SteeringWheelTorque_ST: six samples a 60 Hz frame (the only game that sends any)."""
+
+
+class GameTorque:
+    """The game's own force-feedback torque as the steering law's tau0 (`--game-torque SHARE`:
+    0 the law's alone, 1 the game's instead), in model N*m and the law's sign (positive
+    resisting a left turn): -torque / scale x the model's torque at the device's full force,
+    the fraction held within +-1 as the game's own force feedback clips. The scale is the car
+    profile's torque scale, else the game's (iRacing's SteeringWheelMaxForceNm). Where the game
+    sends samples within its frame (oldest first, the last the frame's value) they are played
+    at their rate from the frame's arrival, linearly between them: the game's 360 Hz detail,
+    one frame (13.9 ms) late, instead of a 60 Hz staircase. Only tau0 is blended: the law's
+    friction, damping and stop stay, and the loop's limiter and slew limit the sum as every
+    rendering. The oscillation guard hears the game's torque whole from a live game (it is in
+    a loop through the game: the game's wheel is the device); from a file image (`exogenous`)
+    nothing of the device reaches it, so it is a recorded input the guard looks past as past
+    the vibrations: on the .ibt the recorded driver's 4-6 Hz corrections would read as a
+    limit cycle of a held wheel."""
+
+    def __init__(
+        self, share: float, full_model_Nm: float, torque_scale_Nm: float, exogenous: bool
+    ) -> None:
+        self.share, self.full_model_Nm = share, full_model_Nm
+        self.torque_scale_Nm = torque_scale_Nm
+        self.exogenous = exogenous
+        self.ticks = 0
+        """Ticks the game's torque was there to blend."""
+
+    def value(self, state: VehicleState, age_s: float) -> float:
+        """Model N*m (NaN where the game sends no torque or no scale is known); `age_s` the
+        loop's time since the frame came."""
+        samples = state.wheel_torque_samples_Nm
+        if samples:
+            at = min(max(age_s, 0.0) * GAME_TORQUE_SAMPLE_HZ, len(samples) - 1.0)
+            i = int(at)
+            raw = samples[i] if i + 1 >= len(samples) else (
+                samples[i] + (at - i) * (samples[i + 1] - samples[i])
+            )  # fmt: skip
+        else:
+            raw = state.wheel_torque_Nm
+        scale = self.torque_scale_Nm
+        if not scale > 0.0:  # NaN: no profile gives one
+            scale = state.wheel_torque_max_Nm
+        fraction = -raw / scale if scale > 0.0 else math.nan
+        if not math.isfinite(fraction):
+            return math.nan
+        self.ticks += 1
+        return max(-1.0, min(1.0, fraction)) * self.full_model_Nm
+
+
 class _Pedal:
     __slots__ = ("clutch_pedal",)
 
@@ -114,6 +165,7 @@ class TelemetryDriven:
         "telemetry_weight", "game_speed_m_s", "game_lateral_accel_m_s2", "game_engine_speed_rpm",
         "game_gear", "game_clutch_pedal", "engine_vibration", "model_speed_m_s",
         "model_engine_speed_rad_s", "model_clutch_pedal", "game_lateral_accel_lagged_m_s2",
+        "game_torque_model_Nm",
     )  # fmt: skip
 
     def __init__(
@@ -123,6 +175,7 @@ class TelemetryDriven:
         model: str,
         vibration: EngineVibration | None = None,
         gear_driver: GearDriver | None = None,
+        game_torque: GameTorque | None = None,
     ) -> None:
         self.inner, self.source, self.model = inner, source, model
         self.axes: int = inner.axes
@@ -134,6 +187,8 @@ class TelemetryDriven:
         self.hand = getattr(inner, "clutch", None)
         self.pedal = _Pedal()
         self.tyre_lag = TyreLag()
+        self.game_torque = game_torque if hasattr(inner, "game_torque_Nm") else None
+        self._game_torque_Nm = math.nan
 
     @property
     def gears(self) -> list[str]:
@@ -164,6 +219,16 @@ class TelemetryDriven:
             else:  # faded out: the lag starts afresh when the game comes back
                 self.tyre_lag.reset()
                 inner.lateral_accel_m_s2 = 0.0
+            if self.game_torque is not None:
+                g = self.game_torque.value(state, self.source.age_s) if w > 0.0 else math.nan
+                self._game_torque_Nm = g
+                # Where the game sends none, tau0 stays the law's (of the game's Ay).
+                inner.game_torque_Nm = None if math.isnan(g) else w * g
+                inner.game_torque_share = self.game_torque.share
+        game_effect = 0.0
+        if self.game_torque is not None and self.game_torque.exogenous and inner.game_torque_Nm:
+            # The game's part of the device command (the renderer's sign: command = -torque).
+            game_effect = -self.game_torque.share * inner.game_torque_Nm * inner.scaling.force_scale
         else:
             engine = state.engine_speed_rpm * math.pi / 30.0 if w > 0.0 else self.fallback_engine
             inner.engine = w * engine + (1.0 - w) * self.fallback_engine
@@ -173,7 +238,7 @@ class TelemetryDriven:
             inner.clutch = self.pedal
         commands, row = inner.tick(sample, dt_s)
         vibration = self.vibration.step(state, w, dt_s) if self.vibration is not None else 0.0
-        self.effect = inner.effect + vibration
+        self.effect = inner.effect + vibration + game_effect
         if vibration:
             commands = (commands[0] + vibration, *commands[1:])
         if self.gear_driver is not None:
@@ -181,11 +246,17 @@ class TelemetryDriven:
         extra = (w, state.speed_m_s, state.lateral_accel_m_s2, state.engine_speed_rpm,
                  state.gear, state.clutch_pedal, vibration, inner.speed,
                  getattr(inner, "engine", math.nan), self.pedal.clutch_pedal,
-                 self.tyre_lag.value)  # fmt: skip
+                 self.tyre_lag.value, self._game_torque_Nm)  # fmt: skip
         return commands, (*row, *extra)
 
     def close(self) -> None:
         """Release the gear output's buttons and the socket (stop, fault or exit)."""
+        g = self.game_torque
+        if g is not None and not g.ticks:
+            self.source.events.append(
+                "--game-torque: the game sent no force-feedback torque (or no torque scale: "
+                "give the car's torque_scale_Nm in --car-presets); tau0 was the law's alone"
+            )
         try:
             if self.gear_driver is not None:
                 self.gear_driver.release()
