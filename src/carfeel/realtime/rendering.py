@@ -224,6 +224,9 @@ class HPatternRenderer:
         self.engine = engine_speed_rad_s
         self.clutch = clutch
         """An object with a `clutch_pedal` attribute (the virtual hand), or None (pressed)."""
+        self.cues: Any = None
+        """The game's cues on the knob (telemetry/cues.py `LeverCues`): called each sub-step
+        with the model's state, (x, y) N added to the hand's; None: no cues."""
         self.gears: list[str] = []
         self.substeps = 1
         """Model steps per tick (the loop at 1 kHz, the model up to 10 kHz)."""
@@ -264,7 +267,8 @@ class HPatternRenderer:
         forces: tuple[float, ...] = (hands[0], hands[1])
         event = ""
         for _ in range(self.substeps):
-            inputs = HPatternInputs(forces[0], forces[1], pedal, self.speed, self.engine)
+            cx, cy = self.cues(self.state) if self.cues is not None else (0.0, 0.0)
+            inputs = HPatternInputs(forces[0] + cx, forces[1] + cy, pedal, self.speed, self.engine)
             self.state, out = hpattern.step(self.state, inputs, self.pattern, h)
             if out.event.startswith("engage"):  # whichever sub-step it happens in
                 self.gears.append(out.gear)

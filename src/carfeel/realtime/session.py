@@ -848,6 +848,7 @@ def _drive_by_telemetry(
 ) -> Any:
     """The renderer wrapped so the game's vehicle state drives it (`carfeel.telemetry.driving`)."""
     from carfeel.telemetry import driving
+    from carfeel.telemetry.cues import LeverCues
     from carfeel.telemetry.gearout import GearDriver, open_gear_output
     from carfeel.telemetry.source import VehicleSource
 
@@ -863,12 +864,15 @@ def _drive_by_telemetry(
         if output is not None:
             gear_driver = GearDriver(output, renderer.pattern.layout, run.gear_timing,
                                      run.gear_mapping, run.rate_hz)  # fmt: skip
+    cues = None if steering else LeverCues(renderer.pattern, run.rate_hz)
     game_torque = None
     if steering and run.game_torque > 0.0:  # the model's torque at the device's full force
         full = info.max_force / renderer.scaling.force_scale
         recorded = getattr(receiver.source, "path", None) is not None  # a file image
         game_torque = driving.GameTorque(run.game_torque, full, receiver.torque_scale_Nm, recorded)
-    return driving.TelemetryDriven(renderer, source, run.model, vibration, gear_driver, game_torque)
+    return driving.TelemetryDriven(
+        renderer, source, run.model, vibration, gear_driver, game_torque, cues
+    )
 
 
 def stability_figure(sizing: Sizing, info: DeviceInfo, rate_hz: float) -> dict[str, float]:

@@ -19,6 +19,7 @@ import math
 from typing import Any
 
 from carfeel.contracts import DeviceSample
+from carfeel.telemetry.cues import LeverCues, bite_coupling, cue_weight
 from carfeel.telemetry.gearout import GearDriver
 from carfeel.telemetry.source import VehicleSource
 from carfeel.telemetry.state import VehicleState
@@ -165,7 +166,7 @@ class TelemetryDriven:
         "telemetry_weight", "game_speed_m_s", "game_lateral_accel_m_s2", "game_engine_speed_rpm",
         "game_gear", "game_clutch_pedal", "engine_vibration", "model_speed_m_s",
         "model_engine_speed_rad_s", "model_clutch_pedal", "game_lateral_accel_lagged_m_s2",
-        "game_torque_model_Nm",
+        "game_torque_model_Nm", "cue_wall_N", "cue_refusing", "cue_grind_N",
     )  # fmt: skip
 
     def __init__(
@@ -176,6 +177,7 @@ class TelemetryDriven:
         vibration: EngineVibration | None = None,
         gear_driver: GearDriver | None = None,
         game_torque: GameTorque | None = None,
+        cues: LeverCues | None = None,
     ) -> None:
         self.inner, self.source, self.model = inner, source, model
         self.axes: int = inner.axes
@@ -189,6 +191,7 @@ class TelemetryDriven:
         self.tyre_lag = TyreLag()
         self.game_torque = game_torque if hasattr(inner, "game_torque_Nm") else None
         self._game_torque_Nm = math.nan
+        self.cues = cues
 
     @property
     def gears(self) -> list[str]:
@@ -236,8 +239,20 @@ class TelemetryDriven:
             game_pedal = state.clutch_pedal if 0.0 <= state.clutch_pedal <= 1.0 else hand_pedal
             self.pedal.clutch_pedal = w * game_pedal + (1.0 - w) * 1.0
             inner.clutch = self.pedal
+            if self.cues is not None:
+                self.cues.update(state, w, str(inner.state.gear), dt_s)
+                inner.cues = self.cues
         commands, row = inner.tick(sample, dt_s)
-        vibration = self.vibration.step(state, w, dt_s) if self.vibration is not None else 0.0
+        # Cues are off in a replay or while paused; on the lever the engine comes through the
+        # clutch (its bite point).
+        cw = cue_weight(w, state)
+        if self.model != "steering":
+            cw *= bite_coupling(state.clutch_pedal, self.cues.p) if self.cues else 1.0
+        vibration = self.vibration.step(state, cw, dt_s) if self.vibration is not None else 0.0
+        grind = 0.0
+        if self.cues is not None:
+            grind = self.cues.grind(dt_s) * inner.scaling.force_scale
+            vibration += grind
         self.effect = inner.effect + vibration + game_effect
         if vibration:
             commands = (commands[0] + vibration, *commands[1:])
@@ -246,11 +261,19 @@ class TelemetryDriven:
         extra = (w, state.speed_m_s, state.lateral_accel_m_s2, state.engine_speed_rpm,
                  state.gear, state.clutch_pedal, vibration, inner.speed,
                  getattr(inner, "engine", math.nan), self.pedal.clutch_pedal,
-                 self.tyre_lag.value, self._game_torque_Nm)  # fmt: skip
+                 self.tyre_lag.value, self._game_torque_Nm,
+                 self.cues.wall_N if self.cues else 0.0,
+                 int(bool(self.cues.refused)) if self.cues else 0, grind)  # fmt: skip
         return commands, (*row, *extra)
 
     def close(self) -> None:
         """Release the gear output's buttons and the socket (stop, fault or exit)."""
+        c = self.cues
+        if c is not None and (c.refusals or c.mismatch_s):
+            self.source.events.append(
+                f"cues: the gate refused a gear {c.refusals} times (clutch out, revs apart); "
+                f"the lever and the game disagreed on the gear for {c.mismatch_s:.2f} s"
+            )
         g = self.game_torque
         if g is not None and not g.ticks:
             self.source.events.append(
