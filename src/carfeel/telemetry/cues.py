@@ -104,12 +104,17 @@ def wall_N(s_m: float, velocity_m_s: float, entry_m: float, p: CueParams) -> flo
     return -(p.wall_stiffness_N_m * over + p.wall_damping_N_s_m * max(0.0, velocity_m_s))
 
 
+def octave_below(frequency_hz: float, ceiling_hz: float) -> float:
+    """An octave down at a time until below `ceiling_hz` (a quarter of the loop rate: a
+    vibration rendered there cannot alias)."""
+    while frequency_hz >= ceiling_hz:
+        frequency_hz *= 0.5
+    return frequency_hz
+
+
 def grind_frequency_hz(difference_rpm: float, teeth: int, ceiling_hz: float) -> float:
     """The dog teeth's passing frequency, an octave down at a time below `ceiling_hz`."""
-    f = abs(difference_rpm) / 60.0 * teeth
-    while f >= ceiling_hz:
-        f *= 0.5
-    return f
+    return octave_below(abs(difference_rpm) / 60.0 * teeth, ceiling_hz)
 
 
 def bite_coupling(clutch_pedal: float, p: CueParams) -> float:

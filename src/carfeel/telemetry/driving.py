@@ -19,7 +19,7 @@ import math
 from typing import Any
 
 from carfeel.contracts import DeviceSample
-from carfeel.telemetry.cues import LeverCues, bite_coupling, cue_weight
+from carfeel.telemetry.cues import LeverCues, bite_coupling, cue_weight, octave_below
 from carfeel.telemetry.gearout import GearDriver
 from carfeel.telemetry.source import VehicleSource
 from carfeel.telemetry.state import VehicleState
@@ -74,9 +74,7 @@ class EngineVibration:
         if weight <= 0.0 or not rpm > 0.0:
             self.frequency_hz = 0.0
             return 0.0
-        f = rpm / 60.0 * (state.cylinders or DEFAULT_CYLINDERS) / 2.0
-        while f >= self.ceiling_hz:
-            f *= 0.5
+        f = octave_below(rpm / 60.0 * (state.cylinders or DEFAULT_CYLINDERS) / 2.0, self.ceiling_hz)
         self.frequency_hz = f
         self.phase = (self.phase + 2.0 * math.pi * f * dt_s) % (2.0 * math.pi)
         throttle = state.throttle if 0.0 <= state.throttle <= 1.0 else 0.5
