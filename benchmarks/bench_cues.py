@@ -47,7 +47,7 @@ def main() -> None:
     inputs = HPatternInputs(10.0, 0.0, 0.0, 25.6, 700.0)
     model = best_us(lambda: hpattern.step(state, inputs, pattern, 1e-3))
     print(f"LeverCues.update {update:.2f} us a tick; call + grind {call:.2f} us a sub-step; "
-          f"reference hpattern.step {model:.2f} us: cues {call / model:.2f}x a sub-step")  # fmt: skip
+          f"reference hpattern.step {model:.2f} us: {call / model:.2f}x a sub-step")  # fmt: skip
 
     car = load_steering("d-segment").params
     vehicle = single_track.initial_state()
