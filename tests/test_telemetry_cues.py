@@ -197,3 +197,36 @@ def test_the_recorded_session_on_the_virtual_shifter(
     assert all(float(r["cue_wall_N"]) == 0.0 and float(r["engine_vibration"]) == 0.0
                for r in rows)  # fmt: skip
     assert not any("the gate refused" in n for n in summary["notes"])
+
+
+def test_garbage_states_give_finite_cues() -> None:
+    """States a decoder could hand on (NaN anywhere, zeros, extremes, another game's gear
+    counts): every force finite, a wall only where the state justifies one."""
+    import random
+
+    from carfeel.telemetry.driving import GameTorque
+
+    rng = random.Random(29)
+    params = pattern()
+    lever = LeverCues(params, 1000.0)
+    torque = GameTorque(1.0, 11.0, math.nan, exogenous=False)
+    values = (math.nan, 0.0, -1.0, 1.0, 1e-9, 149.0, 29_999.0, -5.0)
+    for _ in range(3000):
+        state = VehicleState(
+            speed_m_s=rng.choice(values), engine_speed_rpm=rng.choice(values),
+            gear=rng.randint(-1, 24), clutch_pedal=rng.choice((math.nan, 0.0, 0.5, 1.0)),
+            shift_grind_rpm=rng.choice(values), forward_gears=rng.randint(0, 24),
+            wheel_torque_Nm=rng.choice(values), wheel_torque_max_Nm=rng.choice(values),
+            wheel_torque_samples_Nm=rng.choice(((), (1.0, math.nan), (5.0,) * 6)),
+            replay=rng.random() < 0.1,
+        )  # fmt: skip
+        lever.update(state, rng.random(), rng.choice(("N", "1", "R")), 1e-3)
+        slot = rng.choice(params.layout.gears)
+        knob: Any = _Lever(rng.uniform(-0.05, 0.05), slot.plane, slot.direction)
+        fx, fy = lever(knob)
+        assert math.isfinite(fx) and fy == 0.0 and math.isfinite(lever.grind(1e-3))
+        if state.replay:
+            assert fx == 0.0
+        g = torque.value(state, rng.uniform(0.0, 0.05))
+        assert math.isnan(g) or abs(g) <= 11.0
+    assert all(math.isfinite(v) and v > 0.0 for v in lever.learned.values())
