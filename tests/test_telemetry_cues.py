@@ -230,3 +230,37 @@ def test_garbage_states_give_finite_cues() -> None:
         g = torque.value(state, rng.uniform(0.0, 0.05))
         assert math.isnan(g) or abs(g) <= 11.0
     assert all(math.isfinite(v) and v > 0.0 for v in lever.learned.values())
+
+
+def test_hold_pushes_a_gear_the_game_did_not_take_back_out() -> None:
+    params = pattern()
+    three = params.layout.gear("3")
+    in_gear = params.engagement.in_gear_position_m
+    knob: Any = _Lever(in_gear, three.plane, three.direction, gear="3")
+    for hold in (False, True):
+        lever = LeverCues(params, 1000.0, hold=hold)
+        neutral = VehicleState(speed_m_s=20.0, engine_speed_rpm=3000.0, gear=0)
+        forces = []
+        for _ in range(300):  # 0.3 s of the game in neutral, the lever in 3rd
+            lever.update(neutral, 1.0, "3", 1e-3)
+            forces.append(lever(knob)[0])
+        if not hold:
+            assert all(f == 0.0 for f in forces)  # counted only
+            assert lever.mismatch_s == pytest.approx(0.3)
+            continue
+        # Nothing within the grace (a shift passes neutral, a live game follows in 2 frames),
+        # then the gate wall's full force back out along the slot, once counted.
+        grace = round(lever.p.hold_grace_s / 1e-3)
+        assert all(f == 0.0 for f in forces[: grace - 1])
+        assert forces[-1] == pytest.approx(-three.direction * lever.p.hold_force_N)
+        assert lever.holds == 1
+        lever.update(neutral._replace(gear=3), 1.0, "3", 1e-3)  # the game took it
+        assert lever(knob) == (0.0, 0.0)
+        for _ in range(300):
+            lever.update(neutral._replace(replay=True), 1.0, "3", 1e-3)
+        assert lever(knob) == (0.0, 0.0)  # a replay: nobody is driving
+
+
+def test_interlock_hold_needs_the_lever_and_the_game(capsys: pytest.CaptureFixture[str]) -> None:
+    assert cli.main(["run", "--model", "hpattern", "--interlock", "hold"]) == 2
+    assert "--interlock hold needs" in capsys.readouterr().err

@@ -133,6 +133,14 @@ def register(commands: Any) -> None:
         "torque scale), over the one carfeel ships",
     )
     run.add_argument(
+        "--interlock",
+        choices=("tell", "hold"),
+        default="tell",
+        help="--telemetry, --model hpattern: on a lever/game gear mismatch, tell the game the "
+        "lever's gear through --gear-output (tell, the default), or also push the lever out of "
+        "a gear the game stays in neutral on for 0.15 s (hold: it refused the shift)",
+    )
+    run.add_argument(
         "--game-torque",
         metavar="SHARE",
         type=float,
@@ -229,6 +237,7 @@ def _run(args: argparse.Namespace) -> int:
         gear_mapping=args.gear_mapping,
         car_presets=Path(args.car_presets) if args.car_presets else None,
         game_torque=args.game_torque,
+        interlock=args.interlock,
         identify=args.identify,
         loop_cpu=args.loop_cpu,
         device_profile=Path(args.device_profile) if args.device_profile else None,

@@ -111,6 +111,9 @@ class RealtimeRun:
     """--gear-mapping: the binding the game expects (buttons, sequential)."""
     car_presets: Path | None = None
     """A TOML file mapping the car a format names to the presets for it."""
+    interlock: str = "tell"
+    """--telemetry, --model hpattern: on a lever/game gear mismatch, tell the game (the gear
+    output) or also hold: push the lever out of a gear the game stays in neutral on."""
     game_torque: float = 0.0
     """--telemetry, --model steering: the share of tau0 the game's own FFB torque takes (0 the
     law's alone, 1 the game's; `telemetry.driving.GameTorque`)."""
@@ -370,6 +373,12 @@ def _check_telemetry(run: RealtimeRun) -> None:
         )
     if run.car_presets is not None and run.telemetry is None:
         raise InputError("--car-presets needs --telemetry (the format names the car)")
+    if run.interlock not in ("tell", "hold"):
+        raise InputError(f"--interlock {run.interlock!r}: choose tell or hold")
+    if run.interlock == "hold" and (run.telemetry is None or run.model != "hpattern"):
+        raise InputError(
+            "--interlock hold needs --model hpattern and --telemetry (the game's gear)"
+        )
     if run.game_torque != 0.0:
         if not 0.0 <= run.game_torque <= 1.0:  # NaN fails too
             raise InputError(
@@ -864,7 +873,11 @@ def _drive_by_telemetry(
         if output is not None:
             gear_driver = GearDriver(output, renderer.pattern.layout, run.gear_timing,
                                      run.gear_mapping, run.rate_hz)  # fmt: skip
-    cues = None if steering else LeverCues(renderer.pattern, run.rate_hz)
+    cues = (
+        None
+        if steering
+        else LeverCues(renderer.pattern, run.rate_hz, None, run.interlock == "hold")
+    )
     game_torque = None
     if steering and run.game_torque > 0.0:  # the model's torque at the device's full force
         full = info.max_force / renderer.scaling.force_scale

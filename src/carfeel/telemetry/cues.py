@@ -22,7 +22,10 @@ the source's 0.3 s), and zero while the game plays a replay or is paused (nobody
                   not; `sequential_locked` says when a sequential lever's push up from the
                   top gear or pull down from R is (no sequential lever is rendered yet).
   interlock       the lever's gear against the game's: a mismatch is counted (and the gear
-                  output, where given, tells the game the lever's gear).
+                  output, where given, tells the game the lever's gear); with `hold`, a
+                  lever in a gear while the game stays in neutral (it refused the shift) is
+                  pushed back out to the gear's entry, as a gearbox pops a gear that did not
+                  mesh.
 """
 
 from __future__ import annotations
@@ -52,6 +55,11 @@ class CueParams:
     grind_amplitude_N: float = 3.0
     """At a push of `grind_push_N` into the wall."""
     grind_push_N: float = 30.0
+    hold_grace_s: float = 0.15
+    """The game's neutral for this long with the lever in a gear: it refused (a live game
+    follows the lever within two 60 Hz frames; a shift passes neutral for one or two)."""
+    hold_force_N: float = 60.0
+    """The push out of the gear: the gate wall's force at its full depth (20000 N/m x 3 mm)."""
 
     @classmethod
     def of(cls, pattern: HPatternParams) -> CueParams:
@@ -142,7 +150,13 @@ class LeverCues:
     """The cues on the H-pattern's knob, called each sub-step with the model's state (after
     `update` set the tick's game state and weight); forces in model N along x and y."""
 
-    def __init__(self, pattern: HPatternParams, rate_hz: float, params: CueParams | None = None):
+    def __init__(
+        self,
+        pattern: HPatternParams,
+        rate_hz: float,
+        params: CueParams | None = None,
+        hold: bool = False,
+    ) -> None:
         self.pattern = pattern
         self.p = params or CueParams.of(pattern)
         self.ceiling_hz = rate_hz / 4.0
@@ -161,6 +175,9 @@ class LeverCues:
         self._phase = 0.0
         self.mismatch_s = 0.0
         self.refusals = 0
+        self.hold = hold
+        self.game_neutral_s = 0.0
+        self.holds = 0
 
     def update(self, state: VehicleState, weight: float, lever_gear: str, dt_s: float) -> None:
         """The tick's game state and telemetry weight; learns the game gear's ratio."""
@@ -178,6 +195,7 @@ class LeverCues:
             self.learned[g] = ratio if old is None else old + 0.05 * (ratio - old)
         if self.weight > 0.0 and mismatch(lever_gear, state):
             self.mismatch_s += dt_s
+        self.game_neutral_s = self.game_neutral_s + dt_s if state.gear == 0 else 0.0
 
     def __call__(self, lever: HPatternState) -> tuple[float, float]:
         """The wall's force on the knob (model N, x and y) for the model's state now."""
@@ -199,7 +217,17 @@ class LeverCues:
             if refused:
                 along = wall_N(s, lever.lever.velocity_m_s, self.entry_m, self.p)
                 self.wall_N = self.weight * d * along
-        if refused and refused != self.refused:
+        if (
+            self.hold
+            and self.weight > 0.0
+            and lever.gear != "N"
+            and self.game_neutral_s > self.p.hold_grace_s
+            and s > self.entry_m
+        ):  # the game stayed in neutral: out of the gear, back to its entry
+            self.wall_N, refused = -self.weight * d * self.p.hold_force_N, "hold"
+        if refused == "hold" and self.refused != "hold":
+            self.holds += 1
+        elif refused and refused != self.refused:
             self.refusals += 1
         self.refused = refused
         return self.wall_N, 0.0

@@ -268,9 +268,10 @@ class TelemetryDriven:
         """Release the gear output's buttons and the socket (stop, fault or exit)."""
         c = self.cues
         if c is not None and (c.refusals or c.mismatch_s):
+            held = f"; pushed out of a gear the game did not take {c.holds} times" if c.hold else ""
             self.source.events.append(
                 f"cues: the gate refused a gear {c.refusals} times (clutch out, revs apart); "
-                f"the lever and the game disagreed on the gear for {c.mismatch_s:.2f} s"
+                f"the lever and the game disagreed on the gear for {c.mismatch_s:.2f} s{held}"
             )
         g = self.game_torque
         if g is not None and not g.ticks:
