@@ -440,6 +440,9 @@ def telemetry_run(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, lateral: bool
         monkeypatch.setattr(feeding, "FeedingSource", Feeding)
     tmp = tmp_path / ("lateral" if lateral else "none")
     tmp.mkdir()
+    # Each run identifies its device afresh: with the profile the one before saved, the second
+    # starts from a check instead, and its torques differ from the first's.
+    monkeypatch.setenv("CARFEEL_CONFIG_DIR", str(tmp / "config"))
     return feeding._run(tmp, monkeypatch, model="steering", steering_model="physical",
                         device="virtual:wheel")  # fmt: skip
 

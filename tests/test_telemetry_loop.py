@@ -104,10 +104,11 @@ def test_replayed_telemetry_drives_the_steering_torque(
     t, w = r["time_s"], r["telemetry_weight"]
     k = load_steering("b-segment").params.torque
     checked = 0
-    for ti, wi, ay, aligning in zip(t, w, r["game_lateral_accel_m_s2"], r["torque_aligning_Nm"],
-                                    strict=False):  # fmt: skip
+    lagged = r["game_lateral_accel_lagged_m_s2"]
+    for ti, wi, ay, aligning in zip(t, w, lagged, r["torque_aligning_Nm"], strict=False):
         if 0.5 < ti < STOP_S and wi == 1.0:
-            # tau0 is the paper's law of the game's Ay, exactly (same float operations).
+            # tau0 is the paper's law of the game's Ay as the tyre lags it (driving.TyreLag),
+            # exactly (same float operations).
             assert aligning == pytest.approx(k.k1_Nm_s2_m * ay / (1 + k.k2 * abs(ay) ** k.k3))
             checked += 1
     assert checked > 500

@@ -132,6 +132,23 @@ def register(commands: Any) -> None:
         help="--telemetry: your car map (profiles per car the game names: layout, presets, "
         "torque scale), over the one carfeel ships",
     )
+    run.add_argument(
+        "--interlock",
+        choices=("tell", "hold"),
+        default="tell",
+        help="--telemetry, --model hpattern: on a lever/game gear mismatch, tell the game the "
+        "lever's gear through --gear-output (tell, the default), or also push the lever out of "
+        "a gear the game stays in neutral on for 0.15 s (hold: it refused the shift)",
+    )
+    run.add_argument(
+        "--game-torque",
+        metavar="SHARE",
+        type=float,
+        default=0.0,
+        help="--telemetry, --model steering: the share of the aligning torque taken from the "
+        "game's own force feedback (iRacing's SteeringWheelTorque at 360 Hz, normalised by the "
+        "car profile's torque scale): 0 the law's alone (the default), 1 the game's instead",
+    )
     run.add_argument("--identify", choices=("auto", "full", "off"), default="auto",
                      help="how the device is known: auto (default: its stored profile checked "
                      "in a fraction of a second, else identified hands off in a few seconds and "
@@ -219,6 +236,8 @@ def _run(args: argparse.Namespace) -> int:
         gear_timing=args.gear_timing,
         gear_mapping=args.gear_mapping,
         car_presets=Path(args.car_presets) if args.car_presets else None,
+        game_torque=args.game_torque,
+        interlock=args.interlock,
         identify=args.identify,
         loop_cpu=args.loop_cpu,
         device_profile=Path(args.device_profile) if args.device_profile else None,

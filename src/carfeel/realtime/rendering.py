@@ -224,6 +224,9 @@ class HPatternRenderer:
         self.engine = engine_speed_rad_s
         self.clutch = clutch
         """An object with a `clutch_pedal` attribute (the virtual hand), or None (pressed)."""
+        self.cues: Any = None
+        """The game's cues on the knob (telemetry/cues.py `LeverCues`): called each sub-step
+        with the model's state, (x, y) N added to the hand's; None: no cues."""
         self.gears: list[str] = []
         self.substeps = 1
         """Model steps per tick (the loop at 1 kHz, the model up to 10 kHz)."""
@@ -264,7 +267,8 @@ class HPatternRenderer:
         forces: tuple[float, ...] = (hands[0], hands[1])
         event = ""
         for _ in range(self.substeps):
-            inputs = HPatternInputs(forces[0], forces[1], pedal, self.speed, self.engine)
+            cx, cy = self.cues(self.state) if self.cues is not None else (0.0, 0.0)
+            inputs = HPatternInputs(forces[0] + cx, forces[1] + cy, pedal, self.speed, self.engine)
             self.state, out = hpattern.step(self.state, inputs, self.pattern, h)
             if out.event.startswith("engage"):  # whichever sub-step it happens in
                 self.gears.append(out.gear)
@@ -372,6 +376,10 @@ class SteeringRenderer:
         self.effect = 0.0
         self.lateral_accel_m_s2: float | None = None
         """The game's Ay for tau0 (telemetry, already faded by its weight); None: the car's."""
+        self.game_torque_Nm: float | None = None
+        """The game's own FFB torque (model N*m, this law's sign, faded; telemetry/driving.py),
+        blended into tau0 by `game_torque_share`; None: tau0 is the law's alone."""
+        self.game_torque_share = 0.0
         fs, ps = scaling.force_scale, scaling.position_scale
         k = car.torque
         friction_level = fs * k.k7_Nm * math.pi / 2.0
@@ -443,6 +451,8 @@ class SteeringRenderer:
         else:
             ay = single_track.steady_state_lateral_accel(speed, angle, vehicle)
         aligning = k.k1_Nm_s2_m * ay / (1.0 + k.k2 * abs(ay) ** k.k3)
+        if self.game_torque_Nm is not None:
+            aligning += self.game_torque_share * (self.game_torque_Nm - aligning)
         if speed != self._scheduled_for:  # the schedule's values only change with the speed
             self._scheduled_for = speed
             self._spin_rate = self.tire_spin_rate(speed)

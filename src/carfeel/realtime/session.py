@@ -111,6 +111,12 @@ class RealtimeRun:
     """--gear-mapping: the binding the game expects (buttons, sequential)."""
     car_presets: Path | None = None
     """A TOML file mapping the car a format names to the presets for it."""
+    interlock: str = "tell"
+    """--telemetry, --model hpattern: on a lever/game gear mismatch, tell the game (the gear
+    output) or also hold: push the lever out of a gear the game stays in neutral on."""
+    game_torque: float = 0.0
+    """--telemetry, --model steering: the share of tau0 the game's own FFB torque takes (0 the
+    law's alone, 1 the game's; `telemetry.driving.GameTorque`)."""
     identify: str = "auto"
     """How the device is known (`realtime.knowledge`): auto (its profile checked, else
     identified hands off), full (identified), off (as declared, sized over DECLARED_SET)."""
@@ -367,6 +373,23 @@ def _check_telemetry(run: RealtimeRun) -> None:
         )
     if run.car_presets is not None and run.telemetry is None:
         raise InputError("--car-presets needs --telemetry (the format names the car)")
+    if run.interlock not in ("tell", "hold"):
+        raise InputError(f"--interlock {run.interlock!r}: choose tell or hold")
+    if run.interlock == "hold" and (run.telemetry is None or run.model != "hpattern"):
+        raise InputError(
+            "--interlock hold needs --model hpattern and --telemetry (the game's gear)"
+        )
+    if run.game_torque != 0.0:
+        if not 0.0 <= run.game_torque <= 1.0:  # NaN fails too
+            raise InputError(
+                f"--game-torque {run.game_torque:g}: a share from 0 (the law's tau0) to 1 "
+                "(the game's own force-feedback torque instead)"
+            )
+        if run.telemetry is None or run.model != "steering" or run.steering_model == "physical":
+            raise InputError(
+                "--game-torque blends the game's force-feedback torque into the paper law's "
+                "tau0: it needs --model steering (--steering-model paper) and --telemetry"
+            )
     if run.telemetry is not None:
         from carfeel.telemetry.receiver import parse_source
 
@@ -594,6 +617,7 @@ def _run_realtime(
         if profile is not None:
             preset_name = profile.presets.get(run.model) or preset_name
             receiver.notes.append(profile.describe(run.model))
+            receiver.torque_scale_Nm = profile.torque_scale_Nm
     # The device first: the scales come from its limits (its hand, if virtual, comes after).
     device = open_device(
         run.device, None, run.seed, kind, run.device_max_force, run.device_travel, delay,
@@ -833,6 +857,7 @@ def _drive_by_telemetry(
 ) -> Any:
     """The renderer wrapped so the game's vehicle state drives it (`carfeel.telemetry.driving`)."""
     from carfeel.telemetry import driving
+    from carfeel.telemetry.cues import LeverCues
     from carfeel.telemetry.gearout import GearDriver, open_gear_output
     from carfeel.telemetry.source import VehicleSource
 
@@ -848,7 +873,19 @@ def _drive_by_telemetry(
         if output is not None:
             gear_driver = GearDriver(output, renderer.pattern.layout, run.gear_timing,
                                      run.gear_mapping, run.rate_hz)  # fmt: skip
-    return driving.TelemetryDriven(renderer, source, run.model, vibration, gear_driver)
+    cues = (
+        None
+        if steering
+        else LeverCues(renderer.pattern, run.rate_hz, None, run.interlock == "hold")
+    )
+    game_torque = None
+    if steering and run.game_torque > 0.0:  # the model's torque at the device's full force
+        full = info.max_force / renderer.scaling.force_scale
+        recorded = getattr(receiver.source, "path", None) is not None  # a file image
+        game_torque = driving.GameTorque(run.game_torque, full, receiver.torque_scale_Nm, recorded)
+    return driving.TelemetryDriven(
+        renderer, source, run.model, vibration, gear_driver, game_torque, cues
+    )
 
 
 def stability_figure(sizing: Sizing, info: DeviceInfo, rate_hz: float) -> dict[str, float]:

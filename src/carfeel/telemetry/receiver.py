@@ -238,6 +238,8 @@ class Receiver:
         self.car = ""
         self.notes: list[str] = []
         """What the run's summary should say of this source (the car's profile)."""
+        self.torque_scale_Nm = math.nan
+        """The car profile's torque scale (the game's torque at the wheel's full force), N*m."""
         self.subscribed = False
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, buffer_bytes)

@@ -287,6 +287,8 @@ class MapReceiver:
         self.first_error = ""
         self.notes: list[str] = []
         """What the run's summary should say of this source (the car's profile)."""
+        self.torque_scale_Nm = math.nan
+        """The car profile's torque scale (the game's torque at the wheel's full force), N*m."""
         self.first_ns = self.arrival_ns = 0
         self.socket = None
         self.where = source.where

@@ -85,6 +85,9 @@ def gear_name(gear: int) -> str:
 MAX_GEAR = 24
 """Trucks have up to 18 forward gears (ETS2's gearboxes to 16+2); a little more."""
 
+MAX_WHEEL_TORQUE_NM = 200.0
+"""A steering column's torque: a truck's unassisted wheel is some tens of N*m."""
+
 BAD = VehicleState(speed_m_s=math.inf)
 """What a decoder returns for a datagram of the right size that is not a packet of its format
 (garbage, a field out of the game's own range): it fails `plausible`, so it is counted bad."""
@@ -93,8 +96,9 @@ BAD = VehicleState(speed_m_s=math.inf)
 def plausible(state: VehicleState) -> bool:
     """The check every decoded packet passes once, at the boundary: finite where present and within
     what a car can do (speed < 150 m/s, |Ay| < 60 m/s^2, rpm < 30000, gear -1..24, pedals 0..1
-    with a little slack for float noise). The decoders check their format's own fields first
-    (car ids, flags, ranges the game keeps) and return `BAD` where one is off."""
+    with a little slack for float noise, the wheel's torque within 200 N*m). The decoders check
+    their format's own fields first (car ids, flags, ranges the game keeps) and return `BAD`
+    where one is off."""
     s = state
     for value, bound in (
         (s.speed_m_s, 150.0),
@@ -110,6 +114,9 @@ def plausible(state: VehicleState) -> bool:
             return False
     if not (abs(s.time_s) < 1e10 or math.isnan(s.time_s)):
         return False  # 300 years: no game's clock
+    for torque in (s.wheel_torque_Nm, *s.wheel_torque_samples_Nm):
+        if not (abs(torque) <= MAX_WHEEL_TORQUE_NM or math.isnan(torque)):
+            return False
     return -1 <= s.gear <= MAX_GEAR and (
         s.engine_speed_rpm >= 0.0 or math.isnan(s.engine_speed_rpm)
     )
