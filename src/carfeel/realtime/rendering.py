@@ -27,14 +27,15 @@ import math
 from dataclasses import dataclass
 from typing import Any, Protocol
 
+from carfeel.models.drivers.shift import ShiftDriverParams
 from carfeel.models.gearshift import engagement, hpattern
-from carfeel.models.gearshift.engagement import EngagementParams
+from carfeel.models.gearshift.engagement import EngagementParams, Stage
 from carfeel.models.gearshift.hpattern import HPatternInputs, HPatternParams
 from carfeel.models.vehicle import single_track
 from carfeel.models.vehicle.single_track import VehicleInputs
 from carfeel.realtime.devices.base import DeviceInfo, DeviceSample
 from carfeel.realtime.filters import SosFilter, butterworth, butterworth_sections
-from carfeel.realtime.stability import Sizing
+from carfeel.realtime.stability import RingWall, Sizing
 from carfeel.simulation.steering import SteeringCar
 
 MODES = ("admittance", "impedance")
@@ -71,9 +72,36 @@ class Gains:
         return cls(k, b, k * to_model, b * to_model, k, b)
 
 
+WALL_FADE_S = 0.01
+"""Time constant (s) over which the ring wall's force beyond the coupling's hands over to it
+once the ring stops blocking (the gate opens): the lever takes the push it held, no step."""
+
+
 def default_scaling(model_force: float, model_travel: float, info: DeviceInfo) -> Scaling:
     """The largest scales that fit the device: 90 % of its force, all of its travel."""
     return Scaling(0.9 * info.max_force / model_force, info.travel / model_travel)
+
+
+def ring_wall(
+    info: DeviceInfo, rate_hz: float, scaling: Scaling, driver: ShiftDriverParams
+) -> RingWall:
+    """The synchronizer ring's wall on this device for the preset's hand (the paper's eq. (10)
+    muscle: a push F brings F / V0 of damping at the knob, and the hand's mass), in device
+    units through the scales (`stability.size_ring_wall`)."""
+    from carfeel.realtime import stability
+
+    fs, ps = scaling.force_scale, scaling.position_scale
+    return stability.size_ring_wall(
+        info,
+        rate_hz,
+        velocity_sections(rate_hz),
+        hand_damping_per_N=1.0 / (driver.push_velocity_m_s * ps),
+        hand=(
+            driver.hand_mass_kg * fs / ps,
+            driver.hand_stiffness_N_m * fs / ps,
+            driver.hand_damping_N_s_m * fs / ps,
+        ),
+    )
 
 
 def velocity_sections(rate_hz: float) -> tuple[tuple[float, float, float, float, float], ...]:
@@ -130,9 +158,14 @@ class ShiftRenderer:
         rate_hz: float,
         gains: Gains,
         seed: int = 0,
+        wall: RingWall | None = None,
     ) -> None:
         self.gearbox, self.mode, self.scaling = gearbox, mode, scaling
         self.g = gains
+        self.wall = wall
+        """The ring while it blocks (None: the coupling or servo holds it, as any stage)."""
+        self._held = 0.0
+        """Device units: what the wall pushed beyond the coupling's spring, fading out."""
         self.effect = 0.0
         self.state = engagement.initial_state(seed)
         self.display = butterworth(DISPLAY_CUTOFF_HZ, rate_hz)
@@ -146,6 +179,12 @@ class ShiftRenderer:
         parameters; a live panel calls it in neutral, blending old into new over a ramp)."""
         self.gearbox = gearbox
 
+    def _fade(self, dt_s: float) -> float:
+        """The ring wall's force beyond the coupling's, fading once the ring let go."""
+        if self._held:
+            self._held *= math.exp(-dt_s / WALL_FADE_S)
+        return self._held
+
     def tick(
         self, sample: DeviceSample, dt_s: float
     ) -> tuple[tuple[float, ...], tuple[object, ...]]:
@@ -155,17 +194,36 @@ class ShiftRenderer:
         y_dev, vy_dev = self.ry.step(sample.positions[1], dt_s)
         lever = self.state
         h = dt_s / self.substeps
-        if self.mode == "admittance":
+        wall = self.wall
+        if wall is not None and lever.stage is Stage.SYNCHRONIZATION:
+            # The ring blocks: the same wall in either mode (the lever stands still, so the
+            # servo and the coupling are both a spring to where it stands).
+            stretch = x_dev - lever.position_m * ps
+            push = wall.force(stretch, vx_dev)
+            self._held = wall.force(stretch, 0.0) - g.servo_stiffness * stretch
+            hand = push / fs
+            for _ in range(self.substeps):
+                self.state, out = engagement.step(
+                    self.state, engagement.EngagementInputs(hand), self.gearbox, h
+                )
+            command_x = -push
+        elif self.mode == "admittance":
+            held = self._fade(dt_s)
             servo = g.servo_stiffness * (lever.position_m * ps - x_dev) - g.servo_damping * vx_dev
-            hand = -servo / fs
+            hand = (held - servo) / fs
             for _ in range(self.substeps):  # the estimate is held over the tick
                 self.state, out = engagement.step(
                     self.state, engagement.EngagementInputs(hand), self.gearbox, h
                 )
-            command_x = g.servo_stiffness * (out.position_m * ps - x_dev) - g.servo_damping * vx_dev
+            command_x = (
+                g.servo_stiffness * (out.position_m * ps - x_dev) - g.servo_damping * vx_dev - held
+            )
         else:
-            hand = g.coupling_stiffness * (x_dev / ps - lever.position_m) + g.coupling_damping * (
-                vx_dev / ps - lever.velocity_m_s
+            held = self._fade(dt_s) / fs
+            hand = (
+                g.coupling_stiffness * (x_dev / ps - lever.position_m)
+                + g.coupling_damping * (vx_dev / ps - lever.velocity_m_s)
+                + held
             )
             coupling = hand
             for _ in range(self.substeps):  # the handle is held, the lever moves
@@ -173,7 +231,7 @@ class ShiftRenderer:
                     self.state, engagement.EngagementInputs(coupling), self.gearbox, h
                 )
                 coupling = g.coupling_stiffness * (x_dev / ps - out.position_m) + (
-                    g.coupling_damping * (vx_dev / ps - out.velocity_m_s)
+                    g.coupling_damping * (vx_dev / ps - out.velocity_m_s) + held
                 )
             command_x = -coupling * fs
         command_y = -g.hold_stiffness * y_dev - g.hold_damping * vy_dev

@@ -39,6 +39,7 @@ from carfeel.realtime.rendering import (
     SteeringRenderer,
     SteeringRendering,
     default_scaling,
+    ring_wall,
     velocity_sections,
 )
 from carfeel.realtime.safety import SafetyLimits
@@ -678,8 +679,11 @@ def _render(
                     pushing.state.phase.value == "release" and pushing.state.activation < 0.05
                 ),
             )
+        # The ring blocks only while the hand pushes: sized for the preset's hand on it.
+        wall = ring_wall(info, run.rate_hz, scaling, shift.driver)
         renderer = ShiftRenderer(shift.gearbox, run.mode, scaling, run.rate_hz,
-                                 Gains.sized(sizing, scaling), seed=run.seed)  # fmt: skip
+                                 Gains.sized(sizing, scaling), seed=run.seed,
+                                 wall=wall)  # fmt: skip
         duration = duration or 2.0 + ready_s
     elif run.model == "hpattern":
         _refuse_soft(info, sizing, run)
