@@ -372,7 +372,7 @@ class RingWall:
         return fs[i] + slope * (stretch - xs[i]) + self.dampings[i] * velocity
 
 
-RING_PUSH_SHARES = (0.0, 0.05, 0.1, 0.2, 0.35, 0.5, 0.75, 1.0)
+RING_PUSH_SHARES = (0.0, 0.025, 0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0)
 """Pushes (shares of the device's force limit) at which the ring wall's pieces begin and end."""
 RING_DAMPING_SHARES = (0.0, 0.5, 1.0)
 """Shares of the sized damper tried on each piece (a hand's muscle damps the handle already:
