@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from carfeel.errors import InputError
 from carfeel.io.presets import load_shift
 from carfeel.realtime import rendering, session, stability
 from carfeel.realtime.rendering import velocity_sections
@@ -70,6 +71,24 @@ def plateau(device: str, mode: str, seed: int, wall: bool, folder: Path) -> dict
     }
 
 
+def identified(device: str, delay_ms: float) -> Any:
+    """The device's info as the session's identification finds it at that delay each way."""
+    info: list[Any] = []
+    original = stability.size
+
+    def spy(device_info: Any, *rest: Any) -> Any:
+        info.append(device_info)
+        return original(device_info, *rest)
+
+    setattr(stability, "size", spy)  # noqa: B010
+    try:
+        run_realtime(RealtimeRun(model="shift", clock="simulated", device=device,
+                                 device_delay_ms=delay_ms, duration_s=0.05))  # fmt: skip
+    finally:
+        setattr(stability, "size", original)  # noqa: B010
+    return info[-1]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=3)
@@ -105,23 +124,28 @@ def main() -> None:
             print(f"{'':29s} travel, wall / coupling: {min(ratio):.2f}-{max(ratio):.2f}")
     shift = load_shift().params
     sections = velocity_sections(1000.0)
+    print("What each delay allows (the device identified at it): the stretch that holds the")
+    print("preset's 78.5 N push on the coupling alone (push / sized spring) and on the wall")
     for device in DEVICES:
-        info: list[Any] = []
-        original = stability.size
-
-        def spy(
-            device_info: Any, *rest: Any, original: Any = original, info: list[Any] = info
-        ) -> Any:
-            info.append(device_info)
-            return original(device_info, *rest)
-
-        stability.size = spy  # type: ignore[assignment]
-        try:
-            run_realtime(RealtimeRun(model="shift", clock="simulated", device=device,
-                                     duration_s=0.05))  # fmt: skip
-        finally:
-            stability.size = original
-        known = info[-1]
+        for delay_ms in (0.0, 1.0, 2.0, 3.0, 4.0):
+            try:
+                known = identified(device, delay_ms)
+            except InputError as refused:
+                print(f"  {device} {delay_ms:g} ms each way: refused ({str(refused)[:60]}...)")
+                continue
+            scaling = rendering.default_scaling(
+                session.MODEL_FORCE_N, shift.gearbox.in_gear_position_m + 0.005, known
+            )
+            push = shift.driver.push_force_N * scaling.force_scale
+            sized = stability.size(known, 1000.0, sections)
+            wall = rendering.ring_wall(known, 1000.0, scaling, shift.driver)
+            at = float(np.interp(push, wall.forces, wall.stretches))
+            on_spring = push / sized.stiffness
+            print(f"  {device} {delay_ms:g} ms each way: spring {sized.stiffness:.0f} N/m, "
+                  f"{push:.1f} N at {1e3 * on_spring:.1f} mm on it, "
+                  f"{1e3 * at:.1f} mm on the wall (x{at / on_spring:.2f})")  # fmt: skip
+    for device in DEVICES:
+        known = identified(device, 2.0)
         scaling = rendering.default_scaling(
             session.MODEL_FORCE_N, shift.gearbox.in_gear_position_m + 0.005, known
         )
