@@ -188,3 +188,45 @@ def test_a_hand_that_lets_go_against_the_ring_leaves_a_handle_at_rest(kind):
     commands = np.array([f for _, f in sent])
     assert np.ptp(commands) <= 0.05 * info.max_force
     assert math.isfinite(float(commands[-1]))
+
+
+def shift_with(kind: str, driver, walled: bool):
+    """The shift on a virtual device with the hand `driver`, the wall sized for the preset's
+    hand (or none): the loop's summary."""
+    shift = load_shift().params
+    probe = virtual_device(kind)
+    scaling = default_scaling(100.0, shift.gearbox.in_gear_position_m + 0.005, probe.info)
+    hand = ShiftHand(driver, scaling.force_scale, scaling.position_scale, 0.1)
+    device = virtual_device(kind, hand)
+    info = device.info
+    sizing = stability.size(info, 1000.0, SECTIONS)
+    wall = ring_wall(info, 1000.0, scaling, shift.driver) if walled else None
+    renderer = ShiftRenderer(shift.gearbox, "impedance", scaling, 1000.0,
+                             Gains.sized(sizing, scaling), wall=wall)  # fmt: skip
+    limits = SafetyLimits(max_force=info.max_force, max_slew_per_s=200.0 * info.max_force)
+    with device:
+        return run_loop(renderer, device, SimulatedClock(), LoopConfig(1000.0, 2.0, False),
+                        limits)  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("speed", "damping", "grip"), [(4.0, 0.25, 1.0), (1.0, 0.25, 3.0), (2.0, 0.5, 0.3)]
+)
+@pytest.mark.parametrize("kind", ["joystick", "shifter"])
+def test_a_hand_unlike_the_one_the_wall_was_sized_for(kind, speed, damping, grip):
+    """The wall is sized for the preset's hand; a driver's hand with 4x the muscle's V0 (a
+    quarter of its damping per newton), a quarter of the grip's damping, a grip 3x as stiff or
+    a third as stiff: no fault, and every gear the coupling alone engages (some of these hands
+    do not finish the shift in 2 s on either rendering; the brisk, lightly damped one on the
+    joystick does only on the wall)."""
+    base = load_shift().params.driver
+    driver = dataclasses.replace(
+        base,
+        push_velocity_m_s=speed * base.push_velocity_m_s,
+        hand_damping_N_s_m=damping * base.hand_damping_N_s_m,
+        hand_stiffness_N_m=grip * base.hand_stiffness_N_m,
+    )
+    walled = shift_with(kind, driver, walled=True)
+    assert walled.faults == []
+    coupled = shift_with(kind, driver, walled=False).gears
+    assert walled.gears[: len(coupled)] == coupled
