@@ -715,6 +715,7 @@ def _render(
             run.mode, scaling, run.rate_hz, gains,
             seed=run.seed, vehicle_speed_m_s=run.speed_kmh / 3.6,
             engine_speed_rad_s=800 * math.pi / 30, clutch=hand if virtual else None,
+            wall=ring_wall(info, run.rate_hz, scaling, preset.shift.driver),
         )  # fmt: skip
         duration = duration or 1.2 * len(run.sequence) + 1.0 + ready_s
     else:
