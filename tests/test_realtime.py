@@ -123,17 +123,15 @@ def test_the_6r_lockout_the_physics_synchronizer_and_pulling_out_on_a_device(mod
 
 def test_the_plateau_and_the_filtered_force_as_the_paper_measured(tmp_path):
     """Admittance as the paper: the hand's force comes from the servo's effort. The paper's DSP
-    rendered with no transport delay: on the joystick with none, the synchronization plateau
-    read through the 20 Hz low-pass settles near the driver's F_max (the last third of it within
-    8 %: the potentiometer's noise, the servo's own dynamics, and a servo sized for the device's
-    reports at any phase of the loop's tick, up to a tick of delay the paper's DSP did not
-    have: 5 % held when the device was taken as told). With 2 ms each way the servo must be
-    softer (stability), the handle sinks further while the hand's push builds, and the plateau
-    reaches F_max only toward its end: within 15 %, the servo being sized for the corner of the
-    identified plant's uncertainty (10 % held for the plant exactly as told). Both on the
+    rendered with no transport delay; the ring is rendered as a wall that stiffens with the
+    push (issue 30), so with none and with 2 ms each way the synchronization plateau read
+    through the 20 Hz low-pass settles near the driver's F_max: the last third of it within
+    5 % (measured 1.7 % and 2.6 %: the wall's stretch still grows a little while the hand's
+    muscle pushes against it, eq. 10; on the servo alone it was 5.8 % and 14.8 %, the handle
+    sinking into it while the push builds, so the check fails without the wall). Both on the
     device identified afresh."""
     push = load_shift().params.driver.push_force_N
-    for delay_ms, tolerance in ((0.0, 0.08), (2.0, 0.15)):
+    for delay_ms, tolerance in ((0.0, 0.05), (2.0, 0.05)):
         record = tmp_path / f"adm{delay_ms:g}.csv"
         run_realtime(RealtimeRun(model="shift", mode="admittance", clock="simulated",
                                  record=record, device_delay_ms=delay_ms,

@@ -27,14 +27,15 @@ import math
 from dataclasses import dataclass
 from typing import Any, Protocol
 
+from carfeel.models.drivers.shift import ShiftDriverParams
 from carfeel.models.gearshift import engagement, hpattern
-from carfeel.models.gearshift.engagement import EngagementParams
+from carfeel.models.gearshift.engagement import EngagementParams, Stage
 from carfeel.models.gearshift.hpattern import HPatternInputs, HPatternParams
 from carfeel.models.vehicle import single_track
 from carfeel.models.vehicle.single_track import VehicleInputs
 from carfeel.realtime.devices.base import DeviceInfo, DeviceSample
 from carfeel.realtime.filters import SosFilter, butterworth, butterworth_sections
-from carfeel.realtime.stability import Sizing
+from carfeel.realtime.stability import RingWall, Sizing
 from carfeel.simulation.steering import SteeringCar
 
 MODES = ("admittance", "impedance")
@@ -71,9 +72,59 @@ class Gains:
         return cls(k, b, k * to_model, b * to_model, k, b)
 
 
+WALL_FADE_S = 0.01
+"""Time constant (s) over which the ring wall's force beyond the coupling's hands over to it
+once the ring stops blocking (the gate opens): the lever takes the push it held, no step."""
+
+
+class RingHold:
+    """The ring wall in a renderer (device units): while the ring blocks, the wall's force on
+    the stretch past the blocked position; once it lets go, what the wall held beyond the
+    coupling's spring (stiffness `coupling`, device units), fading over WALL_FADE_S."""
+
+    __slots__ = ("coupling", "held", "wall")
+
+    def __init__(self, wall: RingWall, coupling: float) -> None:
+        self.wall, self.coupling = wall, coupling
+        self.held = 0.0
+
+    def block(self, stretch: float, velocity: float) -> float:
+        """The wall's force while the ring blocks (pushing back: the command is its negative)."""
+        self.held = self.wall.force(stretch, 0.0) - self.coupling * stretch
+        return self.wall.force(stretch, velocity)
+
+    def fade(self, dt_s: float) -> float:
+        """Out of the block: the held force, fading."""
+        if self.held:
+            self.held *= math.exp(-dt_s / WALL_FADE_S)
+        return self.held
+
+
 def default_scaling(model_force: float, model_travel: float, info: DeviceInfo) -> Scaling:
     """The largest scales that fit the device: 90 % of its force, all of its travel."""
     return Scaling(0.9 * info.max_force / model_force, info.travel / model_travel)
+
+
+def ring_wall(
+    info: DeviceInfo, rate_hz: float, scaling: Scaling, driver: ShiftDriverParams
+) -> RingWall:
+    """The synchronizer ring's wall on this device for the preset's hand (the paper's eq. (10)
+    muscle: a push F brings F / V0 of damping at the knob, and the hand's mass), in device
+    units through the scales (`stability.size_ring_wall`)."""
+    from carfeel.realtime import stability
+
+    fs, ps = scaling.force_scale, scaling.position_scale
+    return stability.size_ring_wall(
+        info,
+        rate_hz,
+        velocity_sections(rate_hz),
+        hand_damping_per_N=1.0 / (driver.push_velocity_m_s * ps),
+        hand=(
+            driver.hand_mass_kg * fs / ps,
+            driver.hand_stiffness_N_m * fs / ps,
+            driver.hand_damping_N_s_m * fs / ps,
+        ),
+    )
 
 
 def velocity_sections(rate_hz: float) -> tuple[tuple[float, float, float, float, float], ...]:
@@ -130,9 +181,12 @@ class ShiftRenderer:
         rate_hz: float,
         gains: Gains,
         seed: int = 0,
+        wall: RingWall | None = None,
     ) -> None:
         self.gearbox, self.mode, self.scaling = gearbox, mode, scaling
         self.g = gains
+        self.ring = None if wall is None else RingHold(wall, gains.servo_stiffness)
+        """The ring while it blocks (None: the coupling or servo holds it, as any stage)."""
         self.effect = 0.0
         self.state = engagement.initial_state(seed)
         self.display = butterworth(DISPLAY_CUTOFF_HZ, rate_hz)
@@ -155,17 +209,34 @@ class ShiftRenderer:
         y_dev, vy_dev = self.ry.step(sample.positions[1], dt_s)
         lever = self.state
         h = dt_s / self.substeps
-        if self.mode == "admittance":
+        ring = self.ring
+        if ring is not None and lever.stage is Stage.SYNCHRONIZATION:
+            # The ring blocks: the same wall in either mode (the lever stands still, so the
+            # servo and the coupling are both a spring to where it stands).
+            push = ring.block(x_dev - lever.position_m * ps, vx_dev)
+            hand = push / fs
+            for _ in range(self.substeps):
+                self.state, out = engagement.step(
+                    self.state, engagement.EngagementInputs(hand), self.gearbox, h
+                )
+            command_x = -push
+        elif self.mode == "admittance":
+            held = 0.0 if ring is None else ring.fade(dt_s)
             servo = g.servo_stiffness * (lever.position_m * ps - x_dev) - g.servo_damping * vx_dev
-            hand = -servo / fs
+            hand = (held - servo) / fs
             for _ in range(self.substeps):  # the estimate is held over the tick
                 self.state, out = engagement.step(
                     self.state, engagement.EngagementInputs(hand), self.gearbox, h
                 )
-            command_x = g.servo_stiffness * (out.position_m * ps - x_dev) - g.servo_damping * vx_dev
+            command_x = (
+                g.servo_stiffness * (out.position_m * ps - x_dev) - g.servo_damping * vx_dev - held
+            )
         else:
-            hand = g.coupling_stiffness * (x_dev / ps - lever.position_m) + g.coupling_damping * (
-                vx_dev / ps - lever.velocity_m_s
+            held = 0.0 if ring is None else ring.fade(dt_s) / fs
+            hand = (
+                g.coupling_stiffness * (x_dev / ps - lever.position_m)
+                + g.coupling_damping * (vx_dev / ps - lever.velocity_m_s)
+                + held
             )
             coupling = hand
             for _ in range(self.substeps):  # the handle is held, the lever moves
@@ -173,7 +244,7 @@ class ShiftRenderer:
                     self.state, engagement.EngagementInputs(coupling), self.gearbox, h
                 )
                 coupling = g.coupling_stiffness * (x_dev / ps - out.position_m) + (
-                    g.coupling_damping * (vx_dev / ps - out.velocity_m_s)
+                    g.coupling_damping * (vx_dev / ps - out.velocity_m_s) + held
                 )
             command_x = -coupling * fs
         command_y = -g.hold_stiffness * y_dev - g.hold_damping * vy_dev
@@ -211,9 +282,12 @@ class HPatternRenderer:
         vehicle_speed_m_s: float = 0.0,
         engine_speed_rad_s: float = 0.0,
         clutch: object = None,
+        wall: RingWall | None = None,
     ) -> None:
         self.pattern, self.mode, self.scaling = pattern, mode, scaling
         self.g = gains
+        self.ring = None if wall is None else RingHold(wall, gains.servo_stiffness)
+        """The ring on x while it blocks (None: the coupling or servo holds it)."""
         self.effect = 0.0
         """The vibrations (click, grinding) added to this tick's command on the first axis:
         the oscillation guard looks past them."""
@@ -250,17 +324,28 @@ class HPatternRenderer:
         y_dev, vy_dev = self.ry.step(sample.positions[1], dt_s)
         devices, v_dev = (x_dev, y_dev), (vx_dev, vy_dev)
         model = self._model_xy()
+        ring, d = self.ring, self.state.direction
+        blocked = ring is not None and self.state.lever.stage is Stage.SYNCHRONIZATION
+        push = held = 0.0  # device units along the slot (toward the gear)
+        if ring is not None:
+            if blocked:  # the ring blocks x: its wall, in either mode (see ShiftRenderer)
+                push = ring.block(d * (x_dev - model[0] * ps), d * vx_dev)
+            else:
+                held = ring.fade(dt_s)
         hands = []
         for axis in (0, 1):
-            if self.mode == "admittance":
+            if axis == 0 and blocked:
+                hands.append(d * push / fs)
+            elif self.mode == "admittance":
                 servo = g.servo_stiffness * (model[axis] * ps - devices[axis]) - (
                     g.servo_damping * v_dev[axis]
                 )
-                hands.append(-servo / fs)
+                hands.append(-servo / fs + (d * held / fs if axis == 0 else 0.0))
             else:
                 hands.append(
                     g.coupling_stiffness * (devices[axis] / ps - model[axis])
                     + g.coupling_damping * (v_dev[axis] / ps - model[axis + 2])
+                    + (d * held / fs if axis == 0 else 0.0)
                 )
         pedal = float(getattr(self.clutch, "clutch_pedal", 1.0))
         h = dt_s / self.substeps
@@ -278,23 +363,29 @@ class HPatternRenderer:
             if self.mode == "impedance":  # the handle is held, the knob moves
                 m = self._model_xy()
                 forces = tuple(
-                    g.coupling_stiffness * (devices[a] / ps - m[a])
+                    hands[0]
+                    if a == 0 and blocked
+                    else g.coupling_stiffness * (devices[a] / ps - m[a])
                     + g.coupling_damping * (v_dev[a] / ps - m[a + 2])
+                    + (d * held / fs if a == 0 else 0.0)
                     for a in (0, 1)
                 )
         after = self._model_xy()
         commands = []
         for axis in (0, 1):
-            if self.mode == "admittance":
+            if axis == 0 and blocked:
+                commands.append(-d * push)
+            elif self.mode == "admittance":
                 commands.append(
                     g.servo_stiffness * (after[axis] * ps - devices[axis])
                     - g.servo_damping * v_dev[axis]
+                    - (d * held if axis == 0 else 0.0)
                 )
             else:
                 coupling = g.coupling_stiffness * (devices[axis] / ps - after[axis]) + (
                     g.coupling_damping * (v_dev[axis] / ps - after[axis + 2])
                 )
-                commands.append(-coupling * fs)
+                commands.append(-coupling * fs - (d * held if axis == 0 else 0.0))
         # The click and the grinding are rendered on top, as the gearbox's vibrations.
         self.effect = (out.click_N + out.grind_N) * math.copysign(1.0, out.x_m or 1.0) * fs
         commands[0] += self.effect

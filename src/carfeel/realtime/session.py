@@ -39,6 +39,7 @@ from carfeel.realtime.rendering import (
     SteeringRenderer,
     SteeringRendering,
     default_scaling,
+    ring_wall,
     velocity_sections,
 )
 from carfeel.realtime.safety import SafetyLimits
@@ -702,8 +703,11 @@ def _render(
                     pushing.state.phase.value == "release" and pushing.state.activation < 0.05
                 ),
             )
+        # The ring blocks only while the hand pushes: sized for the preset's hand on it.
+        wall = ring_wall(info, run.rate_hz, scaling, shift.driver)
         renderer = ShiftRenderer(shift.gearbox, run.mode, scaling, run.rate_hz,
-                                 Gains.sized(sizing, scaling), seed=run.seed)  # fmt: skip
+                                 Gains.sized(sizing, scaling), seed=run.seed,
+                                 wall=wall)  # fmt: skip
         duration = duration or 2.0 + ready_s
     elif run.model == "hpattern":
         _refuse_soft(info, sizing, run)
@@ -735,6 +739,7 @@ def _render(
             run.mode, scaling, run.rate_hz, gains,
             seed=run.seed, vehicle_speed_m_s=run.speed_kmh / 3.6,
             engine_speed_rad_s=800 * math.pi / 30, clutch=hand if virtual else None,
+            wall=ring_wall(info, run.rate_hz, scaling, preset.shift.driver),
         )  # fmt: skip
         duration = duration or 1.2 * len(run.sequence) + 1.0 + ready_s
     else:

@@ -27,8 +27,10 @@ This runs once at start-up (numpy and scipy are fine there); nothing here runs p
 
 from __future__ import annotations
 
+import bisect
 import dataclasses
 import functools
+import itertools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -66,6 +68,9 @@ class AxisLoop:
     velocity_sections: Sections
     stiffness: float = 0.0
     """The device's own centring spring (or a grip on it), N/m or Nm/rad."""
+    hand: tuple[float, float, float, float] | None = None
+    """A hand on the handle (device units): its mass, its grip's stiffness and damping to the
+    handle, and the damping its muscle puts on the hand's own velocity; None: hands off."""
 
     @classmethod
     def of(
@@ -138,43 +143,64 @@ def goal_of(axis: AxisLoop, zeta_min: float) -> float:
 
 @functools.lru_cache(maxsize=128)
 def _device_step(
-    mass: float, damping: float, stiffness: float, period: float, fraction: float
+    mass: float,
+    damping: float,
+    stiffness: float,
+    period: float,
+    fraction: float,
+    hand: tuple[float, float, float, float] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Exact zero-order-hold discretization of m*x'' = u - b*x' - k*x with the input held
-    `fraction` of a tick late: (Phi, Gamma for this tick's command, Gamma for the one before).
+    """Exact zero-order-hold discretization of m*x'' = u - b*x' - k*x (and of a hand held to
+    the handle by its grip, when given) with the input held `fraction` of a tick late: (Phi,
+    Gamma for this tick's command, Gamma for the one before); the state (x, v[, x_h, v_h]).
     Cached: a sizing builds hundreds of loops of one device (the arrays are never written to)."""
     from scipy.linalg import expm
 
-    a = np.array(
-        [[0.0, 1.0, 0.0], [-stiffness / mass, -damping / mass, 1.0 / mass], [0.0, 0.0, 0.0]]
-    )
+    if hand is None:
+        a = np.array(
+            [[0.0, 1.0, 0.0], [-stiffness / mass, -damping / mass, 1.0 / mass], [0.0, 0.0, 0.0]]
+        )
+    else:
+        m_h, k_h, c_h, c_m = hand
+        a = np.array(
+            [
+                [0.0, 1.0, 0.0, 0.0, 0.0],
+                [-(stiffness + k_h) / mass, -(damping + c_h) / mass, k_h / mass, c_h / mass,
+                 1.0 / mass],
+                [0.0, 0.0, 0.0, 1.0, 0.0],
+                [k_h / m_h, c_h / m_h, -k_h / m_h, -(c_h + c_m) / m_h, 0.0],
+                [0.0, 0.0, 0.0, 0.0, 0.0],
+            ]
+        )  # fmt: skip
+    n = a.shape[0] - 1
     whole = expm(a * period)
     if fraction <= 0.0:
-        return whole[:2, :2], whole[:2, 2], np.zeros(2)
+        return whole[:n, :n], whole[:n, n], np.zeros(n)
     late = expm(a * (1.0 - fraction) * period)  # the current command over the tick's end
     early = expm(a * fraction * period)  # the previous one over its start
     # The previous command acts first, then the state moves on under the current one.
-    previous = late[:2, :2] @ early[:2, 2]
-    return whole[:2, :2], late[:2, 2], previous
+    previous = late[:n, :n] @ early[:n, n]
+    return whole[:n, :n], late[:n, n], previous
 
 
 def closed_loop(axis: AxisLoop, environment: Environment, environment_size: int) -> np.ndarray:
     """The matrix of the hands-off loop over one tick (see the module's docstring)."""
     period = 1.0 / axis.rate_hz
     phi, gamma, gamma_previous = _device_step(
-        axis.mass, axis.damping, axis.stiffness, period, axis.delay_fraction
+        axis.mass, axis.damping, axis.stiffness, period, axis.delay_fraction, axis.hand
     )
+    d = len(gamma)
     fractional = axis.delay_fraction > 0.0
     nc = axis.delay_ticks + (1 if fractional else 0)
     ns = len(axis.velocity_sections)
-    n = 2 + nc + 1 + 2 * ns + environment_size
+    n = d + nc + 1 + 2 * ns + environment_size
 
     def step(z: np.ndarray) -> np.ndarray:
-        x, v = z[0], z[1]
-        past_u = z[2 : 2 + nc]
-        y_prev = z[2 + nc]
-        filt = z[3 + nc : 3 + nc + 2 * ns]
-        env = z[3 + nc + 2 * ns :]
+        x = z[0]
+        past_u = z[d : d + nc]
+        y_prev = z[d + nc]
+        filt = z[d + 1 + nc : d + 1 + nc + 2 * ns]
+        env = z[d + 1 + nc + 2 * ns :]
         y = x
         signal = (y - y_prev) / period
         new_filt = []
@@ -186,7 +212,7 @@ def closed_loop(axis: AxisLoop, environment: Environment, environment_size: int)
         env_next, u = environment(env, y, signal)
         whole = axis.delay_ticks
         applied = past_u[whole - 1] if whole else u
-        dev = phi @ np.array([x, v]) + gamma * applied
+        dev = phi @ z[:d] + gamma * applied
         if fractional:
             dev = dev + gamma_previous * past_u[whole]
         return np.concatenate(
@@ -317,3 +343,86 @@ def size(
         (k * (0.5 * period + info.latency_s) + b) / info.damping if info.damping > 0 else math.inf
     )
     return Sizing(k, b, damping_cap, zeta_of(axis, k, b), info.latency_s, passivity)
+
+
+@dataclass(frozen=True, slots=True)
+class RingWall:
+    """A blocking stage's wall that stiffens with the push, device units: piecewise linear,
+    through (stretches[i], forces[i]) from (0, 0), each piece with its damper, as stiff as the
+    device renders stably with a hand pushing at either end of it (`size_ring_wall`); behind
+    the blocked position and beyond the last piece, the first and the last pieces go on."""
+
+    stretches: tuple[float, ...]
+    """m (or rad) past the blocked position, rising from 0."""
+    forces: tuple[float, ...]
+    """N (or Nm) the wall holds there, rising from 0."""
+    dampings: tuple[float, ...]
+    """N*s/m on the handle's filtered velocity, one a piece (len(stretches) - 1)."""
+
+    def piece(self, stretch: float) -> int:
+        """Which piece a stretch is on (the first behind, the last beyond)."""
+        return max(0, min(len(self.dampings) - 1, bisect.bisect_right(self.stretches, stretch) - 1))
+
+    def force(self, stretch: float, velocity: float) -> float:
+        """The wall's force for a stretch past the blocked position and the handle's velocity
+        (device units, pushing back: the command is its negative)."""
+        i = self.piece(stretch)
+        xs, fs = self.stretches, self.forces
+        slope = (fs[i + 1] - fs[i]) / (xs[i + 1] - xs[i])
+        return fs[i] + slope * (stretch - xs[i]) + self.dampings[i] * velocity
+
+
+RING_PUSH_SHARES = (0.0, 0.025, 0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0)
+"""Pushes (shares of the device's force limit) at which the ring wall's pieces begin and end."""
+RING_DAMPING_SHARES = (0.0, 0.5, 1.0)
+"""Shares of the sized damper tried on each piece (a hand's muscle damps the handle already:
+on a stiff grip less rendered damping leaves more room for the spring)."""
+
+
+@functools.lru_cache(maxsize=16)
+def size_ring_wall(
+    info: DeviceInfo,
+    rate_hz: float,
+    velocity_sections: Sections,
+    hand_damping_per_N: float,
+    hand: tuple[float, float, float],
+    zeta_min: float = ZETA_MIN,
+) -> RingWall:
+    """The wall of a stage that blocks only while the hand pushes (the synchronizer's ring,
+    which lets go once the push falls under its hold). A hand pushing with F is the paper's
+    (eq. 10): its muscle F = a*F_max*(1 - v_h/V0) puts F/V0 of damping on the hand's mass
+    (`hand_damping_per_N` = 1/V0, s/m at the device), which holds the handle through its grip
+    (`hand`: mass, grip stiffness and damping, device units). Each piece between two pushes of
+    RING_PUSH_SHARES gets the stiffest spring (with the damper of RING_DAMPING_SHARES that
+    allows the most) keeping zeta_min on every plant of the device's set with the hand at
+    either push on it (at no push: hands off, the sizing's own plants). Hands off, the wall
+    holds only until its force falls under the ring's hold: a part of a swing, on a spring
+    that stores less energy than the coupling would for the same push."""
+    sizing = size(info, rate_hz, velocity_sections, zeta_min)
+    base = plant_set(info, rate_hz, velocity_sections)
+    pushes = [share * info.max_force for share in RING_PUSH_SHARES]
+
+    def plants(push: float) -> tuple[AxisLoop, ...]:
+        if push <= 0.0:
+            return base
+        grip = (*hand, hand_damping_per_N * push)
+        return tuple(dataclasses.replace(a, hand=grip) for a in base)
+
+    def holds(both: tuple[AxisLoop, ...], b: float) -> Callable[[float], bool]:
+        return lambda k: zeta_of(both, k, b) >= zeta_min
+
+    stretches, dampings = [0.0], []
+    for low, high in itertools.pairwise(pushes):
+        both = plants(low) + plants(high)
+        k_high = (max(a.mass for a in both) + hand[0]) * (math.pi * rate_hz) ** 2
+        best = (sizing.stiffness, sizing.damping)
+        for share in RING_DAMPING_SHARES:
+            b = share * sizing.damping
+            if zeta_of(both, best[0], b) < zeta_min:
+                continue
+            k = _bisect(holds(both, b), best[0], k_high, 20)
+            if k > best[0]:
+                best = (k, b)
+        stretches.append(stretches[-1] + (high - low) / best[0])
+        dampings.append(best[1])
+    return RingWall(tuple(stretches), tuple(pushes), tuple(dampings))
