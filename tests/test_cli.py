@@ -322,7 +322,7 @@ def test_hpattern_with_the_clutch_released_reports_the_balk(tmp_path, capsys):
         (["--sequence", "N,1", "--speed-kmh", "-3"], "allowed 0 <= value <= 250 km/h"),
         (["--sequence", "N,1", "--mistake", "sneeze:1"], "expected early-clutch:K or wall:K"),
         (["--sequence", "N,1", "--mistake", "wall:9"], "allowed 1 .. 1, the K-th gear"),
-        (["--sequence", "N,1", "--layout", "7r"], "no hpattern preset named '7r'"),
+        (["--sequence", "N,1", "--layout", "9r"], "no hpattern preset named '9r'"),
         (["--sequence", "N,1", "--dt", "0.01"], "use --substeps 10"),
         (["--sequence", "N,1", "--synchronizer", "magic"], "invalid choice"),
     ],

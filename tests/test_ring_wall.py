@@ -271,3 +271,32 @@ def test_the_hpattern_s_ring_holds_on_the_device(device, mode, tmp_path, monkeyp
     assert max(travel) <= 0.5 * min(old_travel)
     assert all(abs(m / reference - 1.0) <= 0.15 for m in middle)
     assert not all(abs(m / reference - 1.0) <= 0.15 for m in old_middle)
+
+
+@pytest.mark.parametrize("kind", ["joystick", "shifter"])
+def test_the_ring_takes_over_from_the_coupling_without_a_step(kind):
+    """A hand that pushed against a cue wall reaches the ring with the handle already past the
+    lever by the coupling's stretch. The ring's first tick holds what the coupling held (no
+    kick back: the kick bounced the hand and limit-cycled the H-pattern at 31 Hz once the
+    game's refusal faded), and a further push stretches the wall by its own stiffness."""
+    from carfeel.realtime.rendering import RingHold
+
+    info = identified_info(kind)
+    shift = load_shift().params
+    scaling = default_scaling(100.0, shift.gearbox.in_gear_position_m + 0.005, info)
+    wall = ring_wall(info, 1000.0, scaling, shift.driver)
+    coupling = Gains.sized(stability.size(info, 1000.0, SECTIONS), scaling).servo_stiffness
+    stretch = 0.3 * info.max_force / coupling  # the coupling holding 30 % of the force limit
+    hold = RingHold(wall, coupling)
+    first = hold.block(stretch, 0.0)
+    assert first == pytest.approx(coupling * stretch, rel=1e-9)  # the same force: no step
+    assert wall.force(stretch, 0.0) > 1.5 * first  # the step the old wall gave (stiffer)
+    more = 1e-4  # m: 0.1 mm further
+    k = (hold.block(stretch + more, 0.0) - first) / more
+    piece = wall.piece(wall.stretch_for(first))
+    slope = (wall.forces[piece + 1] - wall.forces[piece]) / (
+        wall.stretches[piece + 1] - wall.stretches[piece]
+    )
+    assert k == pytest.approx(slope, rel=1e-6)  # the wall's stiffness from there on
+    hold.fade(0.001)  # let go: the next block measures afresh
+    assert hold.block(0.0, 0.0) == 0.0

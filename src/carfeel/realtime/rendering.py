@@ -80,21 +80,38 @@ once the ring stops blocking (the gate opens): the lever takes the push it held,
 class RingHold:
     """The ring wall in a renderer (device units): while the ring blocks, the wall's force on
     the stretch past the blocked position; once it lets go, what the wall held beyond the
-    coupling's spring (stiffness `coupling`, device units), fading over WALL_FADE_S."""
+    coupling's spring (stiffness `coupling`, device units), fading over WALL_FADE_S.
 
-    __slots__ = ("coupling", "held", "wall")
+    The wall takes over from the coupling without a step: at the block's first tick the
+    handle may already stand past the lever by the coupling's stretch (a hand that pushed
+    against a cue or a gate wall), and the wall, stiffer than the coupling, would kick it
+    back by the difference of their forces at that stretch; a kick that pushes the hand out
+    puts energy into it (a bounce, and the passivity controller's chatter after it). So the
+    wall's zero moves by `offset`, the stretch at which the wall holds what the coupling held,
+    and the handle feels the same force on the tick the ring engages."""
+
+    __slots__ = ("blocking", "coupling", "held", "offset", "wall")
 
     def __init__(self, wall: RingWall, coupling: float) -> None:
         self.wall, self.coupling = wall, coupling
         self.held = 0.0
+        self.offset = 0.0
+        """Device units: how far past the blocked position the wall's zero stands this block."""
+        self.blocking = False
 
     def block(self, stretch: float, velocity: float) -> float:
         """The wall's force while the ring blocks (pushing back: the command is its negative)."""
-        self.held = self.wall.force(stretch, 0.0) - self.coupling * stretch
-        return self.wall.force(stretch, velocity)
+        if not self.blocking:
+            self.blocking = True
+            coupled = self.coupling * stretch  # what the coupling's spring held this tick
+            self.offset = stretch - self.wall.stretch_for(coupled) if coupled > 0.0 else 0.0
+        s = stretch - self.offset
+        self.held = self.wall.force(s, 0.0) - self.coupling * stretch
+        return self.wall.force(s, velocity)
 
     def fade(self, dt_s: float) -> float:
         """Out of the block: the held force, fading."""
+        self.blocking = False
         if self.held:
             self.held *= math.exp(-dt_s / WALL_FADE_S)
         return self.held

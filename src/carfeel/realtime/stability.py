@@ -371,6 +371,12 @@ class RingWall:
         slope = (fs[i + 1] - fs[i]) / (xs[i + 1] - xs[i])
         return fs[i] + slope * (stretch - xs[i]) + self.dampings[i] * velocity
 
+    def stretch_for(self, force: float) -> float:
+        """The stretch at which the wall holds `force` at rest (the inverse of `force`)."""
+        xs, fs = self.stretches, self.forces
+        i = max(0, min(len(self.dampings) - 1, bisect.bisect_right(fs, force) - 1))
+        return xs[i] + (force - fs[i]) * (xs[i + 1] - xs[i]) / (fs[i + 1] - fs[i])
+
 
 RING_PUSH_SHARES = (0.0, 0.025, 0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0)
 """Pushes (shares of the device's force limit) at which the ring wall's pieces begin and end."""
