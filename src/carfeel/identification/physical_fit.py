@@ -115,6 +115,10 @@ FD_STEP = 1e-3
 """Forward-difference step, relative to a parameter's scale."""
 MAX_BATCH = 1024
 """Largest batch (sets x pieces) simulated at once: bigger ones run in groups."""
+MAX_GROUP_PIECES = 256
+"""Most pieces in a group whatever the sets: a group's inputs are 3 x 1250 rows x 8 bytes a
+piece, so the one-set run of `_solve`'s grids, 1024 pieces at once, made 30 MB of them (the
+largest thing an hour's fit held); 256 pieces of one set run at about half the lane rate."""
 
 
 @dataclass(frozen=True)
@@ -285,11 +289,13 @@ def start_state(params: PhysicalParams, run: Run) -> PhysicalState:
 @dataclass
 class Reference:
     """A sequential run of the pure model over every stretch: the torque at every grid point
-    (point 0 repeats point 1), Ay at the run's samples, and the states at the points asked for."""
+    (point 0 repeats point 1; none when it was sampled instead), Ay at the run's samples, the
+    torque at the times asked for (`at`), and the states at the points asked for."""
 
-    torque_Nm: list[FloatArray]
+    torque_Nm: list[npt.NDArray[np.floating]]
     lateral_accel_m_s2: list[FloatArray]
     states: dict[tuple[int, int], PhysicalState]
+    sampled_Nm: list[FloatArray]
 
 
 WINDOW_STEPS = 4096
@@ -297,40 +303,59 @@ WINDOW_STEPS = 4096
 
 
 def reference(
-    params: PhysicalParams, runs: Sequence[Run], keep: dict[int, set[int]] | None = None
-) -> Reference:
-    """The pure model (`physical.step`) over each run; the states at grid points keep[run]."""
-    torques, ays, states = [], [], {}
+    params: PhysicalParams, runs: Sequence[Run], keep: dict[int, set[int]] | None = None,
+    *, grid_dtype: type[np.floating] = np.float64, at: Sequence[FloatArray] | None = None,
+) -> Reference:  # fmt: skip
+    """The pure model (`physical.step`) over each run; the states at grid points keep[run].
+    The torque's grid in `grid_dtype` (float32 for a delay scan: half the memory, 3e-7 Nm of
+    rounding), or with `at` (sorted times per run, s) the torque interpolated there as the
+    windows pass and no grid kept: an hour's grid is 29 MB in float64."""
+    torques: list[npt.NDArray[np.floating]] = []
+    ays, sampled, states = [], [], {}
     step, inputs = physical.step, PhysicalInputs
     for i, run in enumerate(runs):
         wanted = keep.get(i, set()) if keep else set()
         state = start_state(params, run)
         if 0 in wanted:
             states[(i, 0)] = state
-        torque = np.empty(run.steps + 1)
+        torque = np.empty(run.steps + 1, grid_dtype) if at is None else None
+        times = at[i] if at is not None else None
+        here = np.empty(len(times)) if times is not None else None
         ay = np.empty(len(run.time_s))  # at the samples: each window's, through its grid
-        before = math.nan  # the torque at the grid point before the window
+        before = (math.nan, math.nan)  # the torque and Ay at the grid point before the window
         for first in range(1, run.steps + 1, WINDOW_STEPS):
             stop = min(first + WINDOW_STEPS, run.steps + 1)
             speed, angle, rate = run.inputs(first, stop)
-            window = np.empty(stop - first)
+            window_t, window = np.empty(stop - first), np.empty(stop - first)
             rows = zip(speed.tolist(), angle.tolist(), rate.tolist(), strict=True)
             for k, (v, a, w) in enumerate(rows, start=first):
                 state, out = step(state, inputs(v, a, w, 0.0, 1.0), params, DT_S)
-                torque[k], window[k - first] = out.torque_Nm, out.lateral_accel_m_s2
+                window_t[k - first], window[k - first] = out.torque_Nm, out.lateral_accel_m_s2
                 if k in wanted:
                     states[(i, k)] = state
+            if torque is not None:
+                torque[first:stop] = window_t
             grid = run.start_s + DT_S * np.arange(first - 1, stop)
-            values = np.concatenate([[window[0] if first == 1 else before], window])
-            lo = int(np.searchsorted(run.time_s, grid[0], side="left"))
-            hi = (len(run.time_s) if stop > run.steps
-                  else int(np.searchsorted(run.time_s, grid[-1], side="right")))  # fmt: skip
-            ay[lo:hi] = np.interp(run.time_s[lo:hi], grid, values)
-            before = float(window[-1])
-        torque[0] = torque[min(1, run.steps)]
-        torques.append(torque)
+            last = stop > run.steps
+            for values, samples, out_at, held in (
+                (window, run.time_s, ay, before[1]),
+                (window_t, times, here, before[0]),
+            ):
+                if samples is None or out_at is None:
+                    continue
+                values = np.concatenate([[values[0] if first == 1 else held], values])
+                lo = 0 if first == 1 else int(np.searchsorted(samples, grid[0], side="left"))
+                hi = (len(samples) if last
+                      else int(np.searchsorted(samples, grid[-1], side="right")))  # fmt: skip
+                out_at[lo:hi] = np.interp(samples[lo:hi], grid, values)
+            before = (float(window_t[-1]), float(window[-1]))
+        if torque is not None:
+            torque[0] = torque[min(1, run.steps)]
+            torques.append(torque)
+        if here is not None:
+            sampled.append(here)
         ays.append(ay)
-    return Reference(torques, ays, states)
+    return Reference(torques, ays, states, sampled)
 
 
 @dataclass
@@ -408,19 +433,22 @@ class Batch:
 
     def guess(self, x: FloatArray, neighbours: Sequence[tuple[int, float]]) -> FloatArray:
         """(fields, J, S): starts for the point x and its neighbours (index, step)."""
-        point = self.point.copy()
+        out = np.empty((self.point.shape[0], 1 + len(neighbours), self.point.shape[1]))
+        point = out[:, 0, :]  # made in place: at an hour of log each (fields, S) is 0.4 MB
+        point[...] = self.point
         if self.x is not None:
             for i, sens in self.sensitivity.items():
                 point += sens * (x[i] - self.x[i])
-        sets = [point]
-        for i, h in neighbours:
-            sets.append(point + self.sensitivity.get(i, 0.0) * h)
-        return np.stack(sets, axis=1)
+        for j, (i, h) in enumerate(neighbours, start=1):
+            out[:, j, :] = point
+            if i in self.sensitivity:
+                out[:, j, :] += self.sensitivity[i] * h
+        return out
 
     def run(
         self, sets: Sequence[PhysicalParams], x: FloatArray,
         neighbours: Sequence[tuple[int, float]], delay_s: float = 0.0,
-        max_sweeps: int = MAX_SWEEPS, grids: list[FloatArray] | None = None,
+        max_sweeps: int = MAX_SWEEPS, grids: list[npt.NDArray[np.floating]] | None = None,
     ) -> tuple[Predicted, npt.NDArray[np.float32], float]:  # fmt: skip
         """Every set's torque at the scored samples, logged `delay_s` late; the first
         set's slope there (Nm/s: d torque / d time of the interpolant); and how far (weighted,
@@ -443,11 +471,16 @@ class Batch:
         for _ in range(max_sweeps):
             self._sweep(sets, starts, chosen, reached, rows, delay_s, predicted, slope, grids)
             self.sweeps += 1
-            joined = starts.copy()
-            joined[:, :, has_before] = reached[:, :, before]
-            off = np.max(np.abs(joined - starts) * STATE_WEIGHTS[:, None, None], axis=(0, 1))
+            # Each piece starts where the one before it got to, field by field in place (a
+            # whole (fields, J, S) copy or difference is 4 MB at an hour of log).
+            off = np.zeros(n_pieces)
+            for f, weight in enumerate(STATE_WEIGHTS.tolist()):
+                joined = reached[f][:, before]
+                if weight > 0.0:
+                    moved = np.abs(joined - starts[f][:, has_before]).max(axis=0) * weight
+                    off[has_before] = np.maximum(off[has_before], moved)
+                starts[f][:, has_before] = joined
             change = float(off.max())
-            starts = joined
             if change <= SWEEP_TOL_NM:
                 break
             chosen = np.flatnonzero(off > SWEEP_TOL_NM)  # the rest already start right
@@ -480,7 +513,7 @@ class Batch:
     def _sweep(
         self, sets: Sequence[PhysicalParams], starts: FloatArray, chosen: npt.NDArray[np.intp],
         reached: FloatArray, rows: npt.NDArray[np.intp], delay_s: float, predicted: Predicted,
-        slope: npt.NDArray[np.float32], grids: list[FloatArray] | None,
+        slope: npt.NDArray[np.float32], grids: list[npt.NDArray[np.floating]] | None,
     ) -> None:  # fmt: skip
         """One batch over the pieces `chosen`: their torque at their samples into `predicted`
         and `slope`, and where each was at its successor's start row (fields, J, S) into
@@ -488,7 +521,7 @@ class Batch:
         pieces, runs, data = self.pieces, self.runs, self.data
         n_sets, length = len(sets), pieces.length
         after = {q: p for p, q in enumerate(pieces.before) if q >= 0}  # piece -> its successor
-        group = max(1, MAX_BATCH // n_sets)
+        group = max(1, min(MAX_BATCH // n_sets, MAX_GROUP_PIECES))
         for first in range(0, len(chosen), group):
             some = chosen[first : first + group].tolist()
             speed = np.empty((length, len(some)))
@@ -555,15 +588,30 @@ class _Data:
     log_rows: list[slice]
     """Each log's scored rows (its runs are consecutive)."""
 
-    def predict(self, grids: Sequence[FloatArray], delay_s: float) -> FloatArray:
-        """(J, N): the model's torque at the scored samples, logged `delay_s` late."""
+    def predict(self, grids: Sequence[npt.NDArray[np.floating]], delay_s: float) -> FloatArray:
+        """(J, N): the model's torque at the scored samples, logged `delay_s` late (the grids
+        float64 or float32, one (J, steps + 1) array per run)."""
         n_sets = grids[0].shape[0]
         out = np.empty((n_sets, len(self.time_s)))
         for run, rows, times, grid in zip(self.runs, self.run_rows, self.run_times, grids,
                                           strict=True):  # fmt: skip
             for j in range(n_sets):
-                out[j, rows] = np.interp(times - delay_s, run.grid_s, grid[j])
+                out[j, rows] = on_grid(run.start_s, grid[j], times - delay_s)
         return out
+
+
+def on_grid(start_s: float, values: npt.NDArray[np.floating], times_s: FloatArray) -> FloatArray:
+    """`values` on the 1 ms grid from `start_s`, linearly interpolated at `times_s` and held
+    beyond its ends (np.interp's answer to rounding), without making the grid's times: an hour
+    of log is 3.6 million grid points, and a float64 array of them per call was the largest
+    thing the delay scan made."""
+    last = len(values) - 1
+    position = (times_s - start_s) / DT_S
+    k = np.clip(np.floor(position), 0, max(last - 1, 0)).astype(np.intp)
+    f = np.clip(position - k, 0.0, 1.0)
+    low = values[k].astype(np.float64)
+    high = values[np.minimum(k + 1, last)]
+    return np.asarray(low + f * (high - low))
 
 
 def _data(logs: Sequence[SteeringLog], runs: Sequence[Run], drift_s: float | None) -> _Data:
@@ -703,7 +751,7 @@ def fit_physical(
     wanted: dict[int, set[int]] = {}
     for index, begin in zip(pieces.run, pieces.begin, strict=True):
         wanted.setdefault(index, set()).add(begin)
-    ref = reference(base.physical(), runs, wanted)
+    ref = reference(base.physical(), runs, wanted, grid_dtype=np.float32)
     batch = Batch(runs, pieces, ref, data)
     sim_ay = [np.zeros(len(log.time_s)) for log in logs]
     for run, ay_samples in zip(runs, ref.lateral_accel_m_s2, strict=True):
@@ -742,11 +790,14 @@ def fit_physical(
     delay = float(x[n_par])
     # The figures from the pure model; the covariance from the batch at the same point (the
     # same run to rounding: their largest difference is reported by `batch_check_Nm`).
-    final = reference(with_values(base, x[:n_par]).physical(), runs)
-    model = data.predict([t[None, :] for t in final.torque_Nm], delay)[0]
+    final = reference(with_values(base, x[:n_par]).physical(), runs,
+                      at=[times - delay for times in data.run_times])  # fmt: skip
+    r = np.empty(len(data.time_s))  # the residual; the model is torque + r
+    for rows, sampled in zip(data.run_rows, final.sampled_Nm, strict=True):
+        r[rows] = sampled
     del final
-    model = model + data.offsets @ x[n_par + 1 :]
-    r = model - data.torque_Nm
+    r += data.offsets @ x[n_par + 1 :]
+    r -= data.torque_Nm
     exact = _evaluate(data, batch, base, x, free, counter, exact=True)
     check = float(np.max(np.abs(exact.r - r)))
     scale = _robust_scale(r) or 0.1
@@ -777,7 +828,7 @@ def fit_physical(
     offset_values = data.offsets @ x[n_par + 1 :]
     for log, rows in zip(logs, data.log_rows, strict=True):
         some = rows.stop > rows.start
-        log_rms, log_r2 = rms_r2(data.torque_Nm[rows], model[rows])
+        log_rms, log_r2 = rms_r2(data.torque_Nm[rows], data.torque_Nm[rows] + r[rows])
         per_log[log.name] = {
             "rms_error_Nm": log_rms,
             "r2": log_r2,
@@ -787,7 +838,7 @@ def fit_physical(
             "offset_range_Nm": float(np.ptp(offset_values[rows])) if some else 0.0,
             "offset_end_Nm": float(offset_values[rows][-1]) if some else math.nan,
         }
-    rms, r2 = rms_r2(data.torque_Nm, model)
+    rms, r2 = rms_r2(data.torque_Nm, data.torque_Nm + r)
     if not r2 > 0.5:
         warnings.append(
             f"r2 {r2:.3g}: the physical model explains little of the torque; check the logs' "
@@ -819,14 +870,14 @@ def _mu_start(
     return float(np.clip(base_mu * peak / model, 0.3 * base_mu, 2.0 * base_mu))
 
 
-def _offsets(data: _Data, grids: Sequence[FloatArray], delay_s: float) -> FloatArray:
+def _offsets(data: _Data, grids: Sequence[npt.NDArray[np.floating]], delay_s: float) -> FloatArray:
     """The offsets' least-squares values with the model held."""
     model = data.predict(grids, delay_s)[0]
     coefficients = np.linalg.lstsq(data.offsets, data.torque_Nm - model, rcond=None)[0]
     return np.asarray(np.clip(coefficients, -4.9, 4.9))
 
 
-def _scan_delay(data: _Data, grids: Sequence[FloatArray], x: FloatArray) -> float:
+def _scan_delay(data: _Data, grids: Sequence[npt.NDArray[np.floating]], x: FloatArray) -> float:
     """The torque's delay (s) that fits best with the model held (its simulated torque shifted):
     a grid over +-MAX_DELAY_S, then a bounded search around the best point; the soft_l1 cost
     with each trial's offsets refitted."""
@@ -942,30 +993,57 @@ def _covariance(
 
 
 @dataclass
+class _Point:
+    """What the solver keeps of an evaluation it accepted: the residual, soft_l1's normal
+    equations at the solver's scale, and the covariance at the residual's own scale. The
+    Jacobian's makings (40 bytes a sample) are let go, so that the next trial is the only
+    evaluation held: two of them were the largest thing an hour's fit held."""
+
+    x: FloatArray
+    r: FloatArray
+    cost: float
+    a: FloatArray
+    g: FloatArray
+    covariance: FloatArray
+    unconstrained: npt.NDArray[np.bool_]
+
+
+def _settle(
+    ev: _Evaluation, idx: npt.NDArray[np.intp], scale: float, blocks: npt.NDArray[np.intp]
+) -> _Point:
+    """`_Point` of ev: three passes over its Jacobian's chunks (a batch evaluation costs
+    hundreds of such passes)."""
+    a, g = _normal_equations(ev, idx, scale)
+    covariance, unconstrained = _covariance(ev, ev.r, idx, _robust_scale(ev.r) or scale, blocks)
+    return _Point(ev.x, ev.r, soft_l1_cost(ev.r, scale), a, g, covariance, unconstrained)
+
+
+@dataclass
 class _Solution:
     x: FloatArray
     active: npt.NDArray[np.int_]
     """Per free entry: -1 held at its lower bound, +1 at its upper, 0 inside."""
-    evaluation: _Evaluation
+    point: _Point
 
 
 def _levenberg_marquardt(
     evaluate: Callable[[FloatArray], _Evaluation], x0: FloatArray, idx: npt.NDArray[np.intp],
-    lower: FloatArray, upper: FloatArray, scale: float, first: _Evaluation,
+    lower: FloatArray, upper: FloatArray, scale: float, first: _Point,
+    settle: Callable[[_Evaluation], _Point],
 ) -> _Solution:  # fmt: skip
     """A bounded Levenberg-Marquardt on soft_l1 (IRLS Gauss-Newton steps, damped in the
     Jacobian's own column scale as scipy's x_scale="jac"; an entry at a bound whose gradient
-    points out is held there), from the evaluation `first` at x0. Stops when a step lowers the
-    cost by under FTOL of it, moves the scaled point by under XTOL of its size, or after
-    MAX_EVALUATIONS evaluations. Every evaluation runs the batch once, so their number is the
-    fit's cost: it does not grow with the log's length."""
+    points out is held there), from the settled evaluation `first` at x0. Stops when a step
+    lowers the cost by under FTOL of it, moves the scaled point by under XTOL of its size, or
+    after MAX_EVALUATIONS evaluations. Every evaluation runs the batch once, so their number is
+    the fit's cost: it does not grow with the log's length."""
     lo, hi = lower[idx], upper[idx]
-    ev, x = first, x0.copy()
-    cost = soft_l1_cost(ev.r, scale)
+    point, x = first, x0.copy()
+    cost = point.cost
     damping = 1e-3
     evaluations = 1
     while evaluations < MAX_EVALUATIONS:
-        a, g = _normal_equations(ev, idx, scale)
+        a, g = point.a, point.g
         z = x[idx]
         d = np.sqrt(np.diag(a))
         d[d == 0.0] = 1.0
@@ -983,27 +1061,28 @@ def _levenberg_marquardt(
             taken = trial[idx] - z
             expected = -float(g @ taken) - 0.5 * float(taken @ a @ taken)
             if expected <= FTOL * cost:  # the linear model promises less than the tolerance
-                return _Solution(x, _held(z, g, lo, hi), ev)
+                return _Solution(x, _held(z, g, lo, hi), point)
             candidate = evaluate(trial)
             evaluations += 1
             new_cost = soft_l1_cost(candidate.r, scale)
             if new_cost < cost:
                 gain = cost - new_cost
                 moved_by = float(np.linalg.norm((trial[idx] - z) * d))
-                ev, x, cost = candidate, trial, new_cost
+                point = settle(candidate)
+                del candidate
+                x, cost = trial, new_cost
                 damping = max(damping / 3.0, 1e-9)
                 moved = True
                 if gain <= FTOL * cost or moved_by <= XTOL * (XTOL + float(np.linalg.norm(z * d))):
-                    return _Solution(
-                        x, _held(x[idx], _normal_equations(ev, idx, scale)[1], lo, hi), ev
-                    )
+                    return _Solution(x, _held(x[idx], point.g, lo, hi), point)
                 break
+            del candidate
             damping *= 10.0
             if damping > 1e8:
                 break
         if not moved:
             break
-    return _Solution(x, _held(x[idx], _normal_equations(ev, idx, scale)[1], lo, hi), ev)
+    return _Solution(x, _held(x[idx], point.g, lo, hi), point)
 
 
 def _held(
@@ -1021,7 +1100,7 @@ def _solve(
     data: _Data, batch: Batch, base: SteeringCar, x0: FloatArray,
     free0: npt.NDArray[np.bool_], notes: dict[int, str], lower: FloatArray, upper: FloatArray,
     counter: list[int], progress: Callable[[int, float], None] | None,
-) -> tuple[FloatArray, npt.NDArray[np.bool_], list[FloatArray]]:  # fmt: skip
+) -> tuple[FloatArray, npt.NDArray[np.bool_], list[npt.NDArray[np.floating]]]:  # fmt: skip
     """A bounded fit of the free entries (`_levenberg_marquardt`); what stops at a bound or in
     an unconstrained direction is kept from the base and the rest fitted again (at most
     twice). Returns x, the free mask and the model's grids at x."""
@@ -1041,11 +1120,17 @@ def _solve(
         x_all[idx] = np.clip(x_all[idx], lower[idx] + 1e-9, upper[idx] - 1e-9)
         first = evaluate(x_all)
         scale = _robust_scale(first.r) or 0.1
-        solution = _levenberg_marquardt(evaluate, x_all, idx, lower, upper, scale, first)
+
+        def settle(ev: _Evaluation, idx: npt.NDArray[np.intp] = idx, scale: float = scale
+                   ) -> _Point:  # fmt: skip
+            return _settle(ev, idx, scale, data.blocks)
+
+        point = settle(first)
+        del first
+        solution = _levenberg_marquardt(evaluate, x_all, idx, lower, upper, scale, point, settle)
+        del point
         x_all = solution.x
-        r = solution.evaluation.r
-        scale = _robust_scale(r) or scale
-        covariance, unconstrained = _covariance(solution.evaluation, r, idx, scale, data.blocks)
+        covariance, unconstrained = solution.point.covariance, solution.point.unconstrained
         stuck: dict[int, str] = {}
         for j, i in enumerate(idx.tolist()):
             if i >= n_par:
@@ -1071,7 +1156,7 @@ def _solve(
         for i, why in stuck.items():
             free[i], notes[i] = False, why
             x_all[i] = base_x[i]
-    grids = [np.empty(run.steps + 1) for run in batch.runs]
+    grids = [np.empty(run.steps + 1, np.float32) for run in batch.runs]  # for the delay scan
     batch.run([with_values(base, x_all[:n_par]).physical()], x_all, [], grids=grids)
     return x_all, free, [grid[None, :] for grid in grids]
 
