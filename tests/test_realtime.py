@@ -283,22 +283,30 @@ def test_the_recording_is_readable_after_a_kill(tmp_path):
 
 
 def test_sigint_stops_a_real_time_run_cleanly(tmp_path):
-    record = tmp_path / "sig.csv"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "carfeel.cli", "run", "--model", "shift", "--duration", "60",
-         "--record", str(record)],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )  # fmt: skip
-    assert proc.stdout is not None
-    proc.stdout.readline()  # the start line: the handlers are in place once the loop runs
-    deadline = time.monotonic() + 30.0
-    part = tmp_path / "sig.part.csv"  # the recording while the run goes
-    while not part.exists() and time.monotonic() < deadline:
-        time.sleep(0.05)
-    time.sleep(0.5)
-    proc.send_signal(signal.SIGINT)
-    out, err = proc.communicate(timeout=30)
-    assert proc.returncode == 130, err  # the shell's 128 + SIGINT
+    """Ctrl-C in a wall-clock run: force first, the recording kept, exit 130. On these shared
+    cores a run can meet a 20+ ms stall before the signal and end on its watchdog (exit 3, the
+    safety chain doing its job, not what this test is about): such a run is tried again, at
+    most three times, and any other outcome fails at once."""
+    for attempt in range(3):
+        record = tmp_path / f"sig{attempt}.csv"
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "carfeel.cli", "run", "--model", "shift", "--duration", "60",
+             "--record", str(record)],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        )  # fmt: skip
+        assert proc.stdout is not None
+        proc.stdout.readline()  # the start line: the handlers are in place once the loop runs
+        deadline = time.monotonic() + 30.0
+        part = tmp_path / f"sig{attempt}.part.csv"  # the recording while the run goes
+        while not part.exists() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(0.5)
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=30)
+        stalled = proc.returncode == 3 and "stall:" in out + err and "SIGINT" not in out
+        if not stalled:
+            break
+    assert proc.returncode == 130, out + err  # the shell's 128 + SIGINT
     assert "stopped by SIGINT" in out
     meta = json.loads(record.with_suffix(".json").read_text())
     assert meta["summary"]["stopped"] == "SIGINT"
