@@ -252,12 +252,15 @@ def walk_fields(cls: type, instances: dict[str, Any], prefix: str = "") -> Itera
         else:
             key = range_key(path)
             allowed = describe_range(key) if key in RANGES else ""
+            doc = docs.get(field.name, "")
+            if field.default is not dataclasses.MISSING:  # a key a preset may leave out
+                doc = f"{doc} Optional (default {_shown(field.default)}).".strip()
             yield FieldRow(
                 path,
                 _kind(hint),
                 unit_of(field.name),
                 allowed,
-                docs.get(field.name, ""),
+                doc,
                 {n: _shown(v) for n, v in values.items()},
             )
 
@@ -297,7 +300,8 @@ def render_presets() -> str:
         "",
         "Generated at build time from the parameter dataclasses that `carfeel.io.presets` builds",
         "and from the shipped TOML files. A preset is a TOML file in SI units: every key below is",
-        "required, no other key is allowed, and each number must lie in its range (a value out of",
+        "required unless marked optional, no other key is allowed, and each number must lie in",
+        "its range (a value out of",
         "range is refused with the key, the value, the unit and the range: exit code 2). The unit",
         "is the suffix of the key's name (`mass_kg`, `stiffness_N_m`). Besides the ranges, each",
         "kind has cross-checks over several fields (the stages' order along the slot, the axles",

@@ -496,7 +496,7 @@ def plan_hpattern(config: HPatternRunConfig) -> HPatternPlan:
     --mistake within the sequence, steps the model can honour)."""
     preset = load_hpattern(config.layout)
     layout = preset.setup.layout
-    names = [g.name for g in layout.gears]
+    names = layout.gear_names()
     unknown = [g for g in config.sequence if g != NEUTRAL_GEAR and g not in names]
     if unknown:
         raise InputError(

@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any, Generic, TypeVar
 
 from carfeel.errors import CarfeelError, PresetError
-from carfeel.models.gearshift.hpattern import WALL_DEPTH_M, HPatternParams
+from carfeel.models.gearshift.hpattern import WALL_DEPTH_M, HPatternParams, Layout
 from carfeel.models.gearshift.synchronizer import LOCATIONS
 from carfeel.simulation.hpattern import HPatternSetup
 from carfeel.simulation.shift import ShiftParams
@@ -116,6 +116,11 @@ RANGES: dict[str, tuple[float, float, bool, bool]] = {
     "plane": (0.0, 20.0, True, True),
     "direction": (-1.0, 1.0, True, True),
     "ratio": (-20.0, 20.0, True, True),
+    "gear": (-8.0, 24.0, True, True),  # a truck's table: the game's gear number
+    "handle_position": (0.0, 31.0, True, True),  # ETS2's 32 hshifter slots
+    "range_plane": (0.0, 20.0, True, True),
+    "high_centre_plane": (0.0, 20.0, True, True),
+    "range_detent_N": (0.0, 200.0, True, True),
     # hpattern: select axis, walls
     "select.mass_kg": (0.0, 100.0, False, True),
     "centring_stiffness_N_m": (0.0, 1e5, True, True),
@@ -898,6 +903,7 @@ def check_hpattern(setup: HPatternSetup, shift: ShiftParams) -> list[str]:
                 f"layout.reverse_lockout_N = {layout.reverse_lockout_N:g} N needs reverse alone "
                 "on an outer plane (as 6+R with R beyond 6); set it to 0 for this layout"
             )
+    problems += _check_truck(layout) + _check_double_h(layout)
     g = shift.gearbox
     if layout.corridor_width_m / 2 + WALL_DEPTH_M >= g.synchronization_position_m:
         problems.append(
@@ -910,6 +916,10 @@ def check_hpattern(setup: HPatternSetup, shift: ShiftParams) -> list[str]:
     if 0 <= layout.centre_plane <= last:
         centre = planes[layout.centre_plane]
         reach = max(abs(p - centre) for p in planes)
+        boundary = layout.range_boundary_m() if 0 < layout.range_plane <= last else math.inf
+        high = planes[min(layout.high_centre_plane, last)]
+        if boundary < math.inf:  # a double-H: each half from its own neutral
+            reach = max(abs(p - (centre if p < boundary else high)) for p in planes)
         needed = setup.select.centring_stiffness_N_m * reach + setup.select.static_friction_N
         lock = layout.lockout_plane if last > 0 else None
         if lock is not None:
@@ -922,6 +932,24 @@ def check_hpattern(setup: HPatternSetup, shift: ShiftParams) -> list[str]:
                 f"farthest plane: the select spring{' and the lockout' if lock is not None else ''}"
                 f" need {needed:.1f} N there (with a fifth to spare: {1.2 * needed:.1f} N)"
             )
+        if boundary < math.inf:
+            cross = (
+                layout.range_detent_N
+                + setup.select.centring_stiffness_N_m * abs(boundary - centre)
+                + setup.select.static_friction_N
+            )
+            if setup.driver.select_force_N < 1.2 * cross:
+                problems.append(
+                    f"driver.select_force_N = {setup.driver.select_force_N:g} N cannot cross "
+                    f"the range detent: it and the select spring need {cross:.1f} N there "
+                    f"(with a fifth to spare: {1.2 * cross:.1f} N)"
+                )
+            if not math.isclose(boundary - centre, high - boundary, abs_tol=1e-6):
+                problems.append(
+                    f"layout: the double-H's neutrals lie {1e3 * (boundary - centre):g} mm and "
+                    f"{1e3 * (high - boundary):g} mm from the range detent; they must be equally "
+                    "far (else the select spring's energy jumps as the knob crosses)"
+                )
     feel = setup.feel
     first, last_latch = (
         feel.latch_position_m - feel.latch_width_m,
@@ -957,6 +985,71 @@ def check_hpattern(setup: HPatternSetup, shift: ShiftParams) -> list[str]:
                 f"above K*T/2 + B = {need:g} N*s/m at {NOMINAL_RATE_HZ:g} Hz to stay passive "
                 f"when rendered, but the lever's least damping is {lever_damping:g} N*s/m"
             )
+    return problems
+
+
+def _check_truck(layout: Layout) -> list[str]:
+    """A range/splitter table: every row on a slot of the layout, each slot's combination once,
+    the signs of its gear and ratio the slot's, one handle position per slot."""
+    problems: list[str] = []
+    slots = {g.name: g for g in layout.gears}
+    seen: set[tuple[str, bool, bool]] = set()
+    handles: dict[str, int] = {}
+    for row in layout.truck:
+        where = f"layout.truck: slot {row.slot!r} (range {'high' if row.range_high else 'low'}, "
+        where += f"splitter {'high' if row.splitter_high else 'low'})"
+        slot = slots.get(row.slot)
+        if slot is None:
+            problems.append(f"{where}: no such slot; the layout has {', '.join(slots)}")
+            continue
+        key = (row.slot, row.range_high, row.splitter_high)
+        if key in seen:
+            problems.append(f"{where} appears twice")
+        seen.add(key)
+        if (
+            row.gear == 0
+            or row.ratio == 0.0
+            or (row.gear < 0) != (slot.ratio < 0.0)
+            or (row.ratio < 0.0) != (slot.ratio < 0.0)
+        ):
+            problems.append(
+                f"{where}: gear {row.gear}, ratio {row.ratio:g}: a reverse slot takes a "
+                "negative gear and ratio, a forward slot positive ones"
+            )
+        if handles.setdefault(row.slot, row.handle_position) != row.handle_position:
+            problems.append(
+                f"{where}: handle_position {row.handle_position}, but another row of the slot "
+                f"has {handles[row.slot]}: one handle position per slot"
+            )
+    missing = [name for name in slots if layout.truck and name not in handles]
+    if missing:
+        problems.append(f"layout.truck: no row for slot {', '.join(missing)}: the lever could "
+                        "not engage it in any range")  # fmt: skip
+    return problems
+
+
+def _check_double_h(layout: Layout) -> list[str]:
+    """A double-H: the high half's first plane, its neutral in it, the low neutral below it."""
+    last = len(layout.planes_y_m) - 1
+    if layout.range_plane == 0:
+        if layout.range_detent_N > 0.0 or layout.high_centre_plane:
+            return ["layout.range_detent_N and high_centre_plane need layout.range_plane (the "
+                    "first plane of a double-H's high half)"]  # fmt: skip
+        return []
+    if not 0 < layout.range_plane <= last:
+        return [f"layout.range_plane = {layout.range_plane}: a double-H's high half starts on "
+                f"plane 1..{last}"]  # fmt: skip
+    problems = []
+    if not layout.range_plane <= layout.high_centre_plane <= last:
+        problems.append(
+            f"layout.high_centre_plane = {layout.high_centre_plane}: the high half's neutral "
+            f"is one of its planes, {layout.range_plane}..{last}"
+        )
+    if layout.centre_plane >= layout.range_plane:
+        problems.append(
+            f"layout.centre_plane = {layout.centre_plane}: the low half's neutral is one of "
+            f"its planes, 0..{layout.range_plane - 1}"
+        )
     return problems
 
 

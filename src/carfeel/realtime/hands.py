@@ -74,6 +74,8 @@ class HPatternHand(_ScriptedHand):
         self.state = hpattern_driver.initial_state()
         self.phase = "pull"
         self.clutch_pedal = script.clutch_pedal
+        self.range_high = self.splitter_high = False
+        """A truck's range switch and splitter button, as the hand sets them."""
 
     def forces(
         self, time_s: float, positions: tuple[float, ...], velocities: tuple[float, ...]
@@ -88,6 +90,7 @@ class HPatternHand(_ScriptedHand):
         self.state, out = hpattern_driver.step(self.state, inputs, self.script, dt)
         self.phase = out.phase
         self.clutch_pedal = out.clutch_pedal
+        self.range_high, self.splitter_high = out.range_high, out.splitter_high
         return (out.force_x_N * self.force_scale, out.force_y_N * self.force_scale)
 
     @property

@@ -365,12 +365,17 @@ class HPatternRenderer:
                     + (d * held / fs if axis == 0 else 0.0)
                 )
         pedal = float(getattr(self.clutch, "clutch_pedal", 1.0))
+        # A truck's range switch and splitter on the knob (the virtual hand's; low otherwise).
+        knob = (bool(getattr(self.clutch, "range_high", False)),
+                bool(getattr(self.clutch, "splitter_high", False)))  # fmt: skip
         h = dt_s / self.substeps
         forces: tuple[float, ...] = (hands[0], hands[1])
         event = ""
         for _ in range(self.substeps):
             cx, cy = self.cues(self.state) if self.cues is not None else (0.0, 0.0)
-            inputs = HPatternInputs(forces[0] + cx, forces[1] + cy, pedal, self.speed, self.engine)
+            inputs = HPatternInputs(
+                forces[0] + cx, forces[1] + cy, pedal, self.speed, self.engine, *knob
+            )
             self.state, out = hpattern.step(self.state, inputs, self.pattern, h)
             if out.event.startswith("engage"):  # whichever sub-step it happens in
                 self.gears.append(out.gear)

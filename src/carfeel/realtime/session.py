@@ -713,7 +713,7 @@ def _render(
         _refuse_soft(info, sizing, run)
         preset = load_hpattern(preset_name)
         layout = preset.setup.layout
-        names = {g.name for g in layout.gears} | {"N"}
+        names = {*layout.gear_names(), "N"}
         unknown = [g for g in run.sequence if g not in names]
         if unknown:
             raise InputError(

@@ -86,6 +86,8 @@ def step(
             hand.clutch_pedal,
             params.vehicle_speed_m_s,
             params.engine_speed_rad_s,
+            hand.range_high,
+            hand.splitter_high,
         ),
         params.pattern,
         dt_s,

@@ -14,6 +14,11 @@ Mistakes, for the tests and for demonstrations:
 - `wall_push_shift` = k > 0: while crossing between planes to the k-th gear the driver already
   pushes toward it, so the knob runs into the gate wall until it is aligned with the slot.
 
+A truck's range/splitter box (`Layout.truck`): the sequence names the truck's gears ("1".."14",
+"R1"); the driver sets the range switch for the next gear as it pulls out of the last (the box
+waits for neutral to execute it) and the splitter once in neutral; a split in the same slot and
+range (3 -> 4) is the splitter alone, the lever staying in gear.
+
 Signs: x forward, y toward the higher planes, as in `carfeel.models.gearshift.hpattern`.
 """
 
@@ -25,7 +30,7 @@ from enum import Enum
 from typing import NamedTuple
 
 from carfeel.models.drivers.shift import ShiftDriverParams, grip_step
-from carfeel.models.gearshift.hpattern import NEUTRAL_GEAR, Layout
+from carfeel.models.gearshift.hpattern import NEUTRAL_GEAR, Layout, TruckGear
 
 
 class Phase(Enum):
@@ -91,10 +96,18 @@ class HPatternDriverOutputs(NamedTuple):
     clutch_pedal: float
     phase: str
     target: str
+    range_high: bool = False
+    """A truck's range switch, as the driver has set it."""
+    splitter_high: bool = False
 
 
 def initial_state() -> HPatternDriverState:
     return HPatternDriverState(0, Phase.PULL, 0.0, 0.0, 0.0, 0.0)
+
+
+def _row(layout: Layout, name: str) -> TruckGear | None:
+    """A truck's gear by name: its first row in the table (None: not a truck's gear)."""
+    return next((row for row in layout.truck if row.name == name), None)
 
 
 def _target(script: Script, index: int) -> tuple[str, float, int]:
@@ -103,8 +116,28 @@ def _target(script: Script, index: int) -> tuple[str, float, int]:
     name = script.sequence[index]
     if name == NEUTRAL_GEAR:
         return name, layout.planes_y_m[layout.centre_plane], 0
-    gear = layout.gear(name)
+    row = _row(layout, name)
+    gear = layout.gear(name if row is None else row.slot)
     return name, layout.planes_y_m[gear.plane], gear.direction
+
+
+def _buttons(script: Script, index: int) -> tuple[bool, bool, str]:
+    """(range high, splitter high, slot) for the index-th gear: the last truck gear's at or
+    before it (neutral keeps them), low and low before any."""
+    for i in range(min(index, len(script.sequence) - 1), -1, -1):
+        row = _row(script.layout, script.sequence[i])
+        if row is not None:
+            return row.range_high, row.splitter_high, row.slot
+    return False, False, ""
+
+
+def _split_only(script: Script, index: int) -> bool:
+    """The next gear is in the same slot and range as this one: the splitter alone."""
+    if index + 1 >= len(script.sequence) or not script.layout.truck:
+        return False
+    if NEUTRAL_GEAR in (script.sequence[index], script.sequence[index + 1]):
+        return False
+    return _buttons(script, index)[::2] == _buttons(script, index + 1)[::2]
 
 
 def _outward(script: Script, plane_y: float, direction: int) -> float:
@@ -143,6 +176,8 @@ def _next_phase(
     if phase is Phase.RELEASE and state.phase_time_s >= habits.hold_s:
         if index + 1 >= len(script.sequence):
             return index, Phase.DONE
+        if _split_only(script, index):  # in gear: the splitter's button, no lever
+            return index + 1, Phase.RELEASE
         return index + 1, Phase.PULL
     return index, phase
 
@@ -211,5 +246,11 @@ def step(
     else:
         force_y = 0.0
 
+    # The knob's buttons: the range pre-selected from the pull on, the splitter once out of gear.
+    range_high, splitter_high, _ = _buttons(script, index)
+    if phase is Phase.PULL and index > 0:
+        splitter_high = _buttons(script, index - 1)[1]
     new_state = HPatternDriverState(index, phase, phase_time, hand_x, hand_v, activation)
-    return new_state, HPatternDriverOutputs(force_x, force_y, pedal, phase.value, name)
+    return new_state, HPatternDriverOutputs(
+        force_x, force_y, pedal, phase.value, name, range_high, splitter_high
+    )

@@ -25,10 +25,24 @@ sampled-wall bound K*T/2 + B < b (Colgate & Schenkel) with the lever's own dampi
 The synchronizer model (`synchronizer.py`) says when the synchro gate may open; the engaged gear
 is an output with hysteresis (in mesh past the teeth, out of mesh back before them), with an
 event at each change.
+
+Trucks (issue 30), both optional in `Layout` and off in the car presets (their step unchanged):
+- A range/splitter box (`Layout.truck`, the game's slot table: a row per slot, range and
+  splitter, with its gear and ratio): the range switch and the splitter button on the knob are
+  inputs; the gear is (slot, range, splitter), and the synchronizer matches the row's ratio. The
+  range executes only with the lever in neutral (the range synchro needs the main box out of
+  gear: a range pre-selected in gear waits for neutral); the splitter executes when the torque
+  is off (clutch past `clutch_open_above`, or throttle at most THROTTLE_OFF) or in neutral: a
+  split pre-selected under torque waits, as in ETS2. A slot with no row for the range (the
+  crawler in high range) is closed: a gate wall, as an interlock.
+- A double-H (`Layout.range_plane` > 0): the planes from `range_plane` on are the high half,
+  the select spring centres on `high_centre_plane` there, and a detent (a triangular bump of
+  `range_detent_N`) stands between the halves; the range is the half the knob is in.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from enum import Enum
@@ -40,6 +54,8 @@ from carfeel.models.gearshift.synchronizer import SynchronizerParams, Synchroniz
 from carfeel.models.mechanics import stick_slip_step
 
 NEUTRAL_GEAR = "N"
+THROTTLE_OFF = 0.05
+"""A truck's splitter executes in gear with the throttle at most this (0..1), or the clutch in."""
 WALL_DEPTH_M = 0.003
 """The deepest a knob sinks into a wall before the wall is rigid (the gate's compliance)."""
 IN_MESH = frozenset({Stage.FREE_TRAVEL, Stage.STOP, Stage.IN_GEAR})
@@ -69,6 +85,27 @@ class GearSlot:
 
 
 @dataclass(frozen=True, slots=True)
+class TruckGear:
+    """A row of a range/splitter box's gear table (the game's own: ETS2's hshifter slots)."""
+
+    slot: str
+    """The lever's slot (a `GearSlot.name`)."""
+    range_high: bool
+    splitter_high: bool
+    gear: int
+    """The gear number as the game counts it: 1.. forward, -1.. reverse."""
+    ratio: float
+    """Gearbox ratio in this slot, range and splitter (negative for reverse)."""
+    handle_position: int
+    """The game's H-shifter handle position of the slot (ETS2's hshifterPosition), 0..31."""
+
+    @property
+    def name(self) -> str:
+        """The gear's name: "1".."14", reverse "R1", "R2" ..."""
+        return str(self.gear) if self.gear > 0 else f"R{-self.gear}"
+
+
+@dataclass(frozen=True, slots=True)
 class Layout:
     planes_y_m: tuple[float, ...]
     centre_plane: int
@@ -78,12 +115,42 @@ class Layout:
     corridor_width_m: float
     reverse_lockout_N: float
     """Extra select force to pass into a plane that holds only reverse (0: no lockout)."""
+    truck: tuple[TruckGear, ...] = ()
+    """A range/splitter box's gear table (empty: the slots' own gears and ratios)."""
+    range_plane: int = 0
+    """A double-H: the first plane of the high half (0: a single H)."""
+    high_centre_plane: int = 0
+    """A double-H: the plane the select spring centres on in the high half."""
+    range_detent_N: float = 0.0
+    """A double-H: the detent's peak force between the halves, N."""
+
+    def truck_gear(self, slot: str, range_high: bool, splitter_high: bool) -> TruckGear | None:
+        """The truck table's row for a slot, range and splitter (None: no gear there)."""
+        for row in self.truck:
+            same = row.range_high == range_high and row.splitter_high == splitter_high
+            if row.slot == slot and same:
+                return row
+        return None
+
+    def range_boundary_m(self) -> float:
+        """A double-H: the y of the detent between the halves (inf for a single H)."""
+        if self.range_plane <= 0:
+            return math.inf
+        return 0.5 * (self.planes_y_m[self.range_plane - 1] + self.planes_y_m[self.range_plane])
 
     def gear_at(self, plane: int, direction: int) -> GearSlot | None:
         for gear in self.gears:
             if gear.plane == plane and gear.direction == direction:
                 return gear
         return None
+
+    def gear_names(self) -> list[str]:
+        """The gears a driver's sequence may name: the truck table's (in its order), else the
+        slots'."""
+        if self.truck:
+            gears = sorted({row.gear for row in self.truck}, key=lambda g: (g < 0, abs(g)))
+            return [str(g) if g > 0 else f"R{-g}" for g in gears]
+        return [gear.name for gear in self.gears]
 
     def gear(self, name: str) -> GearSlot:
         for gear in self.gears:
@@ -170,6 +237,10 @@ class HPatternState(NamedTuple):
     gear: str
     click_s: float
     """Time since the lever last hit the end stop (the click's clock); inf before any."""
+    range_high: bool = False
+    """The range in effect (a truck's range box; a double-H's half)."""
+    splitter_high: bool = False
+    """The splitter in effect (a truck's)."""
 
 
 class HPatternInputs(NamedTuple):
@@ -178,6 +249,12 @@ class HPatternInputs(NamedTuple):
     clutch_pedal: float = 1.0
     vehicle_speed_m_s: float = 0.0
     engine_speed_rad_s: float = 0.0
+    range_high: bool = False
+    """A truck's range switch on the knob (pre-selection: see the module's docstring)."""
+    splitter_high: bool = False
+    """A truck's splitter button on the knob."""
+    throttle: float = 0.0
+    """0..1: under torque (above THROTTLE_OFF, clutch engaged) a split waits."""
 
 
 class HPatternOutputs(NamedTuple):
@@ -198,6 +275,8 @@ class HPatternOutputs(NamedTuple):
     speed_difference_rad_s: float
     grind_N: float
     click_N: float
+    range_high: bool = False
+    splitter_high: bool = False
 
 
 def initial_state(
@@ -250,9 +329,21 @@ def _select_springs(
     """
     planes = layout.planes_y_m
     centre_y = planes[layout.centre_plane]
+    boundary = layout.range_boundary_m()
+    if y > boundary:  # a double-H's high half: its own neutral
+        centre_y = planes[layout.high_centre_plane]
     k = select.centring_stiffness_N_m
     moment = k * centre_y
     damping = 0.0
+    if layout.range_detent_N > 0.0 and boundary < math.inf:
+        # The detent between the halves: a spring pushing away from the boundary, up to
+        # range_detent_N at it (a triangular bump: a potential, so passive), over the gap
+        # between the planes' detent wells.
+        width = boundary - planes[layout.range_plane - 1] - select.detent_width_m
+        if abs(y - boundary) < width:
+            k_d = layout.range_detent_N / width
+            k += k_d
+            moment += k_d * (boundary + width if y > boundary else boundary - width)
     nearest = nearest_plane(layout, y)
     y_p = planes[nearest]
     if abs(y - y_p) < select.detent_width_m:
@@ -301,6 +392,24 @@ def step(
         # Another slot: the fixed synchronizer's progress belonged to the last gear.
         lever = lever._replace(synchronization_progress=0.0)
     slot = layout.gear_at(plane, direction)
+    range_high, splitter_high = state.range_high, state.splitter_high
+    if layout.truck:
+        # Pre-selection: the range waits for neutral, a split for the torque to go off.
+        neutral = state.gear == NEUTRAL_GEAR
+        if neutral and lever.stage is Stage.NEUTRAL:
+            range_high = inputs.range_high
+        torque_off = (
+            inputs.clutch_pedal >= params.synchronizer.clutch_open_above
+            or inputs.throttle <= THROTTLE_OFF
+        )
+        if neutral or torque_off:
+            splitter_high = inputs.splitter_high
+        if slot is not None:
+            row = layout.truck_gear(slot.name, range_high, splitter_high)
+            named = (
+                None if row is None else dataclasses.replace(slot, name=row.name, ratio=row.ratio)
+            )
+            slot = named
     aligned = slot is not None and _facing(layout, plane, y)
 
     # Synchronizer: which gear is selected, is it in mesh, how hard is the ring pressed.
@@ -407,6 +516,9 @@ def step(
     elif s1 < eng.teeth_position_m or lever.stage is Stage.NEUTRAL:
         event = f"disengage {gear}"
         gear = NEUTRAL_GEAR
+    elif layout.truck and slot is not None and slot.name != gear:  # a split, executed in gear
+        gear = slot.name
+        event = f"engage {gear}"
 
     x1 = direction * s1
     in_slot = in_slot or entered
@@ -418,7 +530,21 @@ def step(
             region = Region.OUTSIDE
         else:
             region = Region.MOUTH if aligned else Region.CORRIDOR
-    new_state = HPatternState(lever, direction, y1, vy1, plane, in_slot, sync_state, gear, click_s)
+    if layout.range_plane > 0:
+        range_high = y1 > layout.range_boundary_m()
+    new_state = HPatternState(
+        lever,
+        direction,
+        y1,
+        vy1,
+        plane,
+        in_slot,
+        sync_state,
+        gear,
+        click_s,
+        range_high,
+        splitter_high,
+    )
     return new_state, HPatternOutputs(
         x1,
         y1,
@@ -435,4 +561,6 @@ def step(
         sync_out.speed_difference_rad_s,
         sync_out.grind_N,
         click,
+        range_high,
+        splitter_high,
     )
