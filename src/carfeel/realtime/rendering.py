@@ -315,6 +315,9 @@ class HPatternRenderer:
         self.engine = engine_speed_rad_s
         self.clutch = clutch
         """An object with a `clutch_pedal` attribute (the virtual hand), or None (pressed)."""
+        self.knob = clutch
+        """The knob's switches (a truck's range and splitter: `range_high`, `splitter_high` of
+        the virtual hand; low without), kept when telemetry takes over the pedal."""
         self.cues: Any = None
         """The game's cues on the knob (telemetry/cues.py `LeverCues`): called each sub-step
         with the model's state, (x, y) N added to the hand's; None: no cues."""
@@ -366,8 +369,8 @@ class HPatternRenderer:
                 )
         pedal = float(getattr(self.clutch, "clutch_pedal", 1.0))
         # A truck's range switch and splitter on the knob (the virtual hand's; low otherwise).
-        knob = (bool(getattr(self.clutch, "range_high", False)),
-                bool(getattr(self.clutch, "splitter_high", False)))  # fmt: skip
+        knob = (bool(getattr(self.knob, "range_high", False)),
+                bool(getattr(self.knob, "splitter_high", False)))  # fmt: skip
         h = dt_s / self.substeps
         forces: tuple[float, ...] = (hands[0], hands[1])
         event = ""

@@ -863,7 +863,7 @@ def _drive_by_telemetry(
     """The renderer wrapped so the game's vehicle state drives it (`carfeel.telemetry.driving`)."""
     from carfeel.telemetry import driving
     from carfeel.telemetry.cues import LeverCues
-    from carfeel.telemetry.gearout import GearDriver, open_gear_output
+    from carfeel.telemetry.gearout import GearDriver, button_count, open_gear_output
     from carfeel.telemetry.source import VehicleSource
 
     steering = run.model == "steering"
@@ -874,7 +874,8 @@ def _drive_by_telemetry(
     vibration = driving.EngineVibration(run.rate_hz, 0.03 * info.max_force, 0.05 * info.max_force)
     gear_driver = None
     if not steering:
-        output = open_gear_output(run.gear_output, len(renderer.pattern.layout.gears))
+        layout = renderer.pattern.layout
+        output = open_gear_output(run.gear_output, button_count(layout, run.gear_mapping))
         if output is not None:
             gear_driver = GearDriver(output, renderer.pattern.layout, run.gear_timing,
                                      run.gear_mapping, run.rate_hz)  # fmt: skip

@@ -46,6 +46,10 @@ class GearOutput(Protocol):
         """Hold `button` (0-based) and release any other."""
         ...
 
+    def hold(self, mask: int) -> None:
+        """Hold exactly the buttons of `mask` (bit i: button i)."""
+        ...
+
     def release_all(self) -> None: ...
 
     def close(self) -> None: ...
@@ -378,15 +382,20 @@ class GearDriver:
             raise InputError(
                 f"--gear-mapping {mapping!r}: choose one of {', '.join(GEAR_MAPPINGS)}"
             )
-        if mapping == "range-splitter":
+        if mapping == "range-splitter" and not layout.truck:
             raise InputError(
-                "--gear-mapping range-splitter follows a truck's slot table (the game's, ETS2 "
-                "and ATS); the lever's truck layout is not built yet: use buttons or sequential"
+                "--gear-mapping range-splitter needs a truck's layout (a range/splitter gear "
+                "table, `layout.truck`: --preset truck-14r2); for this layout use buttons or "
+                "sequential"
             )
         self.output, self.layout, self.timing = output, layout, timing
+        self.mapping = mapping
+        self.positions = button_count(layout, "range-splitter") - 2 if layout.truck else 0
         names = sorted((g.name for g in layout.gears), key=lambda n: (n == "R", n))
         self.buttons = {name: i for i, name in enumerate(names)}
         self.held: str | None = None
+        self.held_truck: tuple[str, bool, bool] | None = None
+        """`range-splitter`: the gear, range and splitter whose buttons are held."""
         forward = sum(1 for n in names if n != "R")
         self.follower = (
             GearFollower(output, "sequential", forward) if mapping == "sequential" else None
@@ -402,6 +411,11 @@ class GearDriver:
             name = None if slot is None else slot.name
         else:
             name = None if state.gear == "N" else state.gear
+        if self.layout.truck:
+            name = self._truck(state, name)
+            if self.mapping == "range-splitter":
+                self._hold(state, name)
+                return
         if self.follower is not None:  # sequential: pulses towards the lever's gear
             t = self.ticks / self.rate_hz
             self.ticks += 1
@@ -411,7 +425,7 @@ class GearDriver:
                 target = 0 if resting else self.follower_target
             else:
                 self.neutral_since = math.inf
-                target = -1 if name == "R" else int(name)
+                target = gear_number(name)
             self.follower_target = target
             self.follower.update(target, t)
             return
@@ -422,8 +436,56 @@ class GearDriver:
                 self.output.press(self.buttons[name])
             self.held = name
 
+    def _truck(self, state: Any, name: str | None) -> str | None:
+        """A truck's gear (the table's name) from its slot, range and splitter in effect; with
+        `buttons` the slot's own name (a button per slot, as the H-shifter binding has)."""
+        if name is None:
+            return None
+        slot = self.layout.gear_at(state.plane, state.direction)
+        if slot is None:
+            return None
+        if self.mapping == "buttons":
+            return str(slot.name)
+        row = self.layout.truck_gear(slot.name, state.range_high, state.splitter_high)
+        return None if row is None else str(row.name)
+
+    def _hold(self, state: Any, name: str | None) -> None:
+        """`range-splitter`: the slot's handle-position button held, with the range button
+        (`positions`) and the splitter button (`positions + 1`) held while high: the switches'
+        states the box has executed (a pre-selection shows once it takes effect, so the game
+        reads the gear the lever is in)."""
+        key = None if name is None else (name, bool(state.range_high), bool(state.splitter_high))
+        if key == self.held_truck:
+            return
+        if name is None:
+            self.output.release_all()
+        else:
+            slot = self.layout.gear_at(state.plane, state.direction)
+            row = self.layout.truck_gear(slot.name, state.range_high, state.splitter_high)
+            mask = 1 << row.handle_position
+            mask |= (state.range_high << self.positions) | (
+                state.splitter_high << (self.positions + 1)
+            )
+            self.output.hold(mask)
+        self.held_truck = key
+
     def release(self) -> None:
         self.output.release_all()
-        self.held = None
+        self.held = self.held_truck = None
         if self.follower is not None:
             self.follower.release()
+
+
+def gear_number(name: str) -> int:
+    """A gear's number as games count it: "3" -> 3, "R" -> -1, "R2" -> -2."""
+    if name.startswith("R"):
+        return -int(name[1:] or 1)
+    return int(name)
+
+
+def button_count(layout: Any, mapping: str) -> int:
+    """Buttons the gear output needs for `layout` through `mapping`: a truck's handle
+    positions and its range and splitter buttons for `range-splitter`, else one per slot."""
+    if mapping == "range-splitter" and layout.truck:
+        return int(max(row.handle_position for row in layout.truck)) + 1 + 2
+    return len(layout.gears)
