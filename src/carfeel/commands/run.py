@@ -121,9 +121,11 @@ def register(commands: Any) -> None:
     run.add_argument(
         "--gear-mapping",
         default="buttons",
-        choices=("buttons", "sequential"),
+        choices=("buttons", "sequential", "range-splitter"),
         help="--gear-output: the binding the game expects: a button per gear, held (buttons, "
-        "the default) or up/down pulses (sequential: button 1 up, 2 down)",
+        "the default), up/down pulses (sequential: button 1 up, 2 down) or a truck's "
+        "(range-splitter: a button per handle position, then the range and splitter buttons; "
+        "a truck layout such as truck-14r2)",
     )
     run.add_argument(
         "--car-presets",
