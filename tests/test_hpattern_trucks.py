@@ -341,9 +341,13 @@ def _realtime(name: str, sequence: tuple[str, ...], mapping: str, monkeypatch):
     from carfeel.telemetry import gearout
 
     fake = RecordingGearOutput()
-    counts = []
-    monkeypatch.setattr(gearout, "open_gear_output",
-                        lambda name, buttons: counts.append(buttons) or fake)  # fmt: skip
+    counts: list[int] = []
+
+    def opened(name: str, buttons: int) -> RecordingGearOutput:
+        counts.append(buttons)
+        return fake
+
+    monkeypatch.setattr(gearout, "open_gear_output", opened)
     run = RealtimeRun(model="hpattern", clock="simulated", device="virtual:shifter",
                       preset=name, sequence=sequence, speed_kmh=0.0,
                       telemetry="carfeel:127.0.0.1:0", gear_output="uinput",
