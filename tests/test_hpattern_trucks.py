@@ -384,3 +384,23 @@ def test_the_sequence_names_the_trucks_gears():
         plan_hpattern(HPatternRunConfig(("N", "C", "N"), layout="truck-14r2"))
     names = preset("truck-14r2").setup.layout.gear_names()
     assert names == [*(str(g) for g in range(1, 15)), "R1", "R2"]
+
+
+def test_simulate_hpattern_drives_the_truck_from_the_command_line(tmp_path, capsys):
+    """`carfeel simulate hpattern --layout truck-14r2`: the gears in the CSV, the splits said
+    as such; a slot's name (C) in --sequence is refused with the gears the truck has, exit 2,
+    and the CSV already there is left as it was."""
+    from carfeel.cli import main
+    from carfeel.simulation.result import Result
+
+    out = tmp_path / "truck.csv"
+    args = ["simulate", "hpattern", "--layout", "truck-14r2", "--speed-kmh", "0"]
+    assert main([*args, "--sequence", "N,1,2,3,N", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "into 2          a split" in printed and "gears engaged    1 2 3;" in printed
+    assert engaged(Result.from_csv(out)["event"]) == ["1", "2", "3"]
+    before = out.read_bytes()
+    assert main([*args, "--sequence", "N,C,N", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "no gear C" in err and "14, R1, R2" in err
+    assert out.read_bytes() == before

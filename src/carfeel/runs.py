@@ -427,6 +427,11 @@ class HPatternSummary:
         ]
         if len(self.engagements) <= MAX_LISTED:
             for e in self.engagements:
+                if _split(e):
+                    lines.append(
+                        f"  into {e.gear:2s}         a split: the splitter, the lever in gear"
+                    )
+                    continue
                 lines.append(
                     f"  into {e.gear:2s}         synchronization "
                     f"{e.synchronization_s * 1e3:4.0f} ms at {e.plateau_N:5.1f} N, "
@@ -435,6 +440,10 @@ class HPatternSummary:
         else:  # a long run: each gear's figures over its engagements, not a line each
             for gear in dict.fromkeys(e.gear for e in self.engagements):
                 into = [e for e in self.engagements if e.gear == gear]
+                if all(_split(e) for e in into):
+                    lines.append(f"  into {gear:2s} x{len(into):<5d}  a split: the splitter, the "
+                                 "lever in gear")  # fmt: skip
+                    continue
                 lines.append(
                     f"  into {gear:2s} x{len(into):<5d}  synchronization "
                     f"{_spread([e.synchronization_s * 1e3 for e in into], '.0f')} ms at "
@@ -466,6 +475,11 @@ def _listed(items: tuple[str, ...], separator: str, most: int = 24) -> str:
         f"{separator.join(items[:12])}{separator}...{separator}{separator.join(items[-3:])} "
         f"({len(items)})"
     )
+
+
+def _split(e: Engagement) -> bool:
+    """A truck's split: the gear changed in its slot, no ring blocked, no teeth met."""
+    return e.synchronization_s == 0.0 and math.isnan(e.plateau_N)
 
 
 def _spread(values: list[float], spec: str) -> str:
