@@ -404,3 +404,32 @@ def test_simulate_hpattern_drives_the_truck_from_the_command_line(tmp_path, caps
     err = capsys.readouterr().err
     assert "no gear C" in err and "14, R1, R2" in err
     assert out.read_bytes() == before
+
+
+def test_the_games_cues_read_the_trucks_gear_not_its_slot():
+    """With a truck's game (ETS2's 14+2 in 9): the lever in slot 1 with the range high is 9,
+    the game's own gear, so its wall does not refuse it whatever the revs; with the range low
+    the same slot is 3, refused with the clutch out and the revs apart. R1 is the game's -1."""
+    from carfeel.telemetry import cues
+    from carfeel.telemetry.cues import LeverCues
+    from carfeel.telemetry.state import VehicleState
+
+    pattern = preset("truck-14r2").pattern()
+    game = VehicleState(speed_m_s=15.0, engine_speed_rpm=1200.0, gear=9, forward_gears=14,
+                        clutch_pedal=0.0)  # fmt: skip
+    layout = pattern.layout
+    slot = layout.gear("1")
+    walls = {}
+    for range_high in (True, False):
+        lever = LeverCues(pattern, 1000.0)
+        lever.update(game, 1.0, "N", 1e-3)
+        knob = hpattern.initial_state(pattern)._replace(
+            lever=hpattern.initial_state(pattern).lever._replace(position_m=0.0145),
+            direction=slot.direction, plane=slot.plane, range_high=range_high,
+        )  # fmt: skip
+        walls[range_high] = lever(knob)[0]
+    assert walls[True] == 0.0 and walls[False] != 0.0
+    assert not cues.mismatch("R1", game._replace(gear=-1)) and cues.mismatch(
+        "R2", game._replace(gear=-1)
+    )
+    assert not cues.mismatch("9", game) and cues.mismatch("3", game)

@@ -30,6 +30,7 @@ the source's 0.3 s), and zero while the game plays a replay or is paused (nobody
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -142,8 +143,10 @@ def sequential_locked(direction: int, state: VehicleState) -> bool:
 
 
 def mismatch(lever_gear: str, state: VehicleState) -> bool:
-    """The lever in a gear (not neutral) that is not the game's."""
-    return lever_gear != "N" and lever_gear != gear_name(state.gear)
+    """The lever in a gear (not neutral) that is not the game's (a truck's reverses are R1,
+    R2 ...: the game's -1, -2)."""
+    truck_reverse = f"R{-state.gear}" if state.gear < 0 else ""
+    return lever_gear not in ("N", gear_name(state.gear), truck_reverse)
 
 
 class LeverCues:
@@ -201,14 +204,21 @@ class LeverCues:
         """The wall's force on the knob (model N, x and y) for the model's state now."""
         self.wall_N, refused = 0.0, ""
         s, d = lever.lever.position_m, lever.direction
-        slot = self.pattern.layout.gear_at(lever.plane, d) if s > 0.0 else None
+        layout = self.pattern.layout
+        slot = layout.gear_at(lever.plane, d) if s > 0.0 else None
+        if slot is not None and layout.truck:  # a truck's: the gear of its range and splitter
+            row = layout.truck_gear(slot.name, getattr(lever, "range_high", False),
+                                    getattr(lever, "splitter_high", False))  # fmt: skip
+            slot = (
+                None if row is None else dataclasses.replace(slot, name=row.name, ratio=row.ratio)
+            )
         # A gear the lever is in stays in (the wall is at the entry, not in the gear).
         if self.weight > 0.0 and slot is not None and lever.gear == "N":
             number = -1 if slot.name == "R" else _number(slot.name)
             top = self.state.forward_gears
             if top > 0 and number > top:  # the car has no such gear: always walled
                 refused, self.grind_hz = slot.name, 0.0
-            elif slot.name != gear_name(self.state.gear):  # the game's own gear always goes in
+            elif mismatch(slot.name, self.state):  # the game's own gear always goes in
                 learned = self.learned.get(number, 0.0)
                 diff = speed_difference_rpm(self.state, slot.ratio, self.pattern, learned)
                 if rejects(diff, self.state, self.p):
@@ -242,4 +252,7 @@ class LeverCues:
 
 
 def _number(name: str) -> int:
+    """A gear's number: "3" -> 3, a truck's reverse "R2" -> -2; 0 for another name."""
+    if name[:1] == "R" and name[1:].isdigit():
+        return -int(name[1:])
     return int(name) if name.isdigit() else 0
