@@ -31,31 +31,34 @@ STEPS = 20_000
 
 def main() -> None:
     print(f"CPython {platform.python_version()} on {platform.machine()}")
-    runs = {}
+    params: dict[str, loop.HPatternRun] = {}
+    states: dict[str, loop.LoopState] = {}
+    samples: dict[str, list[float]] = {}
     for name, sequence in SEQUENCES.items():
         preset = load_hpattern(name)
         script = Script(sequence, preset.setup.layout, preset.shift.driver, preset.setup.driver)
-        params = loop.HPatternRun(preset.pattern(False), script, 0.0, 800 * math.pi / 30)
-        runs[name] = [params, loop.initial_state(params), []]
+        params[name] = loop.HPatternRun(preset.pattern(False), script, 0.0, 800 * math.pi / 30)
+        states[name] = loop.initial_state(params[name])
+        samples[name] = []
     gc.collect()
     gc.freeze()
     clock = time.perf_counter_ns
     for _ in range(STEPS):
-        for run in runs.values():
-            params, state, samples = run
+        for name, run in params.items():
+            state = states[name]
             last = state.last
             inputs = HPatternInputs(
                 last.force_x_N if last else 0.0, last.force_y_N if last else 0.0, 1.0, 0.0,
-                params.engine_speed_rad_s, last.range_high if last else False,
+                run.engine_speed_rad_s, last.range_high if last else False,
                 last.splitter_high if last else False,
             )  # fmt: skip
             t0 = clock()
-            hpattern.step(state.knob, inputs, params.pattern, 1e-3)
-            samples.append((clock() - t0) / 1e3)
-            run[1], _ = loop.step(state, None, params, 1e-3)
-    reference = statistics.median(runs["7r"][2])
-    for name, (_, _, samples) in runs.items():
-        ordered = sorted(samples)
+            hpattern.step(state.knob, inputs, run.pattern, 1e-3)
+            samples[name].append((clock() - t0) / 1e3)
+            states[name], _ = loop.step(state, None, run, 1e-3)
+    reference = statistics.median(samples["7r"])
+    for name, taken in samples.items():
+        ordered = sorted(taken)
         p99 = ordered[int(0.99 * (len(ordered) - 1))]
         median = statistics.median(ordered)
         print(
