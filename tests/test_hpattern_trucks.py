@@ -7,6 +7,7 @@ buttons read through ETS2's own 14+2 slot table."""
 from __future__ import annotations
 
 import functools
+import itertools
 import json
 import math
 
@@ -433,3 +434,47 @@ def test_the_games_cues_read_the_trucks_gear_not_its_slot():
         "R2", game._replace(gear=-1)
     )
     assert not cues.mismatch("9", game) and cues.mismatch("3", game)
+
+
+@pytest.mark.parametrize(("old", "new", "message"), [
+    ("handle_position = 5", "handle_position = 40", r"handle_position = 40 is out of range"),
+    ("gear = 3\n", "gear = 0\n", r"gear 0, ratio 9.15: a reverse slot"),
+    ("gear = -1\nratio = -11.93", "gear = -1\nratio = 11.93", r"ratio 11.93"),
+    ("handle_position = 6", "handle_position = 4", r"one handle position per slot"),
+    ("range_high = true\nsplitter_high = false\ngear = 9",
+     "range_high = false\nsplitter_high = false\ngear = 9", r"appears twice"),
+    ("range_high = true\nsplitter_high = false\ngear = 9", "range_high = 1\nsplitter_high = "
+     "false\ngear = 9", r"expected true or false"),
+    ("handle_position = 5\n", "handle_position = 5\nbogus = 1\n", r"bogus: unknown parameter"),
+])  # fmt: skip
+def test_a_truck_table_with_garbage_is_refused_with_what_is_wrong(tmp_path, old, new, message):
+    from carfeel.io.presets import resolve
+
+    text = resolve("hpattern", "truck-14r2")[1]
+    assert old in text
+    path = tmp_path / "truck.toml"
+    path.write_text(text.replace(old, new, 1), encoding="utf-8")
+    with pytest.raises(PresetError, match=message):
+        load_hpattern(str(path))
+
+
+def test_a_splitter_flicked_during_the_block_retargets_the_ring_and_stays_sound():
+    """The splitter button toggled every 50 ms from the start of the push (physics, 10 km/h,
+    clutch in): the cone chases the target of whichever split is in effect, so the block lasts
+    between the two gears' own (604 ms for 4, 1,186 ms for 3; measured 729 ms); nothing goes
+    non-finite; once in gear each flick is a split (clutch in: the torque is off), and the
+    gear is the last split's."""
+    pattern = preset("truck-14r2").pattern(physics=True)
+    state = _knob_at_ring(pattern, "1", 10.0)
+    gears = []
+    for n in range(3000):
+        high = (n // 50) % 2 == 1 if n < 1500 else True
+        inputs = HPatternInputs(78.5, 0.0, 1.0, 10 / 3.6, RPM_800, False, high)
+        state, out = hpattern.step(state, inputs, pattern, 1e-3)
+        assert math.isfinite(out.x_m) and math.isfinite(out.speed_difference_rad_s)
+        if out.event.startswith("engage"):
+            gears.append((n, out.gear))
+    first, gear = gears[0]
+    assert 604 < first < 1186 and gear in ("3", "4")
+    assert all(a[1] != b[1] for a, b in itertools.pairwise(gears))  # each flick a split
+    assert gears[-1][1] == out.gear == "4"
