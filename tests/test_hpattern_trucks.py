@@ -478,3 +478,33 @@ def test_a_splitter_flicked_during_the_block_retargets_the_ring_and_stays_sound(
     assert 604 < first < 1186 and gear in ("3", "4")
     assert all(a[1] != b[1] for a, b in itertools.pairwise(gears))  # each flick a split
     assert gears[-1][1] == out.gear == "4"
+
+
+def test_with_a_game_the_split_waits_for_its_throttle_on_the_device():
+    """The 1 kHz renderer driven by the game's state (ETS2-like: clutch out): in 5 with the
+    knob's splitter pressed high, the split waits while the game's throttle is on and executes
+    at the tick the driver lifts it."""
+    from types import SimpleNamespace
+
+    from carfeel.contracts import DeviceSample
+    from carfeel.realtime.rendering import Gains, HPatternRenderer, Scaling
+    from carfeel.telemetry.driving import TelemetryDriven
+    from carfeel.telemetry.state import VehicleState
+
+    pattern = preset("truck-14r2").pattern()
+    (state, _), out, _ = _push_in(pattern, _knob_at_ring(pattern, "2", 0.0), False, False, 0.0)
+    assert out.gear == "5"
+    hand = SimpleNamespace(clutch_pedal=0.0, range_high=False, splitter_high=True)
+    renderer = HPatternRenderer(pattern, "impedance", Scaling(1.0, 1.0), 1000.0,
+                                Gains(1e3, 10.0, 1e3, 10.0, 1e3, 10.0), clutch=hand)  # fmt: skip
+    renderer.state = state
+    game = SimpleNamespace(state=VehicleState(speed_m_s=0.0, engine_speed_rpm=1000.0, gear=5,
+                                              clutch_pedal=0.0, throttle=0.8), w=1.0)  # fmt: skip
+    source = SimpleNamespace(update=lambda t_s: (game.state, game.w))
+    driven = TelemetryDriven(renderer, source, "hpattern")  # type: ignore[arg-type]
+    x = state.direction * state.lever.position_m
+    for n in range(400):
+        if n == 200:
+            game.state = game.state._replace(throttle=0.0)
+        driven.tick(DeviceSample(n * 1e-3, (x, state.y_m), None), 1e-3)
+        assert renderer.state.gear == ("5" if n < 200 else "6"), n

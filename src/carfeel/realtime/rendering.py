@@ -368,9 +368,11 @@ class HPatternRenderer:
                     + (d * held / fs if axis == 0 else 0.0)
                 )
         pedal = float(getattr(self.clutch, "clutch_pedal", 1.0))
-        # A truck's range switch and splitter on the knob (the virtual hand's; low otherwise).
+        # A truck's range switch and splitter on the knob (the virtual hand's; low otherwise),
+        # and the game's throttle where telemetry gives it (a split waits under torque).
         knob = (bool(getattr(self.knob, "range_high", False)),
-                bool(getattr(self.knob, "splitter_high", False)))  # fmt: skip
+                bool(getattr(self.knob, "splitter_high", False)),
+                float(getattr(self.clutch, "throttle", 0.0)))  # fmt: skip
         h = dt_s / self.substeps
         forces: tuple[float, ...] = (hands[0], hands[1])
         event = ""

@@ -137,10 +137,12 @@ class GameTorque:
 
 
 class _Pedal:
-    __slots__ = ("clutch_pedal",)
+    __slots__ = ("clutch_pedal", "throttle")
 
     def __init__(self) -> None:
         self.clutch_pedal = 1.0
+        self.throttle = 0.0
+        """The game's throttle 0..1 (a truck's split waits while it is on, clutch out)."""
 
 
 def steering_needs(state: VehicleState) -> bool:
@@ -236,6 +238,8 @@ class TelemetryDriven:
             hand_pedal = float(getattr(self.hand, "clutch_pedal", 1.0))
             game_pedal = state.clutch_pedal if 0.0 <= state.clutch_pedal <= 1.0 else hand_pedal
             self.pedal.clutch_pedal = w * game_pedal + (1.0 - w) * 1.0
+            throttle = state.throttle if 0.0 <= state.throttle <= 1.0 else 0.0
+            self.pedal.throttle = w * throttle
             inner.clutch = self.pedal
             if self.cues is not None:
                 self.cues.update(state, w, str(inner.state.gear), dt_s)
