@@ -42,7 +42,7 @@ test: lint chromium
 	$(BIN)/python -m pytest
 
 # The fast tier, before each commit: lint, types and every test not marked slow (the matrices'
-# many simulated runs, the browser); `make test` (and CI) runs them all.
+# many simulated runs, the browser, any test over 2 s): 130 s here; `make test` (and CI) runs them all.
 check: lint
 	command -v cc >/dev/null || (apt-get update && apt-get install -y gcc)
 	command -v cmake >/dev/null || (apt-get update && apt-get install -y cmake)

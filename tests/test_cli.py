@@ -534,6 +534,7 @@ def readme_examples(prefix: str) -> list[str]:
     return [line.split("  #")[0].strip() for line in lines if line.startswith(prefix)]
 
 
+@pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
 def test_the_readmes_hpattern_examples_do_what_they_say(tmp_path, capsys, monkeypatch):
     """Issue 11: the `--mistake early-clutch:3` example exited 2 (its sequence has two gears)
     and `--sequence ...,N,R,N` at 30 km/h never engaged reverse (no synchronizer: right, but

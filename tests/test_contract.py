@@ -205,6 +205,7 @@ def test_no_hidden_state_between_runs(c):
 
 
 @pytest.mark.parametrize("c", CONTRACTS, ids=lambda c: c.name)
+@pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
 def test_converges_as_dt_shrinks(c):
     def rms(substeps_a: int, substeps_b: int) -> float:
         a, _ = run(

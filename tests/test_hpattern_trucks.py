@@ -356,6 +356,7 @@ def _realtime(name: str, sequence: tuple[str, ...], mapping: str, monkeypatch):
     return run_realtime(run), fake, counts
 
 
+@pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
 def test_the_truck_on_the_virtual_shifter(monkeypatch):
     """All 14 gears and both reverses on the virtual shifter at the default delay, simulated
     time: no fault, the gears in order, and the range-splitter buttons (10: 8 positions, range,
@@ -368,6 +369,7 @@ def test_the_truck_on_the_virtual_shifter(monkeypatch):
     assert [g for g in read if g != 0] == [*range(1, 15), -1, -2]
 
 
+@pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
 def test_the_double_h_on_the_virtual_shifter(monkeypatch):
     sequence = ("N", "1", "2", "3", "4", "5", "6", "7", "8", "N", "R", "N")
     result, fake, _ = _realtime("double-h-8r", sequence, "buttons", monkeypatch)

@@ -199,6 +199,7 @@ def test_a_missing_extra_names_carfeel_logs(tmp_path, monkeypatch):
         logs.list_signals(path)
 
 
+@pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
 def test_mdf4_and_parquet_of_a_run_fit_to_the_same_parameters_as_its_csv(tmp_path, capsys):
     """One run written three ways (MDF4 by asammdf, with the angle in degrees and the speed in
     km/h as a logger would; Parquet; CSV): the same samples in SI after the readers, so the same

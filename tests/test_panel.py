@@ -85,6 +85,7 @@ def synchronization_runs(path: Path) -> list[tuple[float, float]]:
     return runs
 
 
+@pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
 def test_a_session_streams_tunes_records_and_stops(tmp_path):
     before = panel_segments()
     with client_for(tmp_path) as client:
@@ -233,6 +234,7 @@ def test_bad_input_is_refused_with_the_reason(tmp_path):
         assert client.get("/api/recordings/..%2Fsecret.csv").status_code in (400, 404)
 
 
+@pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
 def test_steering_tunings_are_checked_against_the_wheel(tmp_path):
     with client_for(tmp_path) as client:
         start = post(client, "/api/session", {
@@ -413,6 +415,7 @@ PARENT = textwrap.dedent(
 
 
 @pytest.mark.skipif(not hasattr(os, "getppid") or sys.platform != "linux", reason="Linux")
+@pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
 def test_the_loop_fades_out_when_the_panel_dies(tmp_path):
     """SIGKILL the panel's process: nobody watches the device any more, so the loop's process
     stops on its own, through the fade, and keeps what it recorded. (Simulated time: the loop
@@ -500,6 +503,7 @@ def test_carfeel_panel_refuses_a_port_in_use(tmp_path, capsys):
     assert not (tmp_path / "p").exists()  # nothing created by a run that could not start
 
 
+@pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
 def test_the_panel_stops_promptly_with_a_stream_open_and_a_session_running(tmp_path):
     """SIGTERM to `carfeel panel` while a WebSocket client is connected (and reads nothing)
     and a session runs: uvicorn's shutdown must not wait on the stream, and the loop's

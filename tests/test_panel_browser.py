@@ -25,6 +25,9 @@ import pytest
 
 from tests.test_panel import synchronization_runs
 
+# A real browser beside the panel: make test (and CI) runs these, make check does not.
+pytestmark = pytest.mark.slow
+
 CHROMIUM = Path(os.environ.get("CARFEEL_CHROMIUM", "/usr/bin/chromium"))
 ARGS = [
     "--no-sandbox", "--disable-background-networking", "--disable-component-update",
@@ -121,7 +124,6 @@ def test_the_page_loads_without_console_errors(page: Any) -> None:
     assert page.problems == []
 
 
-@pytest.mark.slow  # over 8 s here: the full suite (make test) runs it, make check does not
 def test_a_session_started_from_the_page(
     page: Any, panel: tuple[str, Path], tmp_path: Path
 ) -> None:

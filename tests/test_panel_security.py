@@ -479,6 +479,7 @@ def test_a_running_panel_refuses_clients_without_the_credential(tmp_path, host):
         assert 200 in statuses
 
 
+@pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
 def test_the_credential_is_not_on_a_command_line_nor_sent_back(tmp_path):
     """What `ps` shows of the panel and of its loop's process, while a session runs, holds no
     credential (given in the environment here; generated, it is printed only)."""

@@ -84,6 +84,7 @@ def stages_per_engagement(stages, events) -> list[list[str]]:
 
 
 @pytest.mark.parametrize("mode", ["admittance", "impedance"])
+@pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
 def test_the_hpattern_on_the_virtual_device_matches_the_offline_run(mode, tmp_path):
     """Same sequence, same gears, and each engagement through the same stages in the same
     order as offline (synchronization, the gate opening, the teeth, the stop), with the hand
@@ -254,6 +255,7 @@ def test_a_stop_request_ramps_the_force_down_within_the_slew():
     assert ramp[-1] == 0.0
 
 
+@pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
 def test_the_recording_is_readable_after_a_kill(tmp_path):
     """Killed mid-run: the recording so far is readable as NAME.part.csv, and what the user
     had at NAME.csv before is untouched."""
@@ -282,6 +284,7 @@ def test_the_recording_is_readable_after_a_kill(tmp_path):
     assert record.read_text() == "precious\n"
 
 
+@pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
 def test_sigint_stops_a_real_time_run_cleanly(tmp_path):
     """Ctrl-C in a wall-clock run: force first, the recording kept, exit 130. On these shared
     cores a run can meet a 20+ ms stall before the signal and end on its watchdog (exit 3, the
@@ -397,6 +400,7 @@ def test_bad_run_requests_exit_2(capsys, args, message):
     assert message in capsys.readouterr().err
 
 
+@pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
 def test_model_substeps_run_inside_each_tick(tmp_path, monkeypatch):
     """1 kHz loop, 10 kHz model: every tick steps the model 10 times by a tenth of the tick
     (they add up to the tick, none is skipped or doubled), recoupled to the held handle between

@@ -57,6 +57,7 @@ def plateau(tmp_path, monkeypatch, device: str, mode: str, wall: bool):
 
 @pytest.mark.parametrize("mode", ["impedance", "admittance"])
 @pytest.mark.parametrize("device", ["virtual:joystick", "virtual:shifter"])
+@pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
 def test_the_ring_holds_the_knob_still_and_the_push_at_the_plateau(
     device, mode, tmp_path, monkeypatch
 ):
@@ -256,6 +257,7 @@ def hpattern_blocks(tmp_path, monkeypatch, device: str, mode: str, wall: bool):
 @pytest.mark.parametrize(
     ("device", "mode"), [("virtual:joystick", "impedance"), ("virtual:shifter", "admittance")]
 )
+@pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
 def test_the_hpattern_s_ring_holds_on_the_device(device, mode, tmp_path, monkeypatch):
     """The H-pattern's x axis on the same wall: each of the four blocks travels at most half of
     what it did on the coupling alone (measured 0.20 and 0.44 of it), the median push over its

@@ -264,6 +264,7 @@ def test_a_validation_that_fails_while_drawing_leaves_the_old_report_whole(
     assert report_untouched(old_report)
 
 
+@pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
 def test_a_failed_fit_leaves_the_report_and_the_preset(old_report, tmp_path, capsys):
     trace = tmp_path / "shift.csv"
     assert main(["simulate", "shift", "--pull-out", "--out", str(trace)]) == 0
@@ -384,6 +385,7 @@ def test_the_readme_names_every_column_a_recording_has(tmp_path, model, device):
 
 
 @pytest.mark.parametrize(("signum", "code"), [("SIGINT", 130), ("SIGTERM", 143)])
+@pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
 def test_a_signal_ends_the_recording_with_the_fade_to_zero(tmp_path, signum, code):
     """Issue 11: after SIGTERM or SIGINT the recording ended before the fade (its last command
     was 8.7 N), so the fade could not be checked from the file; and the run exited 0."""
@@ -422,6 +424,7 @@ def test_a_signal_ends_the_recording_with_the_fade_to_zero(tmp_path, signum, cod
     assert np.all(np.abs(commands[ramp]).max(axis=1) <= before + 1e-9)  # falling, not jumping
 
 
+@pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
 def test_every_command_says_what_it_wrote(tmp_path, capsys):
     """Issue 11: `fit shift --report` and `run --plot` did not say what they wrote."""
     record, plot = tmp_path / "r.csv", tmp_path / "r.png"

@@ -226,6 +226,7 @@ def test_round_trip_resimulation_follows_the_traces(round_trip: ShiftFit):
     assert figures["engagements"] == 6.0
 
 
+@pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
 def test_a_force_spike_and_gaps_still_fit():
     trace = measured(clean(SEEDS[0]), SEEDS[0])
     t, x, f = trace.time_s, trace["position_m"].copy(), trace["force_N"].copy()
@@ -267,6 +268,7 @@ def test_one_engagement_keeps_the_spread_and_says_why():
     assert g.in_gear_position_m == pytest.approx(0.043, abs=5e-4)
 
 
+@pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
 def test_a_mapping_of_arrays_is_a_trace(round_trip: ShiftFit):
     trace = measured(clean(SEEDS[0]), SEEDS[0])
     columns = {name: trace[name] for name in trace.names}
@@ -460,6 +462,7 @@ def test_a_report_path_that_is_a_file_stops_before_anything_is_written(tmp_path,
     assert f"folder {missing.parent} does not exist" in capsys.readouterr().err
 
 
+@pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
 def test_positions_in_mm_and_exactly_200_hz():
     result = measured(clean(SEEDS[0]), SEEDS[0])
     with pytest.raises(InputError, match="if it is in mm, divide it by 1000"):
@@ -694,6 +697,7 @@ def test_chamfers_the_traces_never_show_are_taken_out():
     assert fit.figures["r2"] > 0.95
 
 
+@pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
 def test_a_fit_under_the_r2_a_preset_needs_is_refused_with_why(tmp_path, capsys, monkeypatch):
     """The refusal of issue 25 point 4: a fit whose model follows its traces with r2 under
     MIN_R2 writes no preset, exits 2 and names the r2, the worst trace and where it departs.

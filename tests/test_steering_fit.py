@@ -96,6 +96,7 @@ def excitation_runs():
     return (*clean_runs(), *extra)
 
 
+@pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
 def test_noise_on_every_channel_leaves_each_k_within_3_percent_and_2_sigmas():
     """The issue's acceptance: noise on torque, angle, rate, speed and Ay (levels above), an
     angle offset and a torque bias. Before the regressors were conditioned, 0.05 m/s of speed
@@ -234,6 +235,7 @@ def write_logs(folder, logs_from=("weave", "steer-cycle", "iso4138-left", "iso38
     return paths
 
 
+@pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
 def test_fit_and_validate_from_the_command_line(tmp_path, capsys):
     import json
 
@@ -278,6 +280,7 @@ def test_fit_and_validate_from_the_command_line(tmp_path, capsys):
     assert "<th>what it is</th>" in fit_page and "K4, tyre spin at standstill" in fit_page
 
 
+@pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
 def test_malformed_logs_exit_2_from_the_command_line(tmp_path, capsys):
     from carfeel.cli import main
 
@@ -623,6 +626,7 @@ def test_fit_vehicle_from_another_base_finds_the_true_understeer():
         assert got[name].value == pytest.approx(TRUE[name], rel=0.1), name
 
 
+@pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
 def test_base_another_car_from_the_command_line(tmp_path, capsys):
     import json
 
@@ -655,6 +659,7 @@ def test_base_another_car_from_the_command_line(tmp_path, capsys):
     assert written.vehicle == other.vehicle
 
 
+@pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
 def test_drift_and_cross_validation_from_the_command_line(tmp_path, capsys):
     """A torque offset wandering by +-0.4 Nm over a minute (road crown, a sensor's drift): fitted
     with --drift on the first 70 % of each log, validated on the rest, both figures side by side."""
@@ -723,6 +728,7 @@ def test_reported_sigmas_match_the_errors_over_repeated_noisy_fits():
     assert np.mean(np.abs(v - truth) <= 2 * s) >= 0.8
 
 
+@pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
 def test_validate_gives_the_models_own_understeer_gradient_not_the_logs(tmp_path):
     """The law is driven with the log's angle and Ay, so an understeer gradient taken from them
     is the log's (it was, in the model column): the model's is its car's. A D-segment log
@@ -805,6 +811,7 @@ def test_every_fault_of_a_real_cars_sensors_leaves_the_law_within_its_sigmas():
     assert 0.25 < ratio < 4.0
 
 
+@pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
 def test_a_rate_derived_from_a_quantized_angle_keeps_the_friction_unbiased():
     """The quantization alone (0.1 deg, 0.02 deg of noise before it), nothing else: a fixed
     81 ms Savitzky-Golay derivative took K8 16 % high (5.6 sigma) and K7 3.3 %; the adaptive

@@ -400,6 +400,7 @@ LONG_SEQUENCE = "N," + ",".join(["1,2,3,4,5,4,3,2,1,N"] * 9)
         (["simulate", "steering", "--manoeuvre", "iso7401-step", "--dt"], ["0.005"], ["0.0001"]),
     ],
 )
+@pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
 def test_a_run_fifty_times_longer_peaks_at_the_same_memory(tmp_path, command, short, long):
     """Each run in a child process of its own, its peak resident memory (VmHWM) as it exits.
     Before: 0.43 / 1.06 / 1.35 KB a sample held, 130 MB more for the shift's 300 s, 98 MB

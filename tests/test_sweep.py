@@ -225,6 +225,7 @@ cases_per_task = 64
 """128 shifts in two tasks of 64 lanes: the vectorized batch on each worker."""
 
 
+@pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
 def test_rows_are_identical_serially_and_on_a_two_worker_local_cluster():
     distributed = pytest.importorskip("dask.distributed")
     sweep = spec.from_toml(MONTE_CARLO)

@@ -124,6 +124,7 @@ def _peak_bytes(n_seeds: int, folder: Path) -> tuple[int, Path]:
     return peak, out
 
 
+@pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
 def test_a_large_sweep_streams_its_rows_in_memory_that_does_not_grow(tmp_path):
     """Ten times the cases, about the same peak memory: nothing per case is held but a byte of
     the bitmap of finished cases. (Traced Python allocations; the 1.5x and 1 MB allow for the

@@ -169,6 +169,7 @@ def fast(task: tasks.Task) -> tasks.Chunk:
 
 
 @pytest.mark.skipif(sys.platform != "linux", reason="reads /proc/self/status")
+@pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
 def test_the_clients_memory_does_not_grow_with_the_cases_on_dask(tmp_path):
     """A client (with its LocalCluster's scheduler, in its process) of 20,000 and of 200,000
     cases, each in a child process of its own (its VmHWM as it ends): within 15 MB (Dask's

@@ -172,6 +172,7 @@ def _run(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, change: dict[str, Any]
     return json.loads(out.getvalue()), rows
 
 
+@pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
 def test_the_recorded_session_on_the_virtual_shifter(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

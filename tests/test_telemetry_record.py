@@ -101,6 +101,7 @@ def _same(row: dict[str, str], state: VehicleState) -> bool:
     [(60.0, 60), (333.0, 333), (1000.0, 1793)],
     ids=["60Hz", "333Hz", "1kHz"],
 )
+@pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
 def test_forza_capture_every_good_packet_a_row_with_its_own_time(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], rate_hz: float, count: int
 ) -> None:
@@ -135,6 +136,7 @@ def test_forza_capture_every_good_packet_a_row_with_its_own_time(
     assert not list(tmp_path.glob("*.part.csv"))  # committed under its own name
 
 
+@pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
 def test_assetto_capture_at_1khz_every_packet_a_row(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -191,6 +193,7 @@ def test_listen_refuses_what_it_cannot_do(capsys: pytest.CaptureFixture[str], tm
     assert summary["rate_hz"] == 0.0
 
 
+@pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
 def test_packets_from_others_are_dropped_counted_and_named(capsys: pytest.CaptureFixture[str]):
     """Two real senders, one on 127.0.0.2: the listener on 127.0.0.1 takes the game's
     (127.0.0.1, the default) and drops the other's, counted and named in the summary."""
