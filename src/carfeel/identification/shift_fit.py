@@ -74,38 +74,25 @@ import numpy as np
 import numpy.typing as npt
 
 from carfeel.errors import InputError
-from carfeel.identification.signals import noise_sigma, resolution
+from carfeel.identification.shift_traces import (
+    APPROACH_S,
+    KGF_SUSPECT_N,
+    EngagementFeatures,
+    FloatArray,
+    FoundEngagement,
+    PreparedTrace,
+    Trace,
+    odd_at_least,
+    prepare_trace,
+    segment_engagements,
+    true_runs,
+    window_indices,
+)
 from carfeel.io.presets import check_shift, load_shift
 from carfeel.models.gearshift import engagement
 from carfeel.models.gearshift.engagement import EngagementParams, EngagementState, Stage
-from carfeel.simulation.result import Result
 from carfeel.simulation.shift import ShiftParams
-from carfeel.text import count
 
-FloatArray = npt.NDArray[np.float64]
-BoolArray = npt.NDArray[np.bool_]
-Trace = Result | Mapping[str, npt.ArrayLike]
-REQUIRED = ("time_s", "position_m", "force_N")
-
-MIN_SAMPLES = 50
-MAX_SAMPLE_PERIOD_S = 5e-3
-"""Sampled slower than 200 Hz, the start of a plateau and a tooth's impact are not resolved."""
-MAX_TRAVEL_M = 0.2
-"""A knob further than this from neutral is not a gear lever: the trace is in other units."""
-NOISE_BAND = 3.0
-"""Half-width of the plateau band, in sigmas of the position noise."""
-BAND_FLOOR_M = 2e-6
-MIN_PLATEAU_S = 0.04
-KGF_SUSPECT_N = 20.0
-"""A synchronization plateau below this at the knob is not a car's (a force in kgf reads 9.8x
-low)."""
-MIN_TRAVEL_M = 0.002
-HIGH_FORCE_FRACTION = 0.5
-LOW_FORCE_FRACTION = 0.1
-STILL_WINDOW_S = 0.02
-APPROACH_S = 0.04
-STOP_WINDOW_S = 0.15
-"""How long after reaching the stop the stop fit looks: overshoot, push, release, settling."""
 GEAR_SLACK_M = 0.002
 """How far below the settled position x_gear may be fitted."""
 FIT_STEP_S = 2e-4
@@ -118,34 +105,6 @@ DIFF_STEP = 0.05
 SOFT_L1_SCALE = 3.0
 TOLERANCE = 1e-4
 """ftol and xtol of the fits: far below the noise, and a few times faster than the default."""
-
-
-@dataclass(frozen=True, slots=True)
-class EngagementFeatures:
-    """What one engagement of a trace shows. Positions in m, forces in N, times in s."""
-
-    trace: int
-    """Index of the trace in the sequence given to `fit_shift`."""
-    start_time_s: float
-    """When the knob reached the synchro ring (its approach extrapolated to the plateau)."""
-    synchronization_position_m: float
-    plateau_force_N: float
-    plateau_duration_s: float
-    """From the first to the last sample within the band (a multiple of the sample period)."""
-    tooth_peak_force_N: float
-    """Highest knob force between the synchronization and the stop; NaN if there is none."""
-    tooth_peak_position_m: float
-    stop_position_m: float
-    """Largest position of the engagement (the overshoot into the end stop)."""
-    settled_position_m: float
-    overshoot_m: float
-    synchronization_time_s: float = math.nan
-    """Fitted: from the arrival at the ring to the gate's opening."""
-    tooth_resistance_N: float = math.nan
-    """Fitted: the teeth's sliding resistance in this engagement (friction + tooth draw)."""
-    chamfer_travel_m: float = math.nan
-    """Fitted: how far past the teeth the chamfers turned the gear (0: gap to gap); NaN where
-    the base has no chamfer inertia or drag, or the engagement was not fitted."""
 
 
 @dataclass(frozen=True)
@@ -163,53 +122,6 @@ class ShiftFit:
     traces cannot give one: too few engagements, or the value was repaired or kept)."""
     departures: tuple[str, ...] = ()
     """Each trace's r2 and where its model departs most (`departure`), worst first."""
-
-
-@dataclass(frozen=True)
-class _Trace:
-    """One checked trace: measured samples (outliers replaced) and the uniform grid."""
-
-    label: str
-    index: int
-    time_s: FloatArray
-    position_m: FloatArray
-    force_N: FloatArray
-    keep: BoolArray
-    """Samples that are not outliers: the ones the fits and figures compare."""
-    sigma_m: float
-    """One sample's position error: its noise and its resolution's q^2 / 12."""
-    sigma_N: float
-    dt_s: float
-    grid_s: FloatArray
-    x_med: FloatArray
-    f_med: FloatArray
-    x_smooth: FloatArray
-    f_smooth: FloatArray
-    f_wide: FloatArray
-    resolution_m: float = 0.0
-    """The step the position moves in (0: not quantized; `signals.resolution`)."""
-    resolution_N: float = 0.0
-    noise_m: float = 0.0
-    """The position's noise alone (below its resolution the stairs are not dithered away)."""
-    noise_N: float = 0.0
-
-
-@dataclass(frozen=True)
-class _Found:
-    """An engagement as segmented, with the times the fits need."""
-
-    trace: _Trace
-    features: EngagementFeatures
-    plateau_end_s: float
-    """Time of the plateau's last sample."""
-    stop_reach_s: float
-    """When the knob first reaches the settled position."""
-    stop_end_s: float
-    """End of the stop fit's window."""
-    pull_s: float = math.nan
-    """When the hand, having let go in gear, starts to pull the knob out (the last sample at
-    rest before the pull); NaN if it never let go or never pulls."""
-    pull_position_m: float = math.nan
 
 
 Progress = Callable[[int, float], None]
@@ -232,8 +144,8 @@ def fit_shift(
             "no traces given; pass one or more Results with time_s, position_m and force_N"
         )
     warnings: list[str] = []
-    prepared = [_prepare(trace, index, warnings) for index, trace in enumerate(traces)]
-    found = [e for trace in prepared for e in _segment(trace, warnings)]
+    prepared = [prepare_trace(trace, index, warnings) for index, trace in enumerate(traces)]
+    found = [e for trace in prepared for e in segment_engagements(trace, warnings)]
 
     gb = base.gearbox
     x_sync = float(np.median([e.features.synchronization_position_m for e in found]))
@@ -311,340 +223,6 @@ def fit_shift(
     departures = tuple(departure(figures, tr) for tr in order)
     return ShiftFit(params, tuple(e.features for e in found), figures, tuple(warnings), sigmas,
                     departures)  # fmt: skip
-
-
-# --- reading and preparing a trace -------------------------------------------------------------
-
-
-def _label(trace: object, index: int) -> str:
-    name = getattr(trace, "name", None)
-    if name is None and isinstance(trace, Result):
-        name = trace.metadata.get("name")
-    return f"trace {index + 1}" + (f" ({name})" if name else "")  # counted from 1, as a user does
-
-
-def _columns(trace: Trace, label: str) -> tuple[FloatArray, FloatArray, FloatArray]:
-    if isinstance(trace, Result):
-        names = trace.names
-    elif isinstance(trace, Mapping):
-        names = list(trace)
-    else:
-        raise InputError(
-            f"{label}: expected a Result or a mapping of arrays, got {type(trace).__name__}"
-        )
-    missing = [c for c in REQUIRED if c not in names]
-    if missing:
-        raise InputError(
-            f"{label}: missing column(s) {', '.join(missing)}; a shift trace needs time_s (s), "
-            "position_m (m along the slot, 0 = neutral, + toward the gear) and force_N (N, the "
-            "hand's force on the knob, + toward the gear)"
-        )
-    arrays = []
-    for column in REQUIRED:
-        try:
-            values = np.asarray(trace[column], dtype=float)
-        except (TypeError, ValueError):
-            raise InputError(
-                f"{label}: column {column} must hold numbers; {_first_non_number(trace[column])}"
-            ) from None
-        if values.ndim != 1:
-            raise InputError(f"{label}: column {column} must be one-dimensional")
-        arrays.append(values)
-    t, x, f = arrays
-    if not len(t) == len(x) == len(f):
-        raise InputError(
-            f"{label}: columns differ in length (time_s {len(t)}, position_m {len(x)}, "
-            f"force_N {len(f)}); give one value of each per sample"
-        )
-    return t, x, f
-
-
-def _first_non_number(values: Any) -> str:
-    for i, value in enumerate(values):
-        try:
-            float(value)
-        except (TypeError, ValueError):
-            return f"sample {i + 1} is {str(value)!r}"
-    return "it holds something else"
-
-
-def checked_columns(trace: Trace, label: str) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """A trace's time_s, position_m and force_N as float arrays, after the checks a fit and a
-    validation need (numbers, finite, time increasing, sampled at 100 Hz or faster)."""
-    t, x, f = _columns(trace, label)
-    _check(label, t, x, f)
-    return t, x, f
-
-
-def _check(label: str, t: FloatArray, x: FloatArray, f: FloatArray) -> None:
-    if len(t) < MIN_SAMPLES:
-        raise InputError(
-            f"{label}: {count(len(t), 'sample')}; a fit or a validation needs {MIN_SAMPLES} at "
-            "least"
-        )
-    for column, values in zip(REQUIRED, (t, x, f), strict=True):
-        bad = np.flatnonzero(~np.isfinite(values))
-        if bad.size:
-            at = f" (t = {t[bad[0]]:g} s)" if np.isfinite(t[bad[0]]) else ""
-            raise InputError(
-                f"{label}: {column} holds {bad.size} NaN or infinite value(s), the first at "
-                f"sample {bad[0] + 1}{at}; drop those samples (a gap is fine) or repair them"
-            )
-    back = np.flatnonzero(np.diff(t) <= 0.0)
-    if back.size:
-        i = int(back[0]) + 1
-        raise InputError(
-            f"{label}: time_s does not increase at sample {i + 1} ({t[i - 1]:g} s, then "
-            f"{t[i]:g} s); sort the samples by time and drop duplicates"
-        )
-    span = float(np.max(np.abs(x)))
-    if span > MAX_TRAVEL_M:
-        raise InputError(
-            f"{label}: position_m reaches {span:.4g}, beyond any gear lever's travel "
-            f"({MAX_TRAVEL_M:g} m): if it is in mm, divide it by 1000"
-        )
-    low, high = (float(v) for v in np.percentile(x, (1, 99)))
-    if -low > 2.0 * max(high, MIN_TRAVEL_M):  # a pull-out may overshoot neutral a little
-        raise InputError(
-            f"{label}: position_m runs to {low * 1e3:.3g} mm and only to {high * 1e3:+.3g} mm "
-            "the other way; carfeel's knob position is + toward the gear (0 = "
-            "neutral): flip its sign (scale = -1 in a channel map), and force_N's too if a push "
-            "into gear reads negative"
-        )
-    dt = float(np.median(np.diff(t)))
-    if dt > MAX_SAMPLE_PERIOD_S * (1.0 + 1e-6):  # 200 Hz itself, as a float step, passes
-        raise InputError(
-            f"{label}: sampled every {dt * 1e3:.3g} ms; the segmentation needs at least "
-            f"{1.0 / MAX_SAMPLE_PERIOD_S:.0f} Hz (a sample every {MAX_SAMPLE_PERIOD_S * 1e3:g} ms)"
-        )
-
-
-def _despike(values: FloatArray, threshold: float) -> tuple[FloatArray, BoolArray]:
-    """Replace samples farther than `threshold` from their 5-sample median; (clean, outliers).
-
-    Only the farthest sample of a window counts (a spike on a steep slope shifts its
-    neighbours' medians too), and a second pass catches a spike two samples wide.
-    """
-    from scipy.ndimage import maximum_filter1d, median_filter
-
-    clean = values.copy()
-    outliers = np.zeros(len(values), dtype=bool)
-    for _ in range(2):
-        median = np.asarray(median_filter(clean, size=5, mode="nearest"), dtype=float)
-        deviation = np.abs(clean - median)
-        spike = (deviation > threshold) & (deviation >= maximum_filter1d(deviation, 5))
-        clean = np.where(spike, median, clean)
-        outliers |= spike
-    return clean, outliers
-
-
-def _odd(n: float, least: int) -> int:
-    return max(least, round(n) | 1)
-
-
-def _prepare(trace: Trace, index: int, warnings: list[str], label: str | None = None) -> _Trace:
-    from scipy.ndimage import median_filter
-    from scipy.signal import savgol_filter
-
-    label = label or _label(trace, index)
-    t, x, f = _columns(trace, label)
-    _check(label, t, x, f)
-    # The sensors' measurement models: noise and resolution. A 0.05 mm encoder's stairs have no
-    # noise between them: with its noise alone (0) every step was an "outlier", the plateau's
-    # band was 2 um and the ring's sigma 0.
-    noise_x, step_x, noise_f, step_f = noise_sigma(x), resolution(x), noise_sigma(f), resolution(f)
-    sigma_x = math.hypot(noise_x, step_x / math.sqrt(12.0))
-    sigma_f = math.hypot(noise_f, step_f / math.sqrt(12.0))
-    x, out_x = _despike(x, 10.0 * sigma_x + 1e-5)
-    f, out_f = _despike(f, 10.0 * sigma_f + 0.05 * float(np.percentile(np.abs(f), 99)))
-    outliers = out_x | out_f
-    if outliers.any():
-        warnings.append(
-            f"{label}: {int(outliers.sum())} outlier sample(s) replaced by the median of their "
-            "neighbours and left out of the fits and figures"
-        )
-    steps = np.diff(t)
-    dt = float(np.median(steps))
-    gaps = steps > 2.0 * dt
-    if gaps.any():
-        warnings.append(
-            f"{label}: {int(gaps.sum())} gap(s) in the samples, the longest "
-            f"{steps.max() * 1e3:.3g} ms; bridged linearly for the segmentation, the force "
-            "interpolated across them in the simulations"
-        )
-    grid = t[0] + dt * np.arange(int((t[-1] - t[0]) / dt + 1e-9) + 1)
-    xg = np.interp(grid, t, x)
-    fg = np.interp(grid, t, f)
-    x_med = np.asarray(median_filter(xg, size=5, mode="nearest"), dtype=float)
-    f_med = np.asarray(median_filter(fg, size=5, mode="nearest"), dtype=float)
-    window = min(_odd(0.007 / dt, 5), len(grid) - 1 + len(grid) % 2)
-    x_smooth = np.asarray(savgol_filter(x_med, window, 2, mode="interp"), dtype=float)
-    f_smooth = np.asarray(savgol_filter(f_med, window, 2, mode="interp"), dtype=float)
-    f_wide = np.asarray(
-        median_filter(fg, size=_odd(STILL_WINDOW_S / dt, 5), mode="nearest"), dtype=float
-    )
-    return _Trace(
-        label, index, t, x, f, ~outliers, sigma_x, sigma_f, dt, grid, x_med, f_med, x_smooth,
-        f_smooth, f_wide, step_x, step_f, noise_x, noise_f,
-    )  # fmt: skip
-
-
-def _window(tr: _Trace, start_s: float, end_s: float) -> npt.NDArray[np.intp]:
-    """Indices of the trace's kept samples with start_s <= t <= end_s."""
-    inside = (tr.time_s >= start_s) & (tr.time_s <= end_s) & tr.keep
-    return np.flatnonzero(inside)
-
-
-# --- segmentation ------------------------------------------------------------------------------
-
-
-def _runs(mask: BoolArray) -> list[tuple[int, int]]:
-    """[start, end) of each run of True."""
-    edges = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
-    starts = np.flatnonzero(edges == 1)
-    ends = np.flatnonzero(edges == -1)
-    return [(int(a), int(b)) for a, b in zip(starts, ends, strict=True)]
-
-
-def _plateaus(tr: _Trace) -> tuple[list[tuple[int, int]], float, float]:
-    """Plateaus [a, b) on the grid, the band's half-width (m) and the high force (N)."""
-    from scipy.ndimage import maximum_filter1d, minimum_filter1d
-
-    dt, x, f = tr.dt_s, tr.x_med, tr.f_med
-    band = max(NOISE_BAND * tr.sigma_m, tr.resolution_m, BAND_FLOOR_M)  # a quantum's flicker
-    n_still = _odd(STILL_WINDOW_S / dt, 5)
-    spread = maximum_filter1d(x, n_still) - minimum_filter1d(x, n_still)
-    f_high = max(HIGH_FORCE_FRACTION * float(tr.f_wide.max()), 5.0 * tr.sigma_N)
-    f_positive = 3.0 * tr.sigma_N
-    cores: list[tuple[int, int]] = []
-    for a, b in _runs((spread <= 2.0 * band) & (f >= f_high)):
-        if cores:  # a noisy sample may split a plateau: join the parts
-            pa, pb = cores[-1]
-            same = abs(float(np.median(x[pa:pb])) - float(np.median(x[a:b]))) <= band
-            if a - pb <= n_still and same:
-                cores[-1] = (pa, b)
-                continue
-        cores.append((a, b))
-    plateaus: list[tuple[int, int]] = []
-    for k, (a, b) in enumerate(cores):
-        centre = float(np.median(x[a:b]))
-        floor = plateaus[-1][1] if plateaus else 0
-        while a - 1 >= floor and abs(x[a - 1] - centre) <= band and f[a - 1] > f_positive:
-            a -= 1
-        while b < len(x) and abs(x[b] - centre) <= band and f[b] > f_positive:
-            b += 1
-        if (b - a) * dt < MIN_PLATEAU_S:
-            continue
-        following = cores[k + 1][0] if k + 1 < len(cores) else len(x)
-        if following <= b or x[b:following].max() < centre + MIN_TRAVEL_M:
-            continue  # nothing moves on toward the gear: a push against the stop, or a balk
-        plateaus.append((a, b))
-    return plateaus, band, f_high
-
-
-def _arrival(tr: _Trace, first_s: float, centre: float, band: float) -> float:
-    """When the knob reached `centre`: a line through its approach, or the first still sample."""
-    idx = _window(tr, first_s - APPROACH_S, first_s)
-    x = tr.position_m[idx]
-    idx = idx[(x <= centre - max(band, 5e-5)) & (x >= centre - 2e-3)][-6:]
-    if len(idx) < 2:
-        return first_s
-    slope, offset = np.polyfit(tr.time_s[idx], tr.position_m[idx], 1)
-    if slope <= 0.0:
-        return first_s
-    t = float((centre - offset) / slope)
-    return t if abs(t - first_s) <= 2.0 * tr.dt_s else first_s
-
-
-def _sign_hint(tr: _Trace) -> str:
-    """How to fix a trace with no engagement: the sign flip under which it has some, if any."""
-    for x_sign, f_sign, what in ((1.0, -1.0, "force_N"), (-1.0, -1.0, "position_m and force_N")):
-        flipped = replace(tr, x_med=x_sign * tr.x_med, f_med=f_sign * tr.f_med,
-                          f_wide=f_sign * tr.f_wide)  # fmt: skip
-        found = len(_plateaus(flipped)[0])
-        if found:
-            return (
-                f"with the sign of {what} flipped it holds {found} engagement(s): carfeel's force "
-                "is + pushing toward the gear and its position + toward the gear; flip the sign "
-                "(scale = -1 in a channel map)"
-            )
-    return (
-        "check that the trace holds a push into gear, position_m in m (+ toward the gear) and "
-        "force_N in N (+ pushing toward the gear)"
-    )
-
-
-def _segment(tr: _Trace, warnings: list[str]) -> list[_Found]:
-    from scipy.signal import find_peaks
-
-    plateaus, band, f_high = _plateaus(tr)
-    if not plateaus:
-        raise InputError(
-            f"{tr.label}: no engagement found: no stretch of at least {MIN_PLATEAU_S * 1e3:.0f} "
-            f"ms where the knob stays within +-{band * 1e3:.2g} mm while pushed with more than "
-            f"{f_high:.3g} N, and then moves on at least {MIN_TRAVEL_M * 1e3:g} mm toward the "
-            "gear; " + _sign_hint(tr)
-        )
-    g, x, f, dt = tr.grid_s, tr.x_med, tr.f_med, tr.dt_s
-    found: list[_Found] = []
-    for k, (a, b) in enumerate(plateaus):
-        end = plateaus[k + 1][0] if k + 1 < len(plateaus) else len(g)
-        where = f"{tr.label}, engagement at {g[a]:.3f} s"
-        centre = float(np.median(x[a:b]))
-        force = float(np.median(f[a + (b - a) // 2 : b]))
-        i_max = b + int(np.argmax(tr.x_smooth[b:end]))
-        x_max = float(tr.x_smooth[i_max])
-        f_low = max(5.0 * tr.sigma_N, LOW_FORCE_FRACTION * force)
-        after = np.arange(i_max, end)
-        back = after[(f[after] < -f_low) | (x[after] < 0.5 * (x_max + centre))]
-        i_back = int(back[0]) if back.size else end
-        rest = np.arange(i_max, i_back)
-        rest = rest[np.abs(f[rest]) <= f_low]
-        if rest.size * dt >= 0.01:
-            settled = float(np.median(x[rest]))
-        else:
-            tail = x[max(i_max, i_back - max(3, round(0.02 / dt))) : i_back]
-            settled = float(np.median(tail)) if tail.size else x_max
-            warnings.append(
-                f"{where}: the driver never let go in gear; the settled position "
-                f"({settled * 1e3:.2f} mm) is taken while pushed"
-            )
-        settled = min(settled, x_max)
-        reach = np.flatnonzero(x[b : i_max + 1] >= settled)
-        i_reach = b + int(reach[0]) if reach.size else i_max
-        falling = np.flatnonzero(f[b:i_reach] < 0.5 * force)
-        i_from = b + int(falling[0]) if falling.size else i_reach
-        peak_force = peak_position = math.nan
-        if i_reach - i_from >= 3:
-            segment = tr.f_smooth[i_from:i_reach]
-            peaks, _ = find_peaks(segment, prominence=max(3.0 * tr.sigma_N, 1e-9))
-            if peaks.size:
-                top = i_from + int(peaks[np.argmax(segment[peaks])])
-                peak_force, peak_position = float(tr.f_smooth[top]), float(tr.x_smooth[top])
-        if math.isnan(peak_force):
-            warnings.append(f"{where}: no tooth peak between the synchronization and the stop")
-        pulled = np.flatnonzero(f[i_max:end] < -f_low)
-        stop_end = float(g[min(i_max + int(pulled[0]) if pulled.size else end, len(g) - 1)])
-        features = EngagementFeatures(
-            trace=tr.index,
-            start_time_s=_arrival(tr, float(g[a]), centre, band),
-            synchronization_position_m=centre,
-            plateau_force_N=force,
-            plateau_duration_s=float(g[b - 1] - g[a]),
-            tooth_peak_force_N=peak_force,
-            tooth_peak_position_m=peak_position,
-            stop_position_m=x_max,
-            settled_position_m=settled,
-            overshoot_m=x_max - settled,
-        )
-        stop_end = min(stop_end, float(g[i_reach]) + STOP_WINDOW_S)
-        # The knob at rest in gear before a pull: a state known again, for `_resimulate`.
-        pull_s = pull_x = math.nan
-        if rest.size * dt >= 0.01 and back.size and f[i_back] < -f_low:
-            pull_s, pull_x = float(g[rest[-1]]), float(x[rest[-1]])
-        found.append(_Found(tr, features, float(g[b - 1]), float(g[i_reach]), stop_end,
-                            pull_s, pull_x))  # fmt: skip
-    return found
 
 
 # --- open-loop simulation ----------------------------------------------------------------------
@@ -804,7 +382,7 @@ drops within IMPACT_LAG_S by at least this share of the impact's own drop, 1 - m
 IMPACT_LAG_S = 0.006
 
 
-def _met_chamfers(e: _Found, gb: EngagementParams) -> bool:
+def _met_chamfers(e: FoundEngagement, gb: EngagementParams) -> bool:
     """Whether an engagement's knob shows the chamfers' impact: its speed (differences of the
     samples, interpolated to the grid) falls in IMPACT_LAG_S by IMPACT_SHARE of the impact's
     drop, somewhere between the gate's opening and the stop while it moves (> 0.05 m/s). The
@@ -834,7 +412,7 @@ engagements gap to gap already reject them)."""
 
 
 def _chamfer_evidence(
-    found: Sequence[_Found], gb: EngagementParams, warnings: list[str]
+    found: Sequence[FoundEngagement], gb: EngagementParams, warnings: list[str]
 ) -> tuple[EngagementParams, int]:
     """The gearbox with the base's chamfers kept, or taken out where the engagements reject
     them (`CHAMFER_REJECT_P`); and how many fitted engagements met them. A preset with chamfers
@@ -866,14 +444,14 @@ def _chamfer_evidence(
 
 
 def _fit_passage(
-    found: Sequence[_Found],
+    found: Sequence[FoundEngagement],
     gb: EngagementParams,
     x_sync: float,
     settled: float,
     warnings: list[str],
     tick: Callable[[FloatArray], None],
     sigmas: dict[str, float],
-) -> tuple[float, float, list[_Found], float]:
+) -> tuple[float, float, list[FoundEngagement], float]:
     """Teeth positions (m), the engagements with their synchronization time, teeth resistance
     and chamfer travel filled in, and the fit's rms (m)."""
     fallback = (
@@ -883,7 +461,7 @@ def _fit_passage(
     cases = []
     for e in found:
         tr = e.trace
-        idx = _window(tr, e.plateau_end_s - 4.0 * tr.dt_s, e.stop_reach_s - 2.0 * tr.dt_s)
+        idx = window_indices(tr, e.plateau_end_s - 4.0 * tr.dt_s, e.stop_reach_s - 2.0 * tr.dt_s)
         if len(idx) >= 8:
             cases.append((e, idx))
         else:
@@ -1012,8 +590,8 @@ FREE_WINDOW_S = 0.009
 
 
 def _fit_mass(
-    prepared: Sequence[_Trace],
-    found: Sequence[_Found],
+    prepared: Sequence[PreparedTrace],
+    found: Sequence[FoundEngagement],
     gb: EngagementParams,
     x_sync: float,
     teeth: float,
@@ -1043,7 +621,7 @@ def _fit_mass(
     ends = [(e.trace.index, e.plateau_end_s) for e in found]
     for tr in prepared:
         dt = tr.dt_s
-        window = _odd(FREE_WINDOW_S / dt, 5)
+        window = odd_at_least(FREE_WINDOW_S / dt, 5)
         if len(tr.grid_s) <= window:
             continue
         xg = np.interp(tr.grid_s, tr.time_s, tr.position_m)
@@ -1068,7 +646,7 @@ def _fit_mass(
             & (x > x_sync + m)
             & (x < settled - gb.detent_release_m - GEAR_SLACK_M - m)
         )
-        for a, b in _runs(forward | backward):
+        for a, b in true_runs(forward | backward):
             if b - a >= 6:
                 stretches.append((xg[a:b], fg[a:b], dt, float(np.sign(v[(a + b) // 2])),
                                   float(x[a]), float(v[a])))  # fmt: skip
@@ -1164,7 +742,7 @@ def _tooth_law(
 
 
 def _fit_stop(
-    found: Sequence[_Found],
+    found: Sequence[FoundEngagement],
     gb: EngagementParams,
     settled: float,
     warnings: list[str],
@@ -1176,11 +754,11 @@ def _fit_stop(
     for e in found:
         tr = e.trace
         # A line through the free travel just short of the stop gives the state to start from.
-        idx = _window(tr, e.stop_reach_s - APPROACH_S, e.stop_reach_s)
+        idx = window_indices(tr, e.stop_reach_s - APPROACH_S, e.stop_reach_s)
         x = tr.position_m[idx]
         below = e.features.settled_position_m - GEAR_SLACK_M - 2e-4
         idx = idx[(x <= below) & (x >= gb.teeth_end_position_m + 5e-4)][-8:]
-        compare = _window(tr, tr.time_s[idx[-1]] + 1e-9, e.stop_end_s) if len(idx) else idx
+        compare = window_indices(tr, tr.time_s[idx[-1]] + 1e-9, e.stop_end_s) if len(idx) else idx
         slope = float(np.polyfit(tr.time_s[idx], tr.position_m[idx], 1)[0]) if len(idx) > 1 else 0
         if len(idx) < 2 or slope <= 0.0 or len(compare) < 5:
             warnings.append(
@@ -1267,7 +845,7 @@ JACKKNIFE_MIN = 4
 
 def _jackknife(
     solution: Any,
-    cases: Sequence[tuple[_Trace, EngagementState, float, npt.NDArray[np.intp]]],
+    cases: Sequence[tuple[PreparedTrace, EngagementState, float, npt.NDArray[np.intp]]],
     params_of: Callable[[FloatArray], EngagementParams],
     sigma: float,
     lower: FloatArray,
@@ -1369,7 +947,7 @@ def _sigma_of(
 
 
 def _replica(
-    traces: Sequence[_Trace], predicted: Sequence[FloatArray], seed: int = 0
+    traces: Sequence[PreparedTrace], predicted: Sequence[FloatArray], seed: int = 0
 ) -> list[FloatArray]:
     """What each trace's sensor would have recorded of `predicted`: its noise added, and
     rounded to its resolution on the trace's own grid of values."""
@@ -1392,7 +970,7 @@ Forces = Mapping[int, FloatArray] | None
 def _method_error(
     solution: Any, predicted: Callable[[FloatArray], list[FloatArray]],
     residuals: Callable[[FloatArray, Sequence[FloatArray], Forces], FloatArray],
-    traces: Sequence[_Trace], lower: FloatArray, upper: FloatArray,
+    traces: Sequence[PreparedTrace], lower: FloatArray, upper: FloatArray,
     groups: Sequence[Sequence[int]], rows: Sequence[slice | None],
     tick: Callable[[FloatArray], None],
 ) -> FloatArray:  # fmt: skip
@@ -1421,7 +999,7 @@ def _median_error(values: Sequence[float]) -> float:
     return 1.2533 * float(np.std(v, ddof=1)) / math.sqrt(len(v)) if len(v) >= 3 else math.nan
 
 
-def _median_sigmas(found: Sequence[_Found], times: Sequence[float]) -> dict[str, float]:
+def _median_sigmas(found: Sequence[FoundEngagement], times: Sequence[float]) -> dict[str, float]:
     """The sigmas of the values that are medians over the engagements: the scatter between
     engagements (`_median_error`), but no less than what each plateau's own samples leave (its
     median's error, over the engagements) and, where the sensor's stairs are not dithered by
@@ -1521,7 +1099,7 @@ def _fix_up(params: ShiftParams, base: ShiftParams, warnings: list[str]) -> Shif
 
 
 def _resimulate(
-    tr: _Trace, found: Sequence[_Found], gb: EngagementParams, typical_N: float
+    tr: PreparedTrace, found: Sequence[FoundEngagement], gb: EngagementParams, typical_N: float
 ) -> FloatArray:
     """The trace's position (m) at its kept samples, simulated open loop with its force from its
     first sample, restarted blocked at the synchro ring at each engagement's arrival; the teeth
@@ -1577,7 +1155,7 @@ def _resimulate(
 
 
 def _releases(
-    tr: _Trace, gb: EngagementParams, pulls: Sequence[float]
+    tr: PreparedTrace, gb: EngagementParams, pulls: Sequence[float]
 ) -> list[tuple[float, float, float]]:
     """(time, position, velocity) where the smoothed knob, pulled from rest in gear at each of
     `pulls`, first passes the gear detent's release (x_gear - detent_release) on its way out."""
@@ -1593,7 +1171,7 @@ def _releases(
 
 
 def _figures(
-    traces: Sequence[_Trace], found: Sequence[_Found], gb: EngagementParams
+    traces: Sequence[PreparedTrace], found: Sequence[FoundEngagement], gb: EngagementParams
 ) -> dict[str, float]:
     """rms error (m) and r^2 of each trace's open-loop position, and over all traces; and where
     each trace departs most from its model (`trace<i>.worst_time_s`, the measured and the
@@ -1628,7 +1206,7 @@ with a lower r^2 is warned about; a fit whose r^2 over all traces is lower write
 (`shift_workflows`): the fitted values would describe another mechanism."""
 
 
-def departure(figures: Mapping[str, float], tr: _Trace) -> str:
+def departure(figures: Mapping[str, float], tr: PreparedTrace) -> str:
     """Where a trace's model departs most from it, as a message says it."""
     i = tr.index
     return (
@@ -1640,7 +1218,7 @@ def departure(figures: Mapping[str, float], tr: _Trace) -> str:
     )
 
 
-def _quality_warnings(traces: Sequence[_Trace], figures: Mapping[str, float]) -> list[str]:
+def _quality_warnings(traces: Sequence[PreparedTrace], figures: Mapping[str, float]) -> list[str]:
     """A warning for each trace the model follows with r2 under MIN_R2."""
     return [
         f"{departure(figures, tr)}: under the {MIN_R2:g} of a model that follows the trace; "
@@ -1668,9 +1246,9 @@ def resimulate(trace: Trace, params: ShiftParams, label: str = "trace") -> Resim
     the preset's law (sliding friction + spread / 2). Outliers are left out; InputError as for
     a fit, naming `label`."""
     warnings: list[str] = []
-    tr = _prepare(trace, 0, warnings, label)
+    tr = prepare_trace(trace, 0, warnings, label)
     try:
-        found = _segment(tr, warnings)
+        found = segment_engagements(tr, warnings)
     except InputError:  # no engagement (a pull-out, neutral only): one piece from the start
         found = []
     gb = params.gearbox

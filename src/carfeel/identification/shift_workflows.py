@@ -12,7 +12,8 @@ from carfeel import __version__
 from carfeel.errors import InputError
 from carfeel.identification import rms_r2
 from carfeel.identification.common import Progress, read_results, write_checked_preset
-from carfeel.identification.shift_fit import MIN_R2, checked_columns, fit_shift, resimulate
+from carfeel.identification.shift_fit import MIN_R2, fit_shift, resimulate
+from carfeel.identification.shift_traces import checked_columns
 from carfeel.io import report
 from carfeel.io.outputs import Outputs
 from carfeel.io.presets import load_shift, to_toml

@@ -3,8 +3,8 @@
 Every format goes through `read_channels`: the file's signals (each with its own time stamps and,
 where the format carries it, its unit), a channel map saying which signal is which of carfeel's
 channels with its unit and scale, then one common time base and SI units. The unit and sign checks
-of the fits (`steering_fit.read_log`, `shift_fit.checked_columns`) run on what comes out, whatever
-the format.
+of the fits (`steering_fit.read_log`, `shift_traces.checked_columns`) run on what comes out,
+whatever the format.
 
     CSV               carfeel's own reader (no extra needed)
     Parquet           pyarrow                   .parquet .pq
