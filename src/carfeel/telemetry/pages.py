@@ -11,6 +11,7 @@ physics page's packetId moved while it was copied) is copied again once, then co
 
 from __future__ import annotations
 
+import math
 import struct
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -70,6 +71,8 @@ class PageLayout:
     """Each page's size in a file image where it is more than what is read (a whole map)."""
     odd_is_writing: bool = False
     """The update counter is odd while the game writes (AMS2's mSequenceNumber): torn."""
+    exact_bytes: bool = False
+    """A live map of another size than `page_bytes` is another layout: refused (rF2's)."""
 
     @property
     def stride(self) -> tuple[int, ...]:
@@ -356,6 +359,124 @@ AMS2 = PageLayout("ams2", (AMS2_READ_BYTES,), _check_ams2, _decode_ams2, ams2_id
                   odd_is_writing=True)  # fmt: skip
 
 
+# --- rFactor 2 / Le Mans Ultimate: rF2SharedMemoryMapPlugin (rF2State.h, #pragma pack(4)) -----
+RF2_MAP_NAMES = ("$rFactor2SMMP_Telemetry$", "$rFactor2SMMP_Scoring$")
+RF2_VEHICLES = 128
+"""MAX_MAPPED_VEHICLES: each buffer's vehicle array has this many slots."""
+RF2_TELEMETRY_VEHICLE_BYTES = 1888
+"""rF2VehicleTelemetry: 848 bytes to mWheels, then 4 rF2Wheel of 260."""
+RF2_SCORING_VEHICLE_BYTES = 584
+RF2_TELEMETRY_BYTES = 16 + RF2_VEHICLES * RF2_TELEMETRY_VEHICLE_BYTES
+"""rF2Telemetry: mVersionUpdateBegin, mVersionUpdateEnd, mBytesUpdatedHint, mNumVehicles, then
+the vehicles (241,680 bytes)."""
+RF2_SCORING_VEHICLES_AT = 12 + 548
+"""rF2Scoring: the version pair, mBytesUpdatedHint, rF2ScoringInfo (548 bytes), the vehicles."""
+RF2_SCORING_BYTES = RF2_SCORING_VEHICLES_AT + RF2_VEHICLES * RF2_SCORING_VEHICLE_BYTES
+_RF2_GUARD = struct.Struct("<II")  # mVersionUpdateBegin, mVersionUpdateEnd
+_I32 = struct.Struct("<i")
+_RF2_PHASE = struct.Struct("<iB6xB")
+"""At 116 of rF2Scoring: mNumVehicles, mGamePhase (124: mInRealtime)."""
+_RF2_DRIVE = struct.Struct("<3d3d72x3d24xid24x4d32xd")
+"""From 184 of rF2VehicleTelemetry: mLocalVel, mLocalAccel, (mOri) mLocalRot 304, mGear 352,
+mEngineRPM 356, mUnfilteredThrottle 388, mUnfilteredBrake, mUnfilteredSteering,
+mUnfilteredClutch, mSteeringShaftTorque 452."""
+_RF2_MAX_RPM = struct.Struct("<d")  # at 532: mEngineMaxRPM
+_RF2_RANGE = struct.Struct("<f")  # at 692: mPhysicalSteeringWheelRange (degrees, lock to lock)
+RF2_PHASES = range(0, 9)
+"""mGamePhase 0 (before the session) .. 8 (session over)."""
+RF2_STOPPED = 7
+
+
+def _check_rf2(pages: Sequence[bytes]) -> str | None:
+    telemetry, scoring = pages
+    for name, page in (("telemetry", telemetry), ("scoring", scoring)):
+        count = _I32.unpack_from(page, 12 if name == "telemetry" else 116)[0]
+        if not 0 <= count <= RF2_VEHICLES:
+            return (
+                f"its {name} buffer says {count} vehicles, outside 0-{RF2_VEHICLES}: not "
+                "rF2SharedMemoryMapPlugin's buffers (or another version of its layout)"
+            )
+    return None
+
+
+def _rf2_player(scoring: bytes) -> tuple[int, str] | None:
+    """The player's vehicle in scoring (mIsPlayer): its mID and mVehicleName."""
+    count = _I32.unpack_from(scoring, 116)[0]
+    for i in range(count):
+        at = RF2_SCORING_VEHICLES_AT + i * RF2_SCORING_VEHICLE_BYTES
+        if scoring[at + 196]:
+            return _I32.unpack_from(scoring, at)[0], _c_text(scoring[at + 36 : at + 100]) or ""
+    return None
+
+
+def rf2_identify(pages: Sequence[bytes]) -> tuple[str, float]:
+    player = _rf2_player(pages[1])
+    return (player[1], NAN) if player else ("", NAN)
+
+
+def _decode_rf2(pages: Sequence[Any], car: str, max_rpm: float) -> VehicleState | None:
+    telemetry, scoring = pages
+    for page in pages:
+        begin, end = _RF2_GUARD.unpack_from(page)
+        if begin != end:
+            return BAD  # torn: the plugin was writing this buffer while it was copied
+    scored, phase, realtime = _RF2_PHASE.unpack_from(scoring, 116)
+    cars = _I32.unpack_from(telemetry, 12)[0]
+    if not (0 <= scored <= RF2_VEHICLES and 0 <= cars <= RF2_VEHICLES and phase in RF2_PHASES):
+        return BAD
+    player = _rf2_player(scoring)
+    if player is None:
+        return None  # no player's car (the menus, or watching others)
+    wanted, name = player
+    for i in range(cars):
+        at = 16 + i * RF2_TELEMETRY_VEHICLE_BYTES
+        if _I32.unpack_from(telemetry, at)[0] == wanted:
+            break
+    else:
+        return None  # scoring has the player, telemetry not yet
+    v = _RF2_DRIVE.unpack_from(telemetry, at + 184)
+    vel, acc, rot = v[0:3], v[3:6], v[6:9]
+    gear, rpm, throttle, brake, steer, clutch, torque = v[9:16]
+    top = _RF2_MAX_RPM.unpack_from(telemetry, at + 532)[0]
+    lock_deg = _RF2_RANGE.unpack_from(telemetry, at + 692)[0]
+    if not (
+        -1 <= gear <= 24
+        and 0.0 <= rpm <= 30_000.0
+        and _within(1.01, throttle, brake, steer, clutch)
+        and _within(VELOCITY_BOUND_M_S, *vel)
+        and _within(500.0, *acc)
+        and _within(50.0, *rot)
+        and _within(1e4, torque)
+        and (lock_deg == 0.0 or 0.0 < lock_deg <= 3600.0)
+    ):
+        return BAD
+    # Vehicle axes +x left, +y up, +z backward (rF2's; left-handed): Ay left is +x already; a
+    # positive rotation about y turns x (left) towards -z (forward): the car turning right, so
+    # the yaw rate left is its negative. mUnfilteredSteering is -1 left .. +1 right, over the
+    # wheel's physical range (lock to lock). No real dump was found to check the signs.
+    angle = -steer * math.radians(lock_deg) / 2.0 if lock_deg > 0.0 else NAN
+    return VehicleState(
+        speed_m_s=math.sqrt(vel[0] ** 2 + vel[1] ** 2 + vel[2] ** 2),
+        lateral_accel_m_s2=acc[0],
+        yaw_rate_rad_s=-rot[1],
+        engine_speed_rpm=rpm,
+        gear=REVERSE if gear < 0 else gear,
+        clutch_pedal=clutch,
+        throttle=throttle,
+        brake=brake,
+        steering_angle_rad=angle,
+        engine_max_rpm=top if 0.0 < top <= 30_000.0 else max_rpm,
+        car=name or car,
+        wheel_torque_Nm=torque,
+        replay=not realtime,
+        paused=phase == RF2_STOPPED,
+    )
+
+
+RF2 = PageLayout("rf2", (RF2_TELEMETRY_BYTES, RF2_SCORING_BYTES), _check_rf2, _decode_rf2,
+                 rf2_identify, exact_bytes=True)  # fmt: skip
+
+
 class PagesReader:
     """The frames of a page layout: a live map's pages (one image each) or a file of frames."""
 
@@ -375,8 +496,11 @@ class PagesReader:
             self.frames = len(image) // layout.frame_bytes
         else:
             for image, size in zip(images, sizes, strict=True):
-                if len(image) < size:
-                    raise ValueError(f"a page of {len(image)} bytes, under the {size} read")
+                if len(image) < size or (layout.exact_bytes and len(image) != size):
+                    raise ValueError(
+                        f"a {layout.name} map of {len(image)} bytes: the layout carfeel reads "
+                        f"is {size} bytes (another version of the game's plugin?)"
+                    )
             self.frames = 0
         first = self._pages(0)
         why = layout.check(first)
