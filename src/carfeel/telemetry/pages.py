@@ -477,6 +477,99 @@ RF2 = PageLayout("rf2", (RF2_TELEMETRY_BYTES, RF2_SCORING_BYTES), _check_rf2, _d
                  rf2_identify, exact_bytes=True)  # fmt: skip
 
 
+# --- RaceRoom: $R3E (Sector3's r3e-api r3e.h, version 3.4, #pragma pack(1)) --------------------
+R3E_MAP_NAME = "$R3E"
+R3E_VERSION = (3, 4)
+R3E_MAP_BYTES = 44000
+"""r3e_share whole: 2,016 bytes to the 128 r3e_driver_data of 328."""
+R3E_READ_BYTES = 1540
+"""r3e_share through steer_wheel_range_degrees: every field carfeel reads."""
+R3E_NAME_AT = 1200  # vehicle_info.name, uint8_t[64]
+R3E_ALL_DRIVERS_AT = 2012  # num_cars: what the header's all_drivers_offset must say
+R3E_DRIVER_DATA_BYTES = 328
+R3E_DRIVE_AT = 1392
+_R3E_HEAD = struct.Struct("<10i")
+"""version_major, version_minor, all_drivers_offset, driver_data_size, game_mode, game_paused,
+game_in_menus, game_in_replay, game_using_vr, game_unused1."""
+_R3E_DRIVE = struct.Struct("<iffffii24x3f48x7fii")
+"""At 1392: control_type, car_speed, engine_rps, max_engine_rps, upshift_rps, gear, num_gears,
+(car_cg_location, car_orientation) local_acceleration 1444, (mass .. turbo_pressure) throttle
+1504, throttle_raw, brake, brake_raw, clutch, clutch_raw, steer_input_raw, steer_lock_degrees,
+steer_wheel_range_degrees."""
+_R3E_ROT = struct.Struct("<3d")  # at 272: player.local_angular_velocity, rad/s
+RPS_TO_RPM = 60.0 / (2.0 * math.pi)
+
+
+def _check_r3e(pages: Sequence[bytes]) -> str | None:
+    major, minor, drivers_at, driver_bytes = _R3E_HEAD.unpack_from(pages[0])[0:4]
+    if (major, minor) != R3E_VERSION:
+        return (
+            f"shared memory version {major}.{minor}: carfeel reads r3e.h version "
+            f"{R3E_VERSION[0]}.{R3E_VERSION[1]} (its fields move between versions)"
+        )
+    if (drivers_at, driver_bytes) != (R3E_ALL_DRIVERS_AT, R3E_DRIVER_DATA_BYTES):
+        return (
+            f"all_drivers_offset {drivers_at} and driver_data_size {driver_bytes}: version "
+            f"3.4's are {R3E_ALL_DRIVERS_AT} and {R3E_DRIVER_DATA_BYTES} (another layout)"
+        )
+    return None
+
+
+def r3e_identify(pages: Sequence[bytes]) -> tuple[str, float]:
+    car = _c_text(pages[0][R3E_NAME_AT : R3E_NAME_AT + 64]) or ""
+    return car, NAN
+
+
+def _decode_r3e(pages: Sequence[Any], car: str, max_rpm: float) -> VehicleState | None:
+    page = pages[0]
+    head = _R3E_HEAD.unpack_from(page)
+    paused, menus, replay = head[5:8]
+    if not all(flag in (-1, 0, 1) for flag in (paused, menus, replay)):
+        return BAD
+    if menus == 1:
+        return None  # in the menus: nobody drives
+    v = _R3E_DRIVE.unpack_from(page, R3E_DRIVE_AT)
+    speed, rps, top_rps, gear, gears = v[1], v[2], v[3], v[5], v[6]
+    acc, (throttle, _tr, brake, _br, clutch, _cr, steer), wheel_deg = v[7:10], v[10:17], v[18]
+    rot = _R3E_ROT.unpack_from(page, 272)
+    if not (
+        -2 <= gear <= 24
+        and -1 <= gears <= 24
+        and 0.0 <= speed <= VELOCITY_BOUND_M_S
+        and 0.0 <= rps <= 3200.0  # 30,000 rpm
+        and _within(1.01, throttle, brake, clutch, steer)
+        and _within(500.0, *acc)
+        and _within(50.0, *rot)
+        and 0 <= wheel_deg <= 3600
+    ):
+        return BAD
+    # Car axes +X left, +Y up, +Z back (the header's, left-handed, as rF2): Ay is +X; the yaw
+    # rate left is minus the rotation about Y. steer_input_raw -1 left (as rF2's; no real dump
+    # was found to check it) over the wheel's range lock to lock: half of it each side.
+    name = _c_text(page[R3E_NAME_AT : R3E_NAME_AT + 64])
+    return VehicleState(
+        speed_m_s=speed,
+        lateral_accel_m_s2=acc[0],
+        yaw_rate_rad_s=-rot[1],
+        engine_speed_rpm=rps * RPS_TO_RPM,
+        gear=max(REVERSE, gear) if gear != -2 else 0,  # -2: not available
+        clutch_pedal=clutch if clutch >= 0.0 else NAN,
+        throttle=throttle if throttle >= 0.0 else NAN,
+        brake=brake if brake >= 0.0 else NAN,
+        steering_angle_rad=-steer * math.radians(wheel_deg) / 2.0 if wheel_deg else NAN,
+        engine_max_rpm=top_rps * RPS_TO_RPM if 0.0 < top_rps <= 3200.0 else max_rpm,
+        car=name or car,
+        forward_gears=max(0, gears),
+        replay=replay == 1,
+        paused=paused == 1,
+    )
+
+
+R3E = PageLayout("r3e", (R3E_READ_BYTES,), _check_r3e, _decode_r3e, r3e_identify,
+                 sequence_offset=44, file_page_bytes=(R3E_MAP_BYTES,))  # fmt: skip
+"""The update counter: player.game_simulation_ticks (1/400 s)."""
+
+
 class PagesReader:
     """The frames of a page layout: a live map's pages (one image each) or a file of frames."""
 

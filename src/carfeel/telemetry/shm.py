@@ -233,6 +233,14 @@ MAP_FORMATS: dict[str, MapFormat] = {
             lambda images, is_file, where: pages.PagesReader(pages.RF2, images, is_file),
             pages.FRAME_HZ,
         ),
+        MapFormat(
+            "r3e",
+            "RaceRoom shared memory ($R3E, r3e.h version 3.4)",
+            (pages.R3E_MAP_NAME,),
+            (pages.R3E_MAP_BYTES,),
+            lambda images, is_file, where: pages.PagesReader(pages.R3E, images, is_file),
+            pages.FRAME_HZ,
+        ),
     )
 }
 UDP_TOO = frozenset({"assetto"})
