@@ -14,9 +14,9 @@ Runs, in one process (the sender in a second one, as a game would be):
    64 KiB buffer) fed by the same sender in the same run.
 5. the shared-memory games (`--only-shm` runs this part alone): decode cost per frame of each
    (iRacing's live map: header, copy of the latest buffer, its re-check and the unpack; an
-   .ibt record; ACC's and AC's three pages; the SCS map; rF2's two buffers; Project CARS'
-   UDP datagram), each beside its reference measured in the same run: a copy of the same
-   bytes and one struct unpack of as many fields; then the 1 kHz loop reading a live iRacing
+   .ibt record; ACC's and AC's three pages; the SCS map; rF2's two buffers; RaceRoom's map;
+   Project CARS' UDP datagram), each beside its reference measured in the same run: a copy of
+   the same bytes and one struct unpack of as many fields; then the 1 kHz loop reading a live iRacing
    map that another process rewrites at 60 Hz under /dev/shm (as a Proton bridge does),
    stamping each buffer with its write time: the latency from the write to the first force
    command computed from it.
@@ -351,6 +351,17 @@ def shm_costs() -> None:
     # any of the 128 slots) and unpacks the 21 values read.
     rf2_ref = _reference_us(rf2_images[0] + rf2_images[1], 0, len(rf2_frame), 21)
     rows.append(("rf2 buffers (read)", _best_us(rf2_read, 2000), rf2_ref))
+    from tests.test_telemetry_r3e import build as r3e_build
+
+    r3e_map = bytearray(r3e_build())
+    r3e_reader = pages.PagesReader(pages.R3E, (r3e_map,), False)
+
+    def r3e_read() -> Any:
+        r3e_reader._sequence = -1
+        return r3e_reader.read(0.0)
+
+    rows.append(("r3e map (read)", _best_us(r3e_read),
+                 _reference_us(r3e_map, 0, pages.R3E_READ_BYTES, 24)))  # fmt: skip
     datagram = replay.pcars_datagrams(PCARS)[400]
     pcars = formats.FORMATS["pcars"]
     rows.append(("pcars UDP (decode)",
