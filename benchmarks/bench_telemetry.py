@@ -16,8 +16,8 @@ Runs, in one process (the sender in a second one, as a game would be):
    (iRacing's live map: header, copy of the latest buffer, its re-check and the unpack; an
    .ibt record; ACC's and AC's three pages; the SCS map; rF2's two buffers; RaceRoom's map;
    Project CARS' UDP datagram), each beside its reference measured in the same run: a copy of
-   the same bytes and one struct unpack of as many fields; then the 1 kHz loop reading a live iRacing
-   map that another process rewrites at 60 Hz under /dev/shm (as a Proton bridge does),
+   the same bytes and one struct unpack of as many fields; then the 1 kHz loop reading a live
+   iRacing map that another process rewrites at 60 Hz under /dev/shm (as a Proton bridge does),
    stamping each buffer with its write time: the latency from the write to the first force
    command computed from it.
 Asserts nothing; numbers go in notes, not tests.
