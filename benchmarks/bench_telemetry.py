@@ -14,11 +14,12 @@ Runs, in one process (the sender in a second one, as a game would be):
    64 KiB buffer) fed by the same sender in the same run.
 5. the shared-memory games (`--only-shm` runs this part alone): decode cost per frame of each
    (iRacing's live map: header, copy of the latest buffer, its re-check and the unpack; an
-   .ibt record; ACC's and AC's three pages; the SCS map; Project CARS' UDP datagram), each
-   beside its reference measured in the same run: a copy of the same bytes and one struct
-   unpack of as many fields; then the 1 kHz loop reading a live iRacing map that another
-   process rewrites at 60 Hz under /dev/shm (as a Proton bridge does), stamping each buffer
-   with its write time: the latency from the write to the first force command computed from it.
+   .ibt record; ACC's and AC's three pages; the SCS map; rF2's two buffers; RaceRoom's map;
+   Project CARS' UDP datagram), each beside its reference measured in the same run: a copy of
+   the same bytes and one struct unpack of as many fields; then the 1 kHz loop reading a live
+   iRacing map that another process rewrites at 60 Hz under /dev/shm (as a Proton bridge does),
+   stamping each buffer with its write time: the latency from the write to the first force
+   command computed from it.
 Asserts nothing; numbers go in notes, not tests.
     python benchmarks/bench_telemetry.py [--seconds 10] [--only-record] [--only-shm]
 """
@@ -335,6 +336,32 @@ def shm_costs() -> None:
 
     rows.append(("scs map (read)", _best_us(scs_read),
                  _reference_us(scs_map, 0, pages.SCS_READ_BYTES, 40)))  # fmt: skip
+    from tests.test_telemetry_rf2 import build as rf2_build
+
+    rf2_frame = rf2_build()
+    rf2_images = (bytearray(rf2_frame[: pages.RF2_TELEMETRY_BYTES]),
+                  bytearray(rf2_frame[pages.RF2_TELEMETRY_BYTES :]))  # fmt: skip
+    rf2_reader = pages.PagesReader(pages.RF2, rf2_images, False)
+
+    def rf2_read() -> Any:
+        rf2_reader._sequence = -1
+        return rf2_reader.read(0.0)
+
+    # The reference copies both whole buffers (what the reader copies: the player may be in
+    # any of the 128 slots) and unpacks the 21 values read.
+    rf2_ref = _reference_us(rf2_images[0] + rf2_images[1], 0, len(rf2_frame), 21)
+    rows.append(("rf2 buffers (read)", _best_us(rf2_read, 2000), rf2_ref))
+    from tests.test_telemetry_r3e import build as r3e_build
+
+    r3e_map = bytearray(r3e_build())
+    r3e_reader = pages.PagesReader(pages.R3E, (r3e_map,), False)
+
+    def r3e_read() -> Any:
+        r3e_reader._sequence = -1
+        return r3e_reader.read(0.0)
+
+    rows.append(("r3e map (read)", _best_us(r3e_read),
+                 _reference_us(r3e_map, 0, pages.R3E_READ_BYTES, 24)))  # fmt: skip
     datagram = replay.pcars_datagrams(PCARS)[400]
     pcars = formats.FORMATS["pcars"]
     rows.append(("pcars UDP (decode)",

@@ -11,6 +11,7 @@ physics page's packetId moved while it was copied) is copied again once, then co
 
 from __future__ import annotations
 
+import math
 import struct
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -70,6 +71,8 @@ class PageLayout:
     """Each page's size in a file image where it is more than what is read (a whole map)."""
     odd_is_writing: bool = False
     """The update counter is odd while the game writes (AMS2's mSequenceNumber): torn."""
+    exact_bytes: bool = False
+    """A live map of another size than `page_bytes` is another layout: refused (rF2's)."""
 
     @property
     def stride(self) -> tuple[int, ...]:
@@ -356,6 +359,217 @@ AMS2 = PageLayout("ams2", (AMS2_READ_BYTES,), _check_ams2, _decode_ams2, ams2_id
                   odd_is_writing=True)  # fmt: skip
 
 
+# --- rFactor 2 / Le Mans Ultimate: rF2SharedMemoryMapPlugin (rF2State.h, #pragma pack(4)) -----
+RF2_MAP_NAMES = ("$rFactor2SMMP_Telemetry$", "$rFactor2SMMP_Scoring$")
+RF2_VEHICLES = 128
+"""MAX_MAPPED_VEHICLES: each buffer's vehicle array has this many slots."""
+RF2_TELEMETRY_VEHICLE_BYTES = 1888
+"""rF2VehicleTelemetry: 848 bytes to mWheels, then 4 rF2Wheel of 260."""
+RF2_SCORING_VEHICLE_BYTES = 584
+RF2_TELEMETRY_BYTES = 16 + RF2_VEHICLES * RF2_TELEMETRY_VEHICLE_BYTES
+"""rF2Telemetry: mVersionUpdateBegin, mVersionUpdateEnd, mBytesUpdatedHint, mNumVehicles, then
+the vehicles (241,680 bytes)."""
+RF2_SCORING_VEHICLES_AT = 12 + 548
+"""rF2Scoring: the version pair, mBytesUpdatedHint, rF2ScoringInfo (548 bytes), the vehicles."""
+RF2_SCORING_BYTES = RF2_SCORING_VEHICLES_AT + RF2_VEHICLES * RF2_SCORING_VEHICLE_BYTES
+_RF2_GUARD = struct.Struct("<II")  # mVersionUpdateBegin, mVersionUpdateEnd
+_I32 = struct.Struct("<i")
+_RF2_PHASE = struct.Struct("<iB6xB")
+"""At 116 of rF2Scoring: mNumVehicles, mGamePhase (124: mInRealtime)."""
+_RF2_DRIVE = struct.Struct("<3d3d72x3d24xid24x4d32xd")
+"""From 184 of rF2VehicleTelemetry: mLocalVel, mLocalAccel, (mOri) mLocalRot 304, mGear 352,
+mEngineRPM 356, mUnfilteredThrottle 388, mUnfilteredBrake, mUnfilteredSteering,
+mUnfilteredClutch, mSteeringShaftTorque 452."""
+_RF2_MAX_RPM = struct.Struct("<d")  # at 532: mEngineMaxRPM
+_RF2_RANGE = struct.Struct("<f")  # at 692: mPhysicalSteeringWheelRange (degrees, lock to lock)
+RF2_PHASES = range(0, 9)
+"""mGamePhase 0 (before the session) .. 8 (session over)."""
+RF2_STOPPED = 7
+
+
+def _check_rf2(pages: Sequence[bytes]) -> str | None:
+    telemetry, scoring = pages
+    for name, page in (("telemetry", telemetry), ("scoring", scoring)):
+        count = _I32.unpack_from(page, 12 if name == "telemetry" else 116)[0]
+        if not 0 <= count <= RF2_VEHICLES:
+            return (
+                f"its {name} buffer says {count} vehicles, outside 0-{RF2_VEHICLES}: not "
+                "rF2SharedMemoryMapPlugin's buffers (or another version of its layout)"
+            )
+    return None
+
+
+def _rf2_player(scoring: bytes) -> tuple[int, str] | None:
+    """The player's vehicle in scoring (mIsPlayer): its mID and mVehicleName."""
+    count = _I32.unpack_from(scoring, 116)[0]
+    for i in range(count):
+        at = RF2_SCORING_VEHICLES_AT + i * RF2_SCORING_VEHICLE_BYTES
+        if scoring[at + 196]:
+            return _I32.unpack_from(scoring, at)[0], _c_text(scoring[at + 36 : at + 100]) or ""
+    return None
+
+
+def rf2_identify(pages: Sequence[bytes]) -> tuple[str, float]:
+    player = _rf2_player(pages[1])
+    return (player[1], NAN) if player else ("", NAN)
+
+
+def _decode_rf2(pages: Sequence[Any], car: str, max_rpm: float) -> VehicleState | None:
+    telemetry, scoring = pages
+    for page in pages:
+        begin, end = _RF2_GUARD.unpack_from(page)
+        if begin != end:
+            return BAD  # torn: the plugin was writing this buffer while it was copied
+    scored, phase, realtime = _RF2_PHASE.unpack_from(scoring, 116)
+    cars = _I32.unpack_from(telemetry, 12)[0]
+    if not (0 <= scored <= RF2_VEHICLES and 0 <= cars <= RF2_VEHICLES and phase in RF2_PHASES):
+        return BAD
+    player = _rf2_player(scoring)
+    if player is None:
+        return None  # no player's car (the menus, or watching others)
+    wanted, name = player
+    for i in range(cars):
+        at = 16 + i * RF2_TELEMETRY_VEHICLE_BYTES
+        if _I32.unpack_from(telemetry, at)[0] == wanted:
+            break
+    else:
+        return None  # scoring has the player, telemetry not yet
+    v = _RF2_DRIVE.unpack_from(telemetry, at + 184)
+    vel, acc, rot = v[0:3], v[3:6], v[6:9]
+    gear, rpm, throttle, brake, steer, clutch, torque = v[9:16]
+    top = _RF2_MAX_RPM.unpack_from(telemetry, at + 532)[0]
+    lock_deg = _RF2_RANGE.unpack_from(telemetry, at + 692)[0]
+    if not (
+        -1 <= gear <= 24
+        and 0.0 <= rpm <= 30_000.0
+        and _within(1.01, throttle, brake, steer, clutch)
+        and _within(VELOCITY_BOUND_M_S, *vel)
+        and _within(500.0, *acc)
+        and _within(50.0, *rot)
+        and _within(1e4, torque)
+        and (lock_deg == 0.0 or 0.0 < lock_deg <= 3600.0)
+    ):
+        return BAD
+    # Vehicle axes +x left, +y up, +z backward (rF2's; left-handed): Ay left is +x already; a
+    # positive rotation about y turns x (left) towards -z (forward): the car turning right, so
+    # the yaw rate left is its negative. mUnfilteredSteering is -1 left .. +1 right, over the
+    # wheel's physical range (lock to lock). No real dump was found to check the signs.
+    angle = -steer * math.radians(lock_deg) / 2.0 if lock_deg > 0.0 else NAN
+    return VehicleState(
+        speed_m_s=math.sqrt(vel[0] ** 2 + vel[1] ** 2 + vel[2] ** 2),
+        lateral_accel_m_s2=acc[0],
+        yaw_rate_rad_s=-rot[1],
+        engine_speed_rpm=rpm,
+        gear=REVERSE if gear < 0 else gear,
+        clutch_pedal=clutch,
+        throttle=throttle,
+        brake=brake,
+        steering_angle_rad=angle,
+        engine_max_rpm=top if 0.0 < top <= 30_000.0 else max_rpm,
+        car=name or car,
+        wheel_torque_Nm=torque,
+        replay=not realtime,
+        paused=phase == RF2_STOPPED,
+    )
+
+
+RF2 = PageLayout("rf2", (RF2_TELEMETRY_BYTES, RF2_SCORING_BYTES), _check_rf2, _decode_rf2,
+                 rf2_identify, exact_bytes=True)  # fmt: skip
+
+
+# --- RaceRoom: $R3E (Sector3's r3e-api r3e.h, version 3.4, #pragma pack(1)) --------------------
+R3E_MAP_NAME = "$R3E"
+R3E_VERSION = (3, 4)
+R3E_MAP_BYTES = 44000
+"""r3e_share whole: 2,016 bytes to the 128 r3e_driver_data of 328."""
+R3E_READ_BYTES = 1540
+"""r3e_share through steer_wheel_range_degrees: every field carfeel reads."""
+R3E_NAME_AT = 1200  # vehicle_info.name, uint8_t[64]
+R3E_ALL_DRIVERS_AT = 2012  # num_cars: what the header's all_drivers_offset must say
+R3E_DRIVER_DATA_BYTES = 328
+R3E_DRIVE_AT = 1392
+_R3E_HEAD = struct.Struct("<10i")
+"""version_major, version_minor, all_drivers_offset, driver_data_size, game_mode, game_paused,
+game_in_menus, game_in_replay, game_using_vr, game_unused1."""
+_R3E_DRIVE = struct.Struct("<iffffii24x3f48x7fii")
+"""At 1392: control_type, car_speed, engine_rps, max_engine_rps, upshift_rps, gear, num_gears,
+(car_cg_location, car_orientation) local_acceleration 1444, (mass .. turbo_pressure) throttle
+1504, throttle_raw, brake, brake_raw, clutch, clutch_raw, steer_input_raw, steer_lock_degrees,
+steer_wheel_range_degrees."""
+_R3E_ROT = struct.Struct("<3d")  # at 272: player.local_angular_velocity, rad/s
+RPS_TO_RPM = 60.0 / (2.0 * math.pi)
+
+
+def _check_r3e(pages: Sequence[bytes]) -> str | None:
+    major, minor, drivers_at, driver_bytes = _R3E_HEAD.unpack_from(pages[0])[0:4]
+    if (major, minor) != R3E_VERSION:
+        return (
+            f"shared memory version {major}.{minor}: carfeel reads r3e.h version "
+            f"{R3E_VERSION[0]}.{R3E_VERSION[1]} (its fields move between versions)"
+        )
+    if (drivers_at, driver_bytes) != (R3E_ALL_DRIVERS_AT, R3E_DRIVER_DATA_BYTES):
+        return (
+            f"all_drivers_offset {drivers_at} and driver_data_size {driver_bytes}: version "
+            f"3.4's are {R3E_ALL_DRIVERS_AT} and {R3E_DRIVER_DATA_BYTES} (another layout)"
+        )
+    return None
+
+
+def r3e_identify(pages: Sequence[bytes]) -> tuple[str, float]:
+    car = _c_text(pages[0][R3E_NAME_AT : R3E_NAME_AT + 64]) or ""
+    return car, NAN
+
+
+def _decode_r3e(pages: Sequence[Any], car: str, max_rpm: float) -> VehicleState | None:
+    page = pages[0]
+    head = _R3E_HEAD.unpack_from(page)
+    paused, menus, replay = head[5:8]
+    if not all(flag in (-1, 0, 1) for flag in (paused, menus, replay)):
+        return BAD
+    if menus == 1:
+        return None  # in the menus: nobody drives
+    v = _R3E_DRIVE.unpack_from(page, R3E_DRIVE_AT)
+    speed, rps, top_rps, gear, gears = v[1], v[2], v[3], v[5], v[6]
+    acc, (throttle, _tr, brake, _br, clutch, _cr, steer), wheel_deg = v[7:10], v[10:17], v[18]
+    rot = _R3E_ROT.unpack_from(page, 272)
+    if not (
+        -2 <= gear <= 24
+        and -1 <= gears <= 24
+        and 0.0 <= speed <= VELOCITY_BOUND_M_S
+        and 0.0 <= rps <= 3200.0  # 30,000 rpm
+        and _within(1.01, throttle, brake, clutch, steer)
+        and _within(500.0, *acc)
+        and _within(50.0, *rot)
+        and 0 <= wheel_deg <= 3600
+    ):
+        return BAD
+    # Car axes +X left, +Y up, +Z back (the header's, left-handed, as rF2): Ay is +X; the yaw
+    # rate left is minus the rotation about Y. steer_input_raw -1 left (as rF2's; no real dump
+    # was found to check it) over the wheel's range lock to lock: half of it each side.
+    name = _c_text(page[R3E_NAME_AT : R3E_NAME_AT + 64])
+    return VehicleState(
+        speed_m_s=speed,
+        lateral_accel_m_s2=acc[0],
+        yaw_rate_rad_s=-rot[1],
+        engine_speed_rpm=rps * RPS_TO_RPM,
+        gear=max(REVERSE, gear) if gear != -2 else 0,  # -2: not available
+        clutch_pedal=clutch if clutch >= 0.0 else NAN,
+        throttle=throttle if throttle >= 0.0 else NAN,
+        brake=brake if brake >= 0.0 else NAN,
+        steering_angle_rad=-steer * math.radians(wheel_deg) / 2.0 if wheel_deg else NAN,
+        engine_max_rpm=top_rps * RPS_TO_RPM if 0.0 < top_rps <= 3200.0 else max_rpm,
+        car=name or car,
+        forward_gears=max(0, gears),
+        replay=replay == 1,
+        paused=paused == 1,
+    )
+
+
+R3E = PageLayout("r3e", (R3E_READ_BYTES,), _check_r3e, _decode_r3e, r3e_identify,
+                 sequence_offset=44, file_page_bytes=(R3E_MAP_BYTES,))  # fmt: skip
+"""The update counter: player.game_simulation_ticks (1/400 s)."""
+
+
 class PagesReader:
     """The frames of a page layout: a live map's pages (one image each) or a file of frames."""
 
@@ -375,8 +589,11 @@ class PagesReader:
             self.frames = len(image) // layout.frame_bytes
         else:
             for image, size in zip(images, sizes, strict=True):
-                if len(image) < size:
-                    raise ValueError(f"a page of {len(image)} bytes, under the {size} read")
+                if len(image) < size or (layout.exact_bytes and len(image) != size):
+                    raise ValueError(
+                        f"a {layout.name} map of {len(image)} bytes: the layout carfeel reads "
+                        f"is {size} bytes (another version of the game's plugin?)"
+                    )
             self.frames = 0
         first = self._pages(0)
         why = layout.check(first)

@@ -225,6 +225,22 @@ MAP_FORMATS: dict[str, MapFormat] = {
             lambda images, is_file, where: pages.PagesReader(pages.AMS2, images, is_file),
             pages.FRAME_HZ,
         ),
+        MapFormat(
+            "rf2",
+            "rFactor 2 / Le Mans Ultimate (rF2SharedMemoryMapPlugin telemetry and scoring)",
+            pages.RF2_MAP_NAMES,
+            (pages.RF2_TELEMETRY_BYTES, pages.RF2_SCORING_BYTES),
+            lambda images, is_file, where: pages.PagesReader(pages.RF2, images, is_file),
+            pages.FRAME_HZ,
+        ),
+        MapFormat(
+            "r3e",
+            "RaceRoom shared memory ($R3E, r3e.h version 3.4)",
+            (pages.R3E_MAP_NAME,),
+            (pages.R3E_MAP_BYTES,),
+            lambda images, is_file, where: pages.PagesReader(pages.R3E, images, is_file),
+            pages.FRAME_HZ,
+        ),
     )
 }
 UDP_TOO = frozenset({"assetto"})
