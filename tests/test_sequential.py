@@ -113,3 +113,19 @@ def test_a_weak_hand_does_not_shift_and_a_held_lever_shifts_once() -> None:
 def test_bad_parameters_are_refused_with_what_is_wrong(bad: dict[str, object]) -> None:
     with pytest.raises(PresetError, match="sequential lever"):
         sq.SequentialParams(**bad)  # type: ignore[arg-type]
+
+
+def test_offline_driver_walks_the_pattern_and_refuses_bad_moves() -> None:
+    from carfeel.errors import InputError
+    from carfeel.simulation.sequential import SequentialSetup, parse_moves, simulate_sequential
+
+    moves = parse_moves("up, up, up, down, down, down, lift-down, lift-down, up")
+    result = simulate_sequential(SequentialSetup(), moves)
+    shifts = result["shift"][result["shift"] != 0]
+    # The third plain "down" from 1 is refused (neutral needs the lift in this preset).
+    assert list(shifts) == [1, 1, 1, -1, -1, -1, -1, 1]
+    changes = [g for k, g in enumerate(result["gear"]) if k == 0 or g != result["gear"][k - 1]]
+    assert changes == ["N", "1", "2", "3", "2", "1", "N", "R", "N"]
+    for bad in ("", "up,sideways", "up," * 1001):
+        with pytest.raises(InputError, match="--moves"):
+            parse_moves(bad)
