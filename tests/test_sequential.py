@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import pytest
 
@@ -129,3 +130,26 @@ def test_offline_driver_walks_the_pattern_and_refuses_bad_moves() -> None:
     for bad in ("", "up,sideways", "up," * 1001):
         with pytest.raises(InputError, match="--moves"):
             parse_moves(bad)
+
+
+def test_the_shipped_preset_loads_and_a_bad_one_names_its_problem(tmp_path: Path) -> None:
+    from carfeel.io import presets
+
+    preset = presets.load_sequential("rally-6")
+    assert preset.params.lever.up_direction == -1 and preset.params.lever.forward_gears == 6
+    text = presets.resolve("sequential", "rally-6")[1]
+    for old, new, named in (
+        ("up_direction = -1", "up_direction = 0", "up_direction must be"),
+        ("drum_N = 10.0", "drum_N = nan", "drum_N = nan"),
+        ("click_N = 25.0", 'click_N = "x"', "lever.click_N = 'x'"),
+        ("hold_s = 0.3", "hold_s = 0.0", "hold_s = 0.0"),
+        ("[driver]", "[drivr]", "drivr: unknown key"),
+    ):
+        path = tmp_path / "bad.toml"
+        path.write_text(text.replace(old, new), encoding="utf-8")
+        with pytest.raises(PresetError, match=r"bad\.toml is not valid") as info:
+            presets.load("sequential", str(path))
+        assert named in str(info.value)
+    path.write_text(presets.resolve("hpattern", "5r")[1], encoding="utf-8")
+    with pytest.raises(PresetError, match="is an hpattern preset"):
+        presets.load("sequential", str(path))

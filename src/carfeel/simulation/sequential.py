@@ -3,11 +3,12 @@ or pulls with a constant force for `hold_s`, lets go for `rest_s`, move after mo
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from carfeel.errors import InputError
+from carfeel.errors import InputError, PresetError
 from carfeel.models.gearshift import sequential as sq
 from carfeel.simulation.result import Result
 from carfeel.text import shown
@@ -23,6 +24,18 @@ class SequentialDriver:
     """The hand's force during a move, N (the click's peak plus the spring there is ~ 40 N)."""
     hold_s: float = 0.3
     rest_s: float = 0.3
+
+    def __post_init__(self) -> None:
+        for name, low, high in (
+            ("hand_N", 0.0, 1000.0),
+            ("hold_s", 0.01, 60.0),
+            ("rest_s", 0.01, 60.0),
+        ):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and low <= value <= high):
+                raise PresetError(
+                    f"sequential driver: {name} = {value}: expected {low:g} to {high:g}"
+                )
 
 
 @dataclass(frozen=True, slots=True)

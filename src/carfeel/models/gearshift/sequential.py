@@ -28,6 +28,7 @@ knob along x (+ forward), positions in m, velocities in m/s.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -80,11 +81,15 @@ class SequentialParams:
             ),
             (self.mass_kg > 0.0, "mass_kg must be positive"),
         ]
-        for value in (self.damping_N_s_m, self.centring_N_m, self.centring_preload_N, self.click_N,
-                      self.drum_N, self.dog_N, self.dog_width_m, self.wall_N_m, self.wall_N_s_m,
-                      self.click_width_m, self.friction_velocity_m_s):  # fmt: skip
+        for name in ("damping_N_s_m", "centring_N_m", "centring_preload_N", "click_N", "drum_N",
+                     "dog_N", "dog_width_m", "wall_N_m", "wall_N_s_m", "click_width_m", "click_m",
+                     "friction_velocity_m_s", "end_m", "rearm_m", "mass_kg"):  # fmt: skip
+            value = getattr(self, name)
             checks.append(
-                (value == value and value >= 0.0, "forces, stiffnesses, widths must be >= 0")
+                (
+                    math.isfinite(value) and value >= 0.0,
+                    f"{name} = {value}: expected a finite number >= 0",
+                )
             )
         checks.append((self.click_width_m > 0.0 and self.friction_velocity_m_s > 0.0,
                        "click_width_m and friction_velocity_m_s must be positive"))  # fmt: skip
