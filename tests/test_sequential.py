@@ -50,9 +50,9 @@ def test_every_shift_up_and_down_through_the_pattern(up_direction: int) -> None:
     assert gears == [1, 2, 3, 4, 5, 6]
     hand.move(+1)  # past top: the wall
     assert hand.state.gear == 6
-    # Deepest a 45 N hand gets into the lock's wall: the wall's impact overshoot, well short
-    # of the 4 mm left to the click point.
-    assert 0.0 < hand.max_depth_m < params.click_width_m
+    # A 45 N hand gets into the lock's wall by its impact overshoot only: never to the
+    # click's bump (6 mm past the wall), so no shift can register through it.
+    assert 0.0 < hand.max_depth_m < params.click_m - params.click_width_m - params.lock_m
     for expected in (5, 4, 3, 2, 1):
         hand.move(-1)
         assert hand.state.gear == expected
@@ -86,7 +86,7 @@ def test_pull_neutral_and_game_lock() -> None:
     assert hand.state.gear == 0
     hand.move(+1, locked_up=True)  # the game says locked: a wall, no shift
     assert hand.state.gear == 0 and hand.shifts == [1, -1]
-    assert 0.0 < hand.max_depth_m < params.click_width_m
+    assert 0.0 < hand.max_depth_m < params.click_m - params.click_width_m - params.lock_m
 
 
 def test_a_weak_hand_does_not_shift_and_a_held_lever_shifts_once() -> None:
@@ -153,3 +153,25 @@ def test_the_shipped_preset_loads_and_a_bad_one_names_its_problem(tmp_path: Path
     path.write_text(presets.resolve("hpattern", "5r")[1], encoding="utf-8")
     with pytest.raises(PresetError, match="is an hpattern preset"):
         presets.load("sequential", str(path))
+
+
+def test_simulate_sequential_command_and_its_refusals(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from carfeel.cli import main
+
+    out = tmp_path / "run.csv"
+    moves = "up,up,up,up,up,up,up,down,down,down,down,down,down,lift-down,lift-down,lift-down"
+    assert main(["simulate", "sequential", "--moves", moves, "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "13 shifts, 3 refused" in text and "gears N 1 2 3 4 5 6 5 4 3 2 1 N R" in text
+    assert out.with_suffix(".json").is_file()
+    before = out.read_bytes()
+    for bad in (["--moves", "up,sideways"], ["--moves", "up", "--preset", "nope"],
+                ["--moves", "up", "--dt", "0.5"]):  # fmt: skip
+        assert main(["simulate", "sequential", *bad, "--out", str(out)]) == 2
+        assert "Traceback" not in capsys.readouterr().err
+        assert out.read_bytes() == before  # a failed run leaves the earlier output untouched
+    assert main(["simulate", "sequential", "--moves", "up", "--locked", "up", "--out",
+                 str(tmp_path / "locked.csv")]) == 0  # fmt: skip
+    assert "0 shifts, 1 refused" in capsys.readouterr().out

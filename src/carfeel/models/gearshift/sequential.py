@@ -14,7 +14,7 @@ bump (a triangle `dog_N` high) halfway.
 
 A locked move (up from the top gear, down from R, a neutral without the lift button, or a
 lock the game reports: `SequentialInputs.locked_up`/`locked_down`, e.g. from
-`telemetry.cues.sequential_locked`) meets a wall before the click, at `click_m - click_width_m`:
+`telemetry.cues.sequential_locked`) meets a wall at `lock_m`, short of the click's bump:
 the lever cannot reach the click, so no shift registers. Walls and end stops are
 spring-dampers integrated implicitly with the lever (passive at any step).
 
@@ -56,13 +56,16 @@ class SequentialParams:
     end_m: float = 0.035
     """The end stop's travel from centre, m."""
     rearm_m: float = 0.006
+    lock_m: float = 0.012
+    """Where a locked move's wall stands (travel from centre, m): short of the click's bump,
+    so the wall's compliance (a few mm at a firm hand's impact) never reaches the click."""
     drum_N: float = 10.0
     """The barrel drum's Coulomb resistance between the click and the end stop, N."""
     dog_N: float = 8.0
     """The dog-engagement bump's peak, halfway from the click to the end stop, N."""
     dog_width_m: float = 0.002
     wall_N_m: float = 40000.0
-    wall_N_s_m: float = 30.0
+    wall_N_s_m: float = 60.0
     friction_velocity_m_s: float = 0.01
     """The speed over which Coulomb forces ramp to full (regularised friction), m/s."""
 
@@ -99,8 +102,8 @@ class SequentialParams:
 
     @property
     def wall_m(self) -> float:
-        """Where a locked move stops (travel from centre, m): before the click's bump."""
-        return self.click_m - self.click_width_m
+        """Where a locked move's wall stands (travel from centre, m)."""
+        return self.lock_m
 
 
 class SequentialState(NamedTuple):
