@@ -175,3 +175,15 @@ def test_simulate_sequential_command_and_its_refusals(
     assert main(["simulate", "sequential", "--moves", "up", "--locked", "up", "--out",
                  str(tmp_path / "locked.csv")]) == 0  # fmt: skip
     assert "0 shifts, 1 refused" in capsys.readouterr().out
+
+
+def test_a_released_lever_does_not_swing_into_the_other_wall() -> None:
+    from carfeel.io import presets
+    from carfeel.simulation.sequential import parse_moves, simulate_sequential
+
+    # With 8 N s/m (0.17 of critical) the lever let go at the end stop swung 13 mm past the
+    # centre into the wall of a locked down-shift (1 -> N without the lift): this fails there.
+    setup = presets.load_sequential("rally-6").params
+    result = simulate_sequential(setup, parse_moves("up,up,up,down,down,lift-down,lift-down"))
+    assert result["wall_depth_m"].max() == 0.0
+    assert list(result["shift"][result["shift"] != 0]) == [1, 1, 1, -1, -1, -1, -1]

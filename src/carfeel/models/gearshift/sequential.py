@@ -45,7 +45,9 @@ class SequentialParams:
     neutral: str = "lift"
     mass_kg: float = 0.6
     """The lever's inertia at the knob, kg."""
-    damping_N_s_m: float = 8.0
+    damping_N_s_m: float = 30.0
+    """About 0.65 of critical with the centring spring: a released lever returns without
+    swinging past the centre toward the other click."""
     centring_N_m: float = 900.0
     centring_preload_N: float = 6.0
     click_m: float = 0.022
