@@ -278,6 +278,10 @@ def preset_kinds() -> Iterator[tuple[str, type, dict[str, Any], tuple[str, ...]]
     yield "shift", ShiftParams, shift, ("name", "source")
     yield "steering", SteeringCar, steering, ("name", "source")
     yield "hpattern", HPatternSetup, hpattern, ("name", "source", "engagement")
+    from carfeel.simulation.sequential import SequentialSetup
+
+    sequential = {n: presets.load_sequential(n).params for n in presets.available("sequential")}
+    yield "sequential", SequentialSetup, sequential, ("name", "source")
 
 
 _KIND_TEXT = {
@@ -290,6 +294,9 @@ _KIND_TEXT = {
     "hpattern": "An H-pattern gearbox: the layout of its slots, the select axis, the walls, the "
     "synchronizer, the feel and the scripted driver; `engagement` names the shift preset every "
     "slot engages with (a shipped name or a path relative to this file).",
+    "sequential": "A sequential (rally/race) lever: the `[lever]` (its springs, click, drum, "
+    "dog bump, walls and locks) and the offline `[driver]`: `carfeel simulate sequential "
+    "--preset`.",
 }
 
 

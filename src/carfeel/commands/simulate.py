@@ -13,6 +13,7 @@ from carfeel.commands.common import (
     positive_int,
     seed_arg,
 )
+from carfeel.commands.simulate_sequential import register_sequential, simulate_sequential_command
 from carfeel.errors import InputError
 from carfeel.runs import (
     HPatternRunConfig,
@@ -146,6 +147,8 @@ def register(commands: Any) -> None:
     hpattern.add_argument("--out", required=True, metavar="FILE.csv", help="CSV file to write")
     hpattern.add_argument("--plot", metavar="FILE.png", help="also write a PNG plot")
 
+    register_sequential(models)
+
     steering = models.add_parser(
         "steering",
         help="steering wheel torque (paper eqs. 1-7) on a car through an ISO manoeuvre",
@@ -205,6 +208,7 @@ def _handle(args: argparse.Namespace) -> int:
         "shift": _simulate_shift,
         "steering": _simulate_steering,
         "hpattern": _simulate_hpattern,
+        "sequential": simulate_sequential_command,
     }[args.model](args)
     return code
 

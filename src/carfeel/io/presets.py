@@ -26,6 +26,7 @@ from carfeel.errors import CarfeelError, PresetError
 from carfeel.models.gearshift.hpattern import WALL_DEPTH_M, HPatternParams, Layout
 from carfeel.models.gearshift.synchronizer import LOCATIONS
 from carfeel.simulation.hpattern import HPatternSetup
+from carfeel.simulation.sequential import SequentialSetup
 from carfeel.simulation.shift import ShiftParams
 from carfeel.simulation.steering import SteeringCar
 
@@ -228,8 +229,9 @@ _UNITS = [
     ("_s", "s"),
 ]
 
-PRESET_KINDS = ("shift", "steering", "hpattern")
-DEFAULT_PRESETS = {"shift": "paper-first-gear", "steering": "b-segment", "hpattern": "5r"}
+PRESET_KINDS = ("shift", "steering", "hpattern", "sequential")
+DEFAULT_PRESETS = {"shift": "paper-first-gear", "steering": "b-segment", "hpattern": "5r",
+                   "sequential": "rally-6"}  # fmt: skip
 
 
 def unit_of(name: str) -> str:
@@ -419,6 +421,7 @@ KIND_TABLES = {
     "shift": ("gearbox",),
     "steering": ("vehicle", "torque"),
     "hpattern": ("layout", "select", "walls"),
+    "sequential": ("lever",),
 }
 """The tables that tell the kinds apart (a shift and a steering preset both have [driver])."""
 
@@ -760,6 +763,7 @@ _KINDS: dict[str, tuple[type[Any], tuple[str, ...], Callable[[Any], list[str]]]]
         ("vehicle", "torque", "driver", "tyres", "steering_system"),
         check_steering,
     ),
+    "sequential": (SequentialSetup, ("lever", "driver"), lambda setup: []),
 }
 
 
@@ -779,6 +783,8 @@ def load(kind: str, name_or_path: str) -> Any:
     """A preset of any kind by shipped name or path."""
     if kind == "hpattern":
         return load_hpattern(name_or_path)
+    if kind == "sequential":
+        return load_sequential(name_or_path)
     label, text = resolve(kind, name_or_path)
     return from_toml(kind, label, text)
 
@@ -801,6 +807,19 @@ def from_toml(kind: str, label: str, text: str) -> Preset[Any]:
     if problems or params is None:
         raise _report(label, problems)
     return Preset(data["name"], data["source"], params)
+
+
+def load_sequential(name_or_path: str = "rally-6") -> Preset[SequentialSetup]:
+    """Load a sequential lever preset; the lever's own checks (raised as it is built) are
+    reported with the preset's label."""
+    label, text = resolve("sequential", name_or_path)
+    try:
+        preset: Preset[SequentialSetup] = from_toml("sequential", label, text)
+    except PresetError as exc:
+        if str(exc).startswith("preset "):
+            raise
+        raise _report(label, [str(exc)]) from None
+    return preset
 
 
 def shift_from_toml(label: str, text: str) -> Preset[ShiftParams]:
