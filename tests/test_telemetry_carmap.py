@@ -10,7 +10,7 @@ import pytest
 
 from carfeel.errors import InputError
 from carfeel.io.presets import load_hpattern, load_steering
-from carfeel.telemetry.carmap import profile_for_car, shipped_car_map
+from carfeel.telemetry.carmap import match_car, profile_for_car, shipped_car_map
 from carfeel.telemetry.state import VehicleState
 
 
@@ -22,7 +22,7 @@ def test_every_shipped_profile_names_presets_that_exist() -> None:
     cars = shipped_car_map()
     assert {"mercedesamggt4", "porsche_991ii_gt3_r", "vehicle.scania.s_2016"} <= set(cars)
     games = {entry["game"] for entry in cars.values()}
-    assert {"iracing", "acc", "assetto", "scs", "pcars"} <= games
+    assert {"iracing", "acc", "assetto", "scs", "pcars", "rf2", "r3e"} <= games
     for entry in cars.values():
         if "hpattern" in entry:
             load_hpattern(entry["hpattern"])  # raises if the preset does not exist
@@ -57,3 +57,22 @@ def test_a_bad_entry_is_refused_with_what_is_wrong(tmp_path: Path, line: str, re
     mine.write_text(f'[cars."x"]\n{line}\n')
     with pytest.raises(InputError, match=reason):
         profile_for_car(mine, _receiver("x"), wait_s=0.0)
+
+
+def test_an_entrys_number_and_livery_are_left_off_and_nothing_else(tmp_path: Path) -> None:
+    """rFactor 2 / LMU name an entry, not a car: "Oreca 07 #22 Jota" is the shipped "Oreca 07";
+    a name that merely starts like a car ("Oreca 07X", "Oreca 07 Gibson") is not it, and the
+    user's key for the whole entry name comes before the car's."""
+    entry = profile_for_car(None, _receiver("Oreca 07 #22 Jota"))
+    assert entry is not None and entry.game == "rf2" and entry.layout == "sequential"
+    assert entry.car == "Oreca 07 #22 Jota"  # the summary says what the game said
+    for other in ("Oreca 07X", "Oreca 07 Gibson", "Oreca 07#", "#22 Oreca 07", "Oreca"):
+        assert profile_for_car(None, _receiver(other)) is None, other
+    cars = {"Oreca 07": {"steering": "d-segment"}, "Oreca 07 #22 Jota": {"steering": "b-segment"}}
+    assert match_car("Oreca 07 #22 Jota", cars) == "Oreca 07 #22 Jota"
+    assert match_car("Oreca 07 #38", cars) == "Oreca 07"
+    assert match_car("Oreca 07  #38\nx", cars) == "Oreca 07"
+    mine = tmp_path / "cars.toml"
+    mine.write_text('[cars."Oreca 07"]\nsteering = "b-segment"\n')
+    users = profile_for_car(mine, _receiver("Oreca 07 #22 Jota"), wait_s=0.0)
+    assert users is not None and users.presets == {"steering": "b-segment"}

@@ -18,6 +18,7 @@ most `WAIT_S`, only when `--car-presets` is given); a car in neither keeps the r
 from __future__ import annotations
 
 import math
+import re
 import time
 from dataclasses import dataclass, field
 from importlib import resources
@@ -30,6 +31,8 @@ WAIT_S = 2.0
 LAYOUTS = ("h", "sequential", "truck")
 TEXT_KEYS = ("game", "name", "layout", "hpattern", "steering")
 SHIPPED = "carfeel car map"
+LIVERY = re.compile(r"\s*#\S.*\Z", re.DOTALL)
+"""An entry's number and what follows it, at the end of a car's name ("Oreca 07 #22 Jota")."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -115,12 +118,24 @@ def profile_for_car(path: Path | None, receiver: Any, wait_s: float = WAIT_S) ->
     car = receiver.latest.car
     if not car:
         return None
-    if car in user:
-        return _profile(car, user[car], f"car map {path}")
+    key = match_car(car, user)
+    if key is not None:
+        return _profile(car, user[key], f"car map {path}")
     shipped = shipped_car_map()
-    if car in shipped:
-        return _profile(car, shipped[car], SHIPPED)
+    key = match_car(car, shipped)
+    if key is not None:
+        return _profile(car, shipped[key], SHIPPED)
     return None
+
+
+def match_car(car: str, cars: dict[str, dict[str, Any]]) -> str | None:
+    """The key of `cars` for the name a game gives: the name itself, else the name without its
+    entry's number and livery (rFactor 2 / Le Mans Ultimate name an entry, "Oreca 07 #22
+    Jota": the car is "Oreca 07"); None when neither is there."""
+    if car in cars:
+        return car
+    base = LIVERY.sub("", car)
+    return base if base != car and base in cars else None
 
 
 def preset_for_car(path: Path, receiver: Any, model: str, wait_s: float = WAIT_S) -> str | None:
@@ -130,5 +145,6 @@ def preset_for_car(path: Path, receiver: Any, model: str, wait_s: float = WAIT_S
     while time.monotonic() < deadline and not receiver.latest.car:
         receiver.poll()
         time.sleep(0.005)
-    value = cars.get(receiver.latest.car, {}).get(model)
+    key = match_car(receiver.latest.car, cars)
+    value = cars[key].get(model) if key is not None else None
     return str(value) if isinstance(value, str) else None
