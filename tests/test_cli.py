@@ -153,8 +153,22 @@ def test_help_is_useful(capsys):
 
 
 def test_presets_lists_the_shipped_ones(capsys):
+    """Every kind, each with the package's own files (a new kind or preset the listing forgot
+    fails), and each listed name loads."""
+    from importlib import resources
+
+    from carfeel.io.presets import PRESET_KINDS, load
+
     assert main(["presets", "--json"]) == 0
-    assert "paper-first-gear" in json.loads(capsys.readouterr().out)["shift"]
+    listed = json.loads(capsys.readouterr().out)
+    assert "paper-first-gear" in listed["shift"] and "rally-6" in listed["sequential"]
+    assert tuple(listed) == PRESET_KINDS
+    for kind, names in listed.items():
+        folder = resources.files("carfeel.presets").joinpath(kind)
+        files = sorted(f.name[:-5] for f in folder.iterdir() if f.name.endswith(".toml"))
+        assert sorted(names) == files, kind
+        for name in names:
+            load(kind, name)
 
 
 STEERING_COLUMNS = (
