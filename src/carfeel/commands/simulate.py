@@ -13,6 +13,7 @@ from carfeel.commands.common import (
     positive_int,
     seed_arg,
 )
+from carfeel.commands.simulate_prnd import register_prnd, simulate_prnd_command
 from carfeel.commands.simulate_sequential import register_sequential, simulate_sequential_command
 from carfeel.errors import InputError
 from carfeel.runs import (
@@ -148,6 +149,7 @@ def register(commands: Any) -> None:
     hpattern.add_argument("--plot", metavar="FILE.png", help="also write a PNG plot")
 
     register_sequential(models)
+    register_prnd(models)
 
     steering = models.add_parser(
         "steering",
@@ -209,6 +211,7 @@ def _handle(args: argparse.Namespace) -> int:
         "steering": _simulate_steering,
         "hpattern": _simulate_hpattern,
         "sequential": simulate_sequential_command,
+        "prnd": simulate_prnd_command,
     }[args.model](args)
     return code
 

@@ -26,6 +26,7 @@ from carfeel.errors import CarfeelError, PresetError
 from carfeel.models.gearshift.hpattern import WALL_DEPTH_M, HPatternParams, Layout
 from carfeel.models.gearshift.synchronizer import LOCATIONS
 from carfeel.simulation.hpattern import HPatternSetup
+from carfeel.simulation.prnd import PrndSetup
 from carfeel.simulation.sequential import SequentialSetup
 from carfeel.simulation.shift import ShiftParams
 from carfeel.simulation.steering import SteeringCar
@@ -229,9 +230,9 @@ _UNITS = [
     ("_s", "s"),
 ]
 
-PRESET_KINDS = ("shift", "steering", "hpattern", "sequential")
+PRESET_KINDS = ("shift", "steering", "hpattern", "sequential", "prnd")
 DEFAULT_PRESETS = {"shift": "paper-first-gear", "steering": "b-segment", "hpattern": "5r",
-                   "sequential": "rally-6"}  # fmt: skip
+                   "sequential": "rally-6", "prnd": "automatic"}  # fmt: skip
 
 
 def unit_of(name: str) -> str:
@@ -422,6 +423,7 @@ KIND_TABLES = {
     "steering": ("vehicle", "torque"),
     "hpattern": ("layout", "select", "walls"),
     "sequential": ("lever",),
+    "prnd": ("selector",),
 }
 """The tables that tell the kinds apart (a shift and a steering preset both have [driver])."""
 
@@ -764,6 +766,7 @@ _KINDS: dict[str, tuple[type[Any], tuple[str, ...], Callable[[Any], list[str]]]]
         check_steering,
     ),
     "sequential": (SequentialSetup, ("lever", "driver"), lambda setup: []),
+    "prnd": (PrndSetup, ("selector", "driver"), lambda setup: []),
 }
 
 
@@ -783,8 +786,8 @@ def load(kind: str, name_or_path: str) -> Any:
     """A preset of any kind by shipped name or path."""
     if kind == "hpattern":
         return load_hpattern(name_or_path)
-    if kind == "sequential":
-        return load_sequential(name_or_path)
+    if kind in ("sequential", "prnd"):
+        return _load_checked(kind, name_or_path)
     label, text = resolve(kind, name_or_path)
     return from_toml(kind, label, text)
 
@@ -812,13 +815,26 @@ def from_toml(kind: str, label: str, text: str) -> Preset[Any]:
 def load_sequential(name_or_path: str = "rally-6") -> Preset[SequentialSetup]:
     """Load a sequential lever preset; the lever's own checks (raised as it is built) are
     reported with the preset's label."""
-    label, text = resolve("sequential", name_or_path)
+    preset: Preset[SequentialSetup] = _load_checked("sequential", name_or_path)
+    return preset
+
+
+def _load_checked(kind: str, name_or_path: str) -> Preset[Any]:
+    """A preset whose model checks itself as it is built (a PresetError without the label),
+    reported with the preset's label."""
+    label, text = resolve(kind, name_or_path)
     try:
-        preset: Preset[SequentialSetup] = from_toml("sequential", label, text)
+        preset: Preset[Any] = from_toml(kind, label, text)
     except PresetError as exc:
         if str(exc).startswith("preset "):
             raise
         raise _report(label, [str(exc)]) from None
+    return preset
+
+
+def load_prnd(name_or_path: str = "automatic") -> Preset[PrndSetup]:
+    """Load a PRND selector preset (its checks reported with the preset's label)."""
+    preset: Preset[PrndSetup] = _load_checked("prnd", name_or_path)
     return preset
 
 

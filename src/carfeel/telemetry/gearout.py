@@ -68,6 +68,15 @@ def buttons_for(gear: int, forward: int) -> list[Action]:
     return [("press", forward if gear < 0 else gear - 1)]
 
 
+def prnd_buttons(position: int, positions: int) -> list[Action]:
+    """An automatic's selector (models.gearshift.prnd): position index i (0 = P, 1 = R, 2 = N,
+    3 = D, then any the preset adds) holds button i alone; every position has its own button,
+    so a game bound to them sees P and N too."""
+    if not 0 <= position < positions:
+        raise ValueError(f"selector position {position} outside 0 .. {positions - 1}")
+    return [("press", position)]
+
+
 def sequential_for(before: int, after: int) -> list[Action]:
     """`sequential`: button 0 up, 1 down, one pulse per step (reverse below neutral, as the
     sequential games count: R, N, 1, 2 ...)."""
