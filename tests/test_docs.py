@@ -69,7 +69,7 @@ def test_every_preset_field_is_in_the_reference(site: Path):
     from carfeel.io import presets
 
     page = _page_text(site, "reference/presets")
-    for kind in ("shift", "steering", "hpattern", "sequential"):
+    for kind in ("shift", "steering", "hpattern", "sequential", "prnd"):
         for name in presets.available(kind):
             text = presets.resolve(kind, name)[1]
             for table, value in presets.load_toml(name, text).items():

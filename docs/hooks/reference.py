@@ -282,6 +282,10 @@ def preset_kinds() -> Iterator[tuple[str, type, dict[str, Any], tuple[str, ...]]
 
     sequential = {n: presets.load_sequential(n).params for n in presets.available("sequential")}
     yield "sequential", SequentialSetup, sequential, ("name", "source")
+    from carfeel.simulation.prnd import PrndSetup
+
+    prnd = {n: presets.load_prnd(n).params for n in presets.available("prnd")}
+    yield "prnd", PrndSetup, prnd, ("name", "source")
 
 
 _KIND_TEXT = {
@@ -297,6 +301,8 @@ _KIND_TEXT = {
     "sequential": "A sequential (rally/race) lever: the `[lever]` (its springs, click, drum, "
     "dog bump, walls and locks) and the offline `[driver]`: `carfeel simulate sequential "
     "--preset`.",
+    "prnd": "An automatic's selector: the `[selector]` (its positions, detents, end stops and "
+    "shift lock) and the offline `[driver]`: `carfeel simulate prnd --preset`.",
 }
 
 
