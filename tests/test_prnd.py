@@ -54,7 +54,7 @@ def test_every_position_both_ways_registered_at_its_centre() -> None:
         assert abs(hand.state.x_m - params.centre_m(target)) < 1e-4
     assert hand.shifts == [1, 1, 1, -1, -1, -1] and hand.max_depth_m == 0.0
     assert [prnd_buttons(p, 4) for p in (P, R, N, D)] == [[("press", i)] for i in range(4)]
-    with pytest.raises(ValueError, match="outside 0 .. 3"):
+    with pytest.raises(ValueError, match=r"outside 0 \.\. 3"):
         prnd_buttons(4, 4)
 
 

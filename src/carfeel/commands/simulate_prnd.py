@@ -74,15 +74,22 @@ def simulate_prnd_command(args: argparse.Namespace) -> int:
     with staging.outputs:
         result.to_csv(staging.out)
         write_metadata(
-            {"preset": preset.name, "moves": args.moves, "brake": args.brake,
-             "button": args.button, "speed_m_s": args.speed},  # fmt: skip
+            {
+                "preset": preset.name,
+                "moves": args.moves,
+                "brake": args.brake,
+                "button": args.button,
+                "speed_m_s": args.speed,
+            },
             staging.out,
         )
     # A move is refused when its target had not registered by the end of its hold.
     hold = round(preset.params.driver.hold_s / args.dt)
     rest = round(preset.params.driver.rest_s / args.dt)
     reached = sum(
-        1 for k, target in enumerate(moves) if seen[k * (hold + rest) + hold - 1] == positions[target]
+        1
+        for k, target in enumerate(moves)
+        if seen[k * (hold + rest) + hold - 1] == positions[target]
     )
     print(
         staging.text(

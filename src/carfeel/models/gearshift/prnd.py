@@ -77,8 +77,10 @@ class PrndParams:
                      "lock_m", "reverse_lock_speed_m_s", "wall_N_m", "wall_N_s_m"):  # fmt: skip
             value = getattr(self, name)
             checks.append(
-                (math.isfinite(value) and value >= 0.0,
-                 f"{name} = {value}: expected a finite number >= 0")  # fmt: skip
+                (
+                    math.isfinite(value) and value >= 0.0,
+                    f"{name} = {value}: expected a finite number >= 0",
+                )
             )
         checks += [
             (self.pitch_m > 0.0 and self.mass_kg > 0.0, "pitch_m and mass_kg must be positive"),
