@@ -9,9 +9,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from carfeel.errors import InputError, PresetError
+from carfeel.errors import InputError
 from carfeel.models.gearshift import prnd as pr
 from carfeel.simulation.result import Result
+from carfeel.simulation.sequential import check_driver
 from carfeel.text import shown
 
 MAX_MOVES = 1000
@@ -25,14 +26,7 @@ class PrndDriver:
     rest_s: float = 0.4
 
     def __post_init__(self) -> None:
-        for name, low, high in (
-            ("hand_N", 0.0, 1000.0),
-            ("hold_s", 0.01, 60.0),
-            ("rest_s", 0.01, 60.0),
-        ):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and low <= value <= high):
-                raise PresetError(f"prnd driver: {name} = {value}: expected {low:g} to {high:g}")
+        check_driver("prnd driver", self)
 
 
 @dataclass(frozen=True, slots=True)

@@ -26,16 +26,20 @@ class SequentialDriver:
     rest_s: float = 0.3
 
     def __post_init__(self) -> None:
-        for name, low, high in (
-            ("hand_N", 0.0, 1000.0),
-            ("hold_s", 0.01, 60.0),
-            ("rest_s", 0.01, 60.0),
-        ):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and low <= value <= high):
-                raise PresetError(
-                    f"sequential driver: {name} = {value}: expected {low:g} to {high:g}"
-                )
+        check_driver("sequential driver", self)
+
+
+def check_driver(label: str, driver: object) -> None:
+    """A scripted hand's hand_N (N), hold_s and rest_s (s) within their ranges, else a
+    PresetError naming `label` and the field."""
+    for name, low, high in (
+        ("hand_N", 0.0, 1000.0),
+        ("hold_s", 0.01, 60.0),
+        ("rest_s", 0.01, 60.0),
+    ):
+        value = getattr(driver, name)
+        if not (math.isfinite(value) and low <= value <= high):
+            raise PresetError(f"{label}: {name} = {value}: expected {low:g} to {high:g}")
 
 
 @dataclass(frozen=True, slots=True)
