@@ -237,3 +237,20 @@ def test_simulate_prnd_command_and_its_refusals(
     assert main(["simulate", "prnd", "--moves", "R,N", "--brake", "off", "--out",
                  str(locked)]) == 0  # fmt: skip
     assert "0 reached, 2 refused" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("gap_m", [0.0001, 0.0005, 0.002])
+def test_the_lock_wall_only_pushes(gap_m: float) -> None:
+    """A step from short of P's locked wall that would end past it: the wall may slow the
+    lever, never speed it into itself (an implicit spring reached mid-step would pull)."""
+    params = pr.PrndParams()
+    state = pr.PrndState(params.lock_m - gap_m, 3.0, P)
+    free, _ = pr.step(params, state, pr.PrndInputs(HAND_N, brake=True), DT_S)
+    walled, _out = pr.step(params, state, pr.PrndInputs(HAND_N, brake=False), DT_S)
+    assert free.x_m > params.lock_m  # the step does reach the wall's position
+    assert walled.v_m_s <= free.v_m_s and walled.x_m <= free.x_m
+    # Leaving the wall, it lets go: a lever moving out of it is not held back by its damper.
+    inside = pr.PrndState(params.lock_m + 0.0005, -0.5, P)
+    out_free, _ = pr.step(params, inside, pr.PrndInputs(0.0, brake=True), DT_S)
+    out_walled, _ = pr.step(params, inside, pr.PrndInputs(0.0, brake=False), DT_S)
+    assert out_walled.v_m_s <= out_free.v_m_s  # pushed out at least as fast, never pulled back
