@@ -84,6 +84,8 @@ def test_r_from_n_needs_the_button_and_a_slow_car() -> None:
     assert hand.state.position == N and 0.0 < hand.max_depth_m < 0.002
     hand.move(R, button=True, speed_m_s=5.0)  # rolling forward at 18 km/h: locked
     assert hand.state.position == N
+    hand.move(R, button=True, speed_m_s=float("nan"))  # a speed not known: locked, not open
+    assert hand.state.position == N
     hand.move(R, button=True, speed_m_s=1.0)
     assert hand.state.position == R
     # A preset without the button rule: N -> R plainly (below the speed).

@@ -133,7 +133,8 @@ def locked(params: PrndParams, position: int, direction: int, inputs: PrndInputs
     if position == 0 and direction > 0:
         return not inputs.brake or (params.p_needs_button and not inputs.button)
     if position == 2 and direction < 0:  # N -> R
-        too_fast = abs(inputs.speed_m_s) > params.reverse_lock_speed_m_s
+        # Written so that a speed not known (NaN from a log or a game) locks: not slow enough.
+        too_fast = not abs(inputs.speed_m_s) <= params.reverse_lock_speed_m_s
         return too_fast or (params.r_needs_button and not inputs.button)
     return False
 
