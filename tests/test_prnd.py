@@ -256,3 +256,17 @@ def test_the_lock_wall_only_pushes(gap_m: float) -> None:
     out_free, _ = pr.step(params, inside, pr.PrndInputs(0.0, brake=True), DT_S)
     out_walled, _ = pr.step(params, inside, pr.PrndInputs(0.0, brake=False), DT_S)
     assert out_walled.v_m_s <= out_free.v_m_s  # pushed out at least as fast, never pulled back
+
+
+def test_a_brutal_hand_bends_the_lock_wall_but_never_shifts() -> None:
+    """300 N (a yank, twelve times the driver's) compresses the 40 kN/m wall 11 mm, past the
+    crest; the lock holds because it follows the registered position (P), which needs the
+    lever within 4 mm of R's centre: the lever springs back into P when let go."""
+    params = pr.PrndParams()
+    hand = Hand(params)
+    hand.move(R, 300.0, brake=False)
+    assert hand.state.position == P and hand.shifts == []
+    # (300 - 15) / 40 kN/m ~ 7 mm static plus the impact: measured 11.0 mm; the bound is the
+    # distance from the wall to where R would register (30 - 4 - 6 = 20 mm).
+    assert hand.max_depth_m < params.pitch_m - params.register_m - params.lock_m
+    assert abs(hand.state.x_m) < 1e-4
