@@ -229,7 +229,13 @@ class Observer:
             self._spawn(close_file)
 
     def _spawn(self, target: Any) -> None:
-        thread = threading.Thread(target=target, name="carfeel-panel-file", daemon=True)
+        from carfeel.realtime.scheduling import background
+
+        def run() -> None:
+            background()  # not on the loop's core at its priority
+            target()
+
+        thread = threading.Thread(target=run, name="carfeel-panel-file", daemon=True)
         self._threads.append(thread)
         thread.start()
 

@@ -61,6 +61,9 @@ class Recorder:
             self._pending = []
 
     def _writer(self) -> None:
+        from carfeel.realtime.scheduling import background
+
+        background()  # not on the loop's core at its priority (see `background`)
         while True:
             rows = self._queue.get()
             if rows is None:
