@@ -31,7 +31,10 @@ def test_models_import_only_models_and_the_standard_library():
         for name in imported_modules(path):
             top = name.split(".")[0]
             if top == "carfeel":
-                assert name.startswith("carfeel.models"), f"{path.name} imports {name}"
+                # carfeel.errors is a leaf (it imports nothing): a model names a bad
+                # parameter with PresetError, which the command line maps to exit 2.
+                ok = name.startswith("carfeel.models") or name == "carfeel.errors"
+                assert ok, f"{path.name} imports {name}"
             assert top not in HEAVY, f"{path.name} imports {name}: keep the step plain Python"
 
 
