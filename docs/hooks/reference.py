@@ -4,9 +4,9 @@
   arguments and options (help, default, choices), walked from the parsers themselves, so a new
   option is documented by the next build.
 - `reference/presets.md`: every field of every preset kind, walked from the parameter dataclasses
-  the loader builds (`carfeel.io.presets`), with its unit (the name's suffix), its allowed range
-  (`RANGES`), the value in each shipped TOML file and its description (the field's docstring, as
-  the FMU export finds it).
+  the loader builds, as the parameter schema (`carfeel.schema`) describes them: its unit (the
+  name's suffix), its allowed range, its description (the field's docstring), and the value in
+  each shipped TOML file.
 
 Nothing is written into `docs/`: the pages exist only in the build (`File.generated`).
 """
@@ -187,17 +187,6 @@ class FieldRow:
     """The value in each shipped preset of the kind, by preset name."""
 
 
-def _docs_of(cls: type) -> dict[str, str]:
-    from carfeel.export.fmu import _FALLBACK_DOCS, _field_docs
-
-    docs = _field_docs(cls)
-    for key, text in _FALLBACK_DOCS.items():
-        owner, _, name = key.partition(".")
-        if owner == cls.__name__ and not docs.get(name):
-            docs[name] = text
-    return docs
-
-
 def _shown(value: Any) -> str:
     if isinstance(value, bool):
         return "true" if value else "false"
@@ -216,53 +205,42 @@ def _kind(hint: Any) -> str:
     )
 
 
-def _values_at(instances: dict[str, Any], attribute: str) -> dict[str, Any]:
-    out = {}
-    for name, value in instances.items():
-        if isinstance(value, tuple):  # an array of tables: one value per element
-            out[name] = tuple(getattr(v, attribute) for v in value)
-        elif value is not None:
-            out[name] = getattr(value, attribute)
-    return out
+_ABSENT = object()
 
 
-def walk_fields(cls: type, instances: dict[str, Any], prefix: str = "") -> Iterator[FieldRow]:
-    """Every leaf field of the parameter dataclass `cls` (and its tables), with the value of
-    each of `instances` (shipped presets' instances of `cls`, by name)."""
-    from carfeel.io.presets import RANGES, describe_range, range_key, unit_of
+def _value_at(instance: Any, path: str) -> Any:
+    """The value at a schema path in a preset's parameters: a tuple across an array of tables
+    (`layout.gears[].ratio`); _ABSENT under a table the preset leaves out."""
+    value = instance
+    parts = path.split(".")
+    for i, part in enumerate(parts):
+        if value is None:
+            return _ABSENT
+        if part.endswith("[]"):
+            rest = ".".join(parts[i + 1 :])
+            return tuple(_value_at(item, rest) for item in getattr(value, part[:-2]))
+        value = getattr(value, part)
+    return value
 
-    hints = typing.get_type_hints(cls)
-    docs = _docs_of(cls)
-    for field in dataclasses.fields(cls):  # type: ignore[arg-type]
-        hint = hints[field.name]
-        args = typing.get_args(hint)
-        inner = [a for a in args if a is not type(None)]
-        path = f"{prefix}{field.name}"
-        values = _values_at(instances, field.name)
-        if dataclasses.is_dataclass(hint):
-            yield from walk_fields(hint, values, f"{path}.")  # type: ignore[arg-type]
-        elif type(None) in args and len(inner) == 1 and dataclasses.is_dataclass(inner[0]):
-            yield from walk_fields(inner[0], values, f"{path}.")  # type: ignore[arg-type]
-        elif typing.get_origin(hint) is tuple and args and dataclasses.is_dataclass(args[0]):
-            # An array of tables ([[layout.gears]]): one value per element, in order.
-            for row in walk_fields(args[0], {}, f"{path}[]."):  # type: ignore[arg-type]
-                attribute = row.path.rsplit(".", 1)[1]
-                per = {n: tuple(getattr(g, attribute) for g in v) for n, v in values.items()}
-                yield dataclasses.replace(row, values={n: _shown(v) for n, v in per.items()})
-        else:
-            key = range_key(path)
-            allowed = describe_range(key) if key in RANGES else ""
-            doc = docs.get(field.name, "")
-            if field.default is not dataclasses.MISSING:  # a key a preset may leave out
-                doc = f"{doc} Optional (default {_shown(field.default)}).".strip()
-            yield FieldRow(
-                path,
-                _kind(hint),
-                unit_of(field.name),
-                allowed,
-                doc,
-                {n: _shown(v) for n, v in values.items()},
-            )
+
+def walk_fields(cls: type, instances: dict[str, Any]) -> Iterator[FieldRow]:
+    """Every leaf field of the parameter dataclass `cls` as `carfeel.schema` describes it (unit,
+    range, description), with the value in each of `instances` (shipped presets, by name)."""
+    from carfeel import schema
+
+    for field in schema.fields(cls):
+        values = {name: _value_at(params, field.path) for name, params in instances.items()}
+        doc = field.doc
+        if not field.required:  # a key a preset may leave out
+            doc = f"{doc} Optional (default {_shown(field.default)}).".strip()
+        yield FieldRow(
+            field.path,
+            _kind(field.kind),
+            field.unit,
+            field.range_text(),
+            doc,
+            {n: _shown(v) for n, v in values.items() if v is not _ABSENT},
+        )
 
 
 def preset_kinds() -> Iterator[tuple[str, type, dict[str, Any], tuple[str, ...]]]:

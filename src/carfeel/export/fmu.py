@@ -14,24 +14,20 @@ it: any number of instances of any number of carfeel FMUs run in one process.
 
 The FMI headers are the standard's (2-clause BSD), copied from the installed FMPy (the extra
 `carfeel[fmu]`), as the standard requires them among an FMU's sources. Parameters, their units
-and their ranges come from the preset and its schema (`carfeel.io.presets.RANGES`).
+and their ranges come from the preset and its schema (`carfeel.schema`).
 """
 
 from __future__ import annotations
 
-import ast
 import dataclasses
 import hashlib
 import importlib.util
-import inspect
-import itertools
 import math
 import os
 import platform
 import shutil
 import subprocess
 import tempfile
-import textwrap
 import xml.etree.ElementTree as ET
 import zipfile
 from collections.abc import Iterator, Sequence
@@ -44,8 +40,8 @@ from carfeel import __version__
 from carfeel.errors import CarfeelError, InputError
 from carfeel.io.force_profile import MAX_FORCE_N
 from carfeel.io.presets import MAX_NAME_CHARS as PRESET_NAME_CHARS
-from carfeel.io.presets import RANGES, Preset, range_key, unit_of
 from carfeel.io.presets import STEERING_STEP_S as PHYSICAL_MAX_STEP_S
+from carfeel.io.presets import Preset
 from carfeel.models.gearshift.engagement import (
     ChamferParams,
     DetentParams,
@@ -56,6 +52,7 @@ from carfeel.models.mechanics import StageMechanics
 from carfeel.models.steering.physical import SystemParams, TyreParams
 from carfeel.models.steering.torque import SteeringTorqueParams
 from carfeel.models.vehicle.single_track import VehicleParams
+from carfeel.schema import Range, field_docs, range_of, unit_of
 from carfeel.simulation.shift import MAX_STEP_S as SHIFT_MAX_STEP_S
 from carfeel.simulation.shift import ShiftParams
 from carfeel.simulation.steering import MAX_STEP_S as STEERING_MAX_STEP_S
@@ -191,13 +188,6 @@ class ModelSpec:
 # -- variables ---------------------------------------------------------------------------------
 
 
-def _unit(name: str) -> str:
-    """carfeel's unit of a name by its suffix (`unit_of`, plus Ay's m/s^2)."""
-    if name.endswith("_m_s2"):
-        return "m/s^2"
-    return unit_of(name)
-
-
 _FMI_UNITS: dict[str, tuple[str, dict[str, int]]] = {
     "N": ("N", {"kg": 1, "m": 1, "s": -2}),
     "m": ("m", {"m": 1}),
@@ -218,6 +208,7 @@ _FMI_UNITS: dict[str, tuple[str, dict[str, int]]] = {
     "Nm/(m/s^2)": ("N.m.s2/m", {"kg": 1, "m": 1}),
     "1/Nm": ("1/(N.m)", {"kg": -1, "m": -2, "s": 2}),
     "s/(m*Nm)": ("s/(m.N.m)", {"kg": -1, "m": -3, "s": 3}),
+    "Hz": ("Hz", {"s": -1}),
 }
 """carfeel's unit -> the FMU's unit (Modelica's SI spelling, as Modelica tools parse it) and its
 base units."""
@@ -225,26 +216,6 @@ base units."""
 
 def fmi_unit(unit: str) -> str:
     return _FMI_UNITS[unit][0] if unit else ""
-
-
-def _field_docs(cls: type) -> dict[str, str]:
-    """The attribute docstrings of a dataclass (the string after a field), by field name."""
-    try:
-        tree = ast.parse(textwrap.dedent(inspect.getsource(cls)))
-    except (OSError, TypeError, SyntaxError):  # pragma: no cover - no source installed
-        return {}
-    docs: dict[str, str] = {}
-    body = tree.body[0].body if tree.body and isinstance(tree.body[0], ast.ClassDef) else []
-    for node, after in itertools.pairwise(body):
-        if (
-            isinstance(node, ast.AnnAssign)
-            and isinstance(node.target, ast.Name)
-            and isinstance(after, ast.Expr)
-            and isinstance(after.value, ast.Constant)
-            and isinstance(after.value.value, str)
-        ):
-            docs[node.target.id] = " ".join(after.value.value.split())
-    return docs
 
 
 def _flatten(value: Any, prefix: str = "") -> Iterator[tuple[str, Any, type, str]]:
@@ -321,9 +292,8 @@ _FALLBACK_DOCS = {
 def _parameter(table: str, path: str, value: float, doc: str, c_member: str) -> Variable:
     name = f"{table}.{path}"
     leaf = path.split(".")[-1]
-    unit = _unit(leaf)
-    key = range_key(name)
-    low, high, low_in, high_in = RANGES.get(key, (-math.inf, math.inf, True, True))
+    unit = unit_of(leaf)
+    low, high, low_in, high_in = range_of(name) or Range(-math.inf, math.inf)
     text = doc or f"{leaf.replace('_', ' ')}"
     # The preset's name is in the model's description, once: not in every variable's.
     described = f"{text} [{unit or '-'}; the preset's [{table}] {path}]"
@@ -346,7 +316,7 @@ def _table_parameters(
         if used is not None and path not in used:
             continue
         if owner not in docs:
-            docs[owner] = _field_docs(owner)
+            docs[owner] = field_docs(owner)
         member = f"{c_struct or table}.{path}"
         doc = _FALLBACK_DOCS.get(f"{owner.__name__}.{field}") or docs[owner].get(field, "")
         yield _parameter(table, path, value, doc, member)
@@ -610,7 +580,7 @@ def physical_steering_spec(preset: Preset[SteeringCar]) -> ModelSpec:
         _model_step(PHYSICAL_MAX_STEP_S, "the preset's checks size the steering system for "
                     "1 ms (semi-implicit Euler)"),
         *(Variable(name, "output", "continuous", real, f"outputs.{member}", doc,
-                   unit=_unit(name)) for name, member, doc in _PHYSICAL_OUTPUTS),
+                   unit=unit_of(name)) for name, member, doc in _PHYSICAL_OUTPUTS),
     ]  # fmt: skip
     defaults: list[tuple[str, float | int]] = [
         (f"params.{table}.{path}", float(value))

@@ -25,6 +25,7 @@ from typing import Any, Generic, TypeVar
 from carfeel.errors import CarfeelError, PresetError
 from carfeel.models.gearshift.hpattern import WALL_DEPTH_M, HPatternParams, Layout
 from carfeel.models.gearshift.synchronizer import LOCATIONS
+from carfeel.schema import expected_value, number_problem, optional_of, type_hints
 from carfeel.simulation.hpattern import HPatternSetup
 from carfeel.simulation.prnd import PrndSetup
 from carfeel.simulation.sequential import SequentialSetup
@@ -34,227 +35,9 @@ from carfeel.simulation.steering import SteeringCar
 T = TypeVar("T")
 P = TypeVar("P")
 
-INF = math.inf
-
-# Allowed range of each parameter, by its name, or by "table.name" where the same name needs another
-# range in another table: (low, high, low included, high included).
-RANGES: dict[str, tuple[float, float, bool, bool]] = {
-    "vehicle.mass_kg": (50.0, 1e5, True, True),
-    "mass_kg": (0.0, 100.0, False, True),
-    "stiffness_N_m": (0.0, 1e7, True, True),
-    "damping_N_s_m": (0.0, 1e5, True, True),
-    "static_friction_N": (0.0, 1e3, True, True),
-    "sliding_friction_N": (0.0, 1e3, True, True),
-    "synchronization_position_m": (0.0, 0.2, False, True),
-    "teeth_position_m": (0.0, 0.2, False, True),
-    "teeth_end_position_m": (0.0, 0.2, False, True),
-    "in_gear_position_m": (0.0, 0.2, False, True),
-    "detent_release_m": (0.0, 0.05, False, True),
-    "synchronization_duration_s": (0.0, 10.0, False, True),
-    "tooth_force_spread_N": (0.0, 1e3, True, True),
-    "ring_release_force_N": (0.0, 1e3, True, True),
-    "desynchronization_time_s": (0.0, 100.0, False, True),
-    "reversal_force_N": (0.0, 1e3, True, True),
-    "reversal_time_s": (0.0, 1.0, True, True),
-    "linkage_stiffness_N_m": (0.0, 1e7, True, True),
-    "linkage_damping_N_s_m": (0.0, 1e4, True, True),
-    "stop_travel_m": (0.0, 0.1, True, True),
-    "synchronization_force_N": (0.0, 1e4, True, True),
-    "neutral_detent.width_m": (0.0, 0.1, False, True),
-    "gear_detent.width_m": (0.0, 0.1, False, True),
-    "seat_force_N": (0.0, 1e3, True, True),
-    "far_force_N": (0.0, 1e3, True, True),
-    "far_width_m": (0.0, 0.1, True, True),
-    "gear_inertia_kg_m2": (0.0, 10.0, True, True),
-    "chamfer.drag_torque_Nm": (0.0, 1e3, True, True),
-    "angle_rad": (0.0, 1.4, False, True),
-    "radius_m": (0.0, 0.5, False, True),
-    "linkage_efficiency": (0.0, 1.0, False, True),
-    "travel_m": (0.0, 0.05, True, True),
-    "no_contact_fraction": (0.0, 1.0, True, False),
-    "stick_velocity_m_s": (0.0, 0.1, False, True),
-    "settle_velocity_m_s": (0.0, 1.0, False, True),
-    "settle_distance_m": (0.0, 0.05, False, True),
-    "push_force_N": (0.0, 1e3, False, True),
-    "push_velocity_m_s": (0.0, 10.0, False, True),
-    "hand_mass_kg": (0.0, 20.0, False, True),
-    "hand_stiffness_N_m": (0.0, 1e5, False, True),
-    "hand_damping_N_s_m": (0.0, 1e3, True, True),
-    "release_time_s": (0.0, 1.0, False, True),
-    "activation_time_s": (0.0, 1.0, False, True),
-    "release_position_m": (0.0, 0.2, False, True),
-    "hold_s": (0.0, 60.0, True, True),
-    "pull_force_N": (0.0, 1e3, False, True),
-    "pull_velocity_m_s": (0.0, 10.0, False, True),
-    "neutral_position_m": (0.0, 0.2, True, True),
-    # steering: vehicle
-    "yaw_inertia_kg_m2": (1.0, 1e6, True, True),
-    "wheelbase_m": (0.5, 10.0, True, True),
-    "cg_to_front_axle_m": (0.0, 10.0, False, False),
-    "front_cornering_stiffness_N_rad": (1e3, 1e7, True, True),
-    "rear_cornering_stiffness_N_rad": (1e3, 1e7, True, True),
-    "steering_ratio": (1.0, 50.0, True, True),
-    "width_m": (0.5, 5.0, True, True),
-    "steering_lock_rad": (0.0, 30.0, False, True),
-    "kinematic_speed_m_s": (0.1, 10.0, True, True),
-    # steering: torque law (K1..K9)
-    "k1_Nm_s2_m": (0.0, 100.0, False, True),
-    "k2": (0.0, 100.0, True, True),
-    "k3": (0.0, 5.0, False, True),
-    "k4_1_Nm": (0.0, 1e3, False, True),
-    "k5_s_m_Nm": (0.0, 1e3, True, True),
-    "k6_rad_s": (0.0, 100.0, False, True),
-    "k7_Nm": (0.0, 100.0, True, True),
-    "k8_rad_s": (0.0, 100.0, False, True),
-    "k9_Nm_s_rad": (0.0, 100.0, True, True),
-    "k10_Nm": (0.0, 100.0, True, True),  # the friction with memory's level (0: off)
-    "k11_rad": (0.0, 10.0, False, True),  # its presliding angle
-    # hpattern: layout
-    "planes_y_m": (-0.2, 0.2, True, True),
-    "centre_plane": (0.0, 20.0, True, True),
-    "slot_width_m": (0.0, 0.05, False, True),
-    "corridor_width_m": (0.0, 0.1, False, True),
-    "reverse_lockout_N": (0.0, 500.0, True, True),
-    "plane": (0.0, 20.0, True, True),
-    "direction": (-1.0, 1.0, True, True),
-    "ratio": (-20.0, 20.0, True, True),
-    "gear": (-8.0, 24.0, True, True),  # a truck's table: the game's gear number
-    "handle_position": (0.0, 31.0, True, True),  # ETS2's 32 hshifter slots
-    "range_plane": (0.0, 20.0, True, True),
-    "high_centre_plane": (0.0, 20.0, True, True),
-    "range_detent_N": (0.0, 200.0, True, True),
-    # hpattern: select axis, walls
-    "select.mass_kg": (0.0, 100.0, False, True),
-    "centring_stiffness_N_m": (0.0, 1e5, True, True),
-    "detent_stiffness_N_m": (0.0, 1e5, True, True),
-    "detent_width_m": (0.0, 0.05, False, True),
-    "slot_stiffness_N_m": (0.0, 1e6, False, True),
-    "slot_damping_N_s_m": (0.0, 1e3, True, True),
-    "lockout_stiffness_N_m": (0.0, 1e6, False, True),
-    "walls.stiffness_N_m": (0.0, 1e6, False, True),
-    "walls.damping_N_s_m": (0.0, 1e3, True, True),
-    # hpattern: synchronizer
-    "input_inertia_kg_m2": (0.0, 1.0, False, True),
-    "cone_friction": (0.0, 1.0, False, True),
-    "cone_radius_m": (0.0, 0.2, False, True),
-    "cone_half_angle_rad": (0.0, 0.8, False, True),
-    "lever_ratio": (0.0, 50.0, False, True),
-    "blocking_margin": (-1.0, 10.0, True, True),
-    "cone_scale": (0.0, 10.0, False, True),
-    "clutch_capacity_Nm": (0.0, 5000.0, True, True),
-    "clutch_open_above": (0.0, 1.0, False, True),
-    "drag_torque_Nm": (0.0, 100.0, True, True),
-    "speed_tolerance_rad_s": (0.0, 100.0, False, True),
-    "grind_force_N": (0.0, 1e3, True, True),
-    "grind_amplitude_N": (0.0, 100.0, True, True),
-    "dog_teeth": (1.0, 500.0, True, True),
-    "final_drive_ratio": (0.0, 20.0, False, True),
-    "wheel_radius_m": (0.1, 1.0, True, True),
-    # hpattern: feel (latch, click)
-    "latch_position_m": (0.0, 0.1, False, True),
-    "latch_width_m": (0.0, 0.02, False, True),
-    "latch_force_N": (0.0, 100.0, True, True),
-    "click_amplitude_N": (0.0, 50.0, True, True),
-    "click_frequency_hz": (1.0, 1000.0, True, True),
-    "click_decay_s": (1e-4, 1.0, True, True),
-    "click_speed_m_s": (0.0, 10.0, True, True),
-    # hpattern: driver
-    "select_force_N": (0.0, 500.0, False, True),
-    "select_stiffness_N_m": (0.0, 1e6, False, True),
-    "select_damping_N_s_m": (0.0, 1e4, True, True),
-    "select_tolerance_m": (0.0, 0.02, False, True),
-    # steering: physical model, tyres (tables [tyres], [steering_system]; optional)
-    "friction_coefficient": (0.05, 2.0, True, True),
-    "load_sensitivity": (0.0, 0.5, True, True),
-    "pneumatic_trail_m": (0.0, 0.1, True, True),
-    "relaxation_length_m": (0.05, 2.0, True, True),
-    "cg_height_m": (0.1, 2.0, True, True),
-    "track_m": (0.5, 3.0, True, True),
-    "front_roll_share": (0.0, 1.0, True, True),
-    "patch_radius_m": (0.0, 0.3, True, True),
-    "wind_up_stiffness_Nm_rad": (1.0, 1e6, True, True),
-    # steering: physical model, steering system (hand-wheel units)
-    "hand_wheel_inertia_kg_m2": (1e-3, 1.0, True, True),
-    "rack_inertia_kg_m2": (1e-3, 2.0, True, True),
-    "torsion_bar_stiffness_Nm_rad": (1.0, 1e4, True, True),
-    "compensation_damping_Nm_s_rad": (0.0, 20.0, True, True),
-    "mechanical_trail_m": (-0.05, 0.1, True, True),
-    "kingpin_inclination_rad": (0.0, 0.5, True, True),
-    "kingpin_offset_m": (0.0, 0.3, True, True),
-    "column_friction_Nm": (0.0, 10.0, True, True),
-    "rack_friction_Nm": (0.0, 20.0, True, True),
-    "friction_stiffness_Nm_rad": (1.0, 1e4, True, True),
-    "presliding_damping_Nm_s_rad": (0.0, 20.0, True, True),
-    "rack_damping_Nm_s_rad": (0.0, 10.0, True, True),
-    "assist_deadband_Nm": (0.0, 10.0, True, True),
-    "assist_gain_standstill_1_Nm": (0.0, 20.0, True, True),
-    "assist_gain_high_speed_1_Nm": (0.0, 20.0, True, True),
-    "assist_fade_speed_m_s": (0.1, 100.0, True, True),
-    "max_assist_Nm": (0.0, 200.0, True, True),
-    "eps_damping_Nm_s_rad": (0.0, 10.0, True, True),
-    "eps_damping_high_speed_Nm_s_rad": (0.0, 10.0, True, True),
-    "eps_damping_rise_Nm_s3_rad_m2": (0.0, 0.01, True, True),
-    "active_return_Nm_rad": (0.0, 100.0, True, True),
-    "active_return_max_Nm": (0.0, 20.0, True, True),
-    "active_return_fade_speed_m_s": (0.1, 100.0, True, True),
-    "stop_stiffness_Nm_rad": (10.0, 1e5, True, True),
-    "stop_damping_Nm_s_rad": (0.0, 100.0, True, True),
-    # steering: path driver
-    "preview_time_s": (0.0, 10.0, False, True),
-    "min_preview_m": (0.0, 100.0, False, True),
-    "lag_s": (0.02, 2.0, True, True),
-    "max_rate_rad_s": (0.0, 100.0, False, True),
-}
-
-# Unit of a parameter from the suffix of its name, longest suffix first.
-_UNITS = [
-    ("_Nm_s3_rad_m2", "Nm*s/rad per (m/s)^2"),
-    ("_Nm_s2_m", "Nm/(m/s^2)"),
-    ("_Nm_rad", "Nm/rad"),
-    ("_kg_m2", "kg*m^2"),
-    ("_rad_s", "rad/s"),
-    ("_Nm_s_rad", "Nm*s/rad"),
-    ("_s_m_Nm", "s/(m*Nm)"),
-    ("_kg_m2", "kg*m^2"),
-    ("_N_rad", "N/rad"),
-    ("_rad_s", "rad/s"),
-    ("_1_Nm", "1/Nm"),
-    ("_N_s_m", "N*s/m"),
-    ("_Nm", "Nm"),
-    ("_rad", "rad"),
-    ("_N_m", "N/m"),
-    ("_m_s", "m/s"),
-    ("_kg", "kg"),
-    ("_N", "N"),
-    ("_m", "m"),
-    ("_s", "s"),
-]
-
 PRESET_KINDS = ("shift", "steering", "hpattern", "sequential", "prnd")
 DEFAULT_PRESETS = {"shift": "paper-first-gear", "steering": "b-segment", "hpattern": "5r",
                    "sequential": "rally-6", "prnd": "automatic"}  # fmt: skip
-
-
-def unit_of(name: str) -> str:
-    for suffix, unit in _UNITS:
-        if name.endswith(suffix):
-            return unit
-    return ""
-
-
-def range_key(full: str) -> str:
-    """The RANGES key of a parameter's dotted path: "table.name" if listed, else "name"."""
-    parts = re.sub(r"\[\d+\]", "", full).split(".")
-    qualified = ".".join(parts[-2:])
-    return qualified if qualified in RANGES else parts[-1]
-
-
-def describe_range(key: str) -> str:
-    low, high, low_in, high_in = RANGES[key]
-    name = key.split(".")[-1]
-    unit = unit_of(name)
-    text = f"{low:g} {'<=' if low_in else '<'} value {'<=' if high_in else '<'} {high:g}"
-    return f"{text} {unit}" if unit else text
 
 
 @dataclass(frozen=True, slots=True)
@@ -468,7 +251,7 @@ _MISSING = object()
 
 def build(cls: type[T], table: Mapping[str, Any], where: str, problems: list[str]) -> T | None:
     """Build a parameter dataclass from a TOML table, appending each problem to `problems`."""
-    hints = typing.get_type_hints(cls)
+    hints = type_hints(cls)
     fields = [f.name for f in dataclasses.fields(cls)]  # type: ignore[arg-type]
     for key in table:
         if key not in fields:
@@ -483,7 +266,7 @@ def build(cls: type[T], table: Mapping[str, Any], where: str, problems: list[str
         if f.default is not dataclasses.MISSING
     }
     for name in fields:
-        kind = _optional_of(hints[name])
+        kind = optional_of(hints[name])
         full = f"{where}{name}"
         if name not in table and name in optional:
             continue
@@ -496,14 +279,6 @@ def build(cls: type[T], table: Mapping[str, Any], where: str, problems: list[str
     if len(values) < len(fields) - len(optional & (set(fields) - set(table))):
         return None
     return cls(**values)
-
-
-def _optional_of(kind: Any) -> Any:
-    """X for `X | None` (an optional table), else `kind`."""
-    args = typing.get_args(kind)
-    if type(None) in args and len(args) == 2:
-        return args[0] if args[1] is type(None) else args[1]
-    return kind
 
 
 def _convert(kind: Any, value: Any, full: str, problems: list[str]) -> Any:
@@ -521,46 +296,18 @@ def _convert(kind: Any, value: Any, full: str, problems: list[str]) -> Any:
             return _MISSING
         items = [_convert(item, v, f"{full}[{i}]", problems) for i, v in enumerate(value)]
         return _MISSING if any(v is _MISSING for v in items) else tuple(items)
-    if kind is bool:
-        if not isinstance(value, bool):
-            problems.append(f"{full} = {value!r}: expected true or false")
-            return _MISSING
-        return value
     if kind is str:
         if not isinstance(value, str) or not value:
             problems.append(f"{full} = {value!r}: expected a non-empty string")
             return _MISSING
         return value
-    if kind is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            problems.append(f"{full} = {value!r}: expected a whole number, {_expected(full, kind)}")
+    if kind in (bool, int, float):
+        problem = number_problem(full, kind, value)
+        if problem is not None:
+            problems.append(problem)
             return _MISSING
-        if abs(value) > 10**15:  # beyond every range (and beyond a float, from 10^309)
-            problems.append(
-                f"{full} = a {len(str(abs(value)))}-digit number: expected {_expected(full, kind)}"
-            )
-            return _MISSING
-        return value if _checked(full, float(value), problems) else _MISSING
-    if kind is float:
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            problems.append(f"{full} = {value!r}: expected a number, {_expected(full, kind)}")
-            return _MISSING
-        try:
-            number = float(value)
-        except OverflowError:
-            number = math.inf
-        return number if _checked(full, number, problems) else _MISSING
+        return float(value) if kind is float else value
     raise TypeError(f"{full}: a parameter type this loader was not taught: {kind}")
-
-
-def _checked(full: str, value: float, problems: list[str]) -> bool:
-    key = range_key(full)
-    if key in RANGES and not _in_range(key, value):
-        name = key.split(".")[-1]
-        shown = " ".join(part for part in (f"{value:g}", unit_of(name)) if part)
-        problems.append(f"{full} = {shown} is out of range: allowed {describe_range(key)}")
-        return False
-    return True
 
 
 def _expected(full: str, kind: Any) -> str:
@@ -568,21 +315,7 @@ def _expected(full: str, kind: Any) -> str:
         return "a table"
     if typing.get_origin(kind) is tuple:
         return "a list"
-    if kind is bool:
-        return "true or false"
-    if kind is str:
-        return "a string"
-    key = range_key(full)
-    return f"a number with {describe_range(key)}" if key in RANGES else "a number"
-
-
-def _in_range(name: str, value: float) -> bool:
-    low, high, low_in, high_in = RANGES[name]
-    if not math.isfinite(value):
-        return False
-    above = value >= low if low_in else value > low
-    below = value <= high if high_in else value < high
-    return above and below
+    return expected_value(full, kind)
 
 
 def check_shift(params: ShiftParams) -> list[str]:

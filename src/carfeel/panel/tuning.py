@@ -34,7 +34,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from carfeel.errors import InputError
-from carfeel.io.presets import RANGES, describe_range, range_key, unit_of
+from carfeel.schema import describe_range, range_key, range_of, unit_of
 
 RAMP_S = 0.2
 """A tuned value goes from old to new over this long (a step in a rendered force is a knock)."""
@@ -55,7 +55,9 @@ class Tunable:
 
     @property
     def bounds(self) -> tuple[float, float, bool, bool]:
-        return RANGES[range_key(self.path)]
+        allowed = range_of(self.path)
+        assert allowed is not None, f"{self.path}: a tunable without a range in the schema"
+        return allowed
 
     def as_dict(self) -> dict[str, Any]:
         low, high, low_in, high_in = self.bounds

@@ -41,13 +41,13 @@ import tomllib
 import typing
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
-from functools import cache, lru_cache
+from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from carfeel import __version__
+from carfeel import __version__, schema
 from carfeel.errors import CarfeelError, InputError, PresetError
 from carfeel.io import presets
 from carfeel.models.drivers.hpattern import HPatternDriverParams
@@ -599,10 +599,10 @@ def field_type(model: str, base: Any, path: str) -> tuple[Any, Any]:
         if match is None:
             raise KeyError(f"{part!r} is not a field name")
         name, index = match.group(1), match.group(2)
-        kind = _optional_of(kind)
+        kind = schema.optional_of(kind)
         if not dataclasses.is_dataclass(kind):
             raise KeyError(f"{'.'.join(walked)} is a value, not a table")
-        hints = _hints(typing.cast(type, kind))
+        hints = schema.type_hints(typing.cast(type, kind))
         if name not in hints:
             where = ".".join(walked) or "the preset"
             fields = ", ".join(hints)
@@ -610,7 +610,7 @@ def field_type(model: str, base: Any, path: str) -> tuple[Any, Any]:
         kind = hints[name]
         value = getattr(value, name) if value is not None else None
         walked.append(part)
-        if value is None and index is None and _optional_of(kind) is not kind:
+        if value is None and index is None and schema.optional_of(kind) is not kind:
             raise KeyError(f"the preset has no [{'.'.join(walked)}] table")
         if index is not None:
             if typing.get_origin(kind) is not tuple:
@@ -620,7 +620,7 @@ def field_type(model: str, base: Any, path: str) -> tuple[Any, Any]:
             if int(index) >= len(value):
                 raise KeyError(f"{name} has {len(value)} entries (0..{len(value) - 1})")
             value = value[int(index)]
-    kind = _optional_of(kind)
+    kind = schema.optional_of(kind)
     if dataclasses.is_dataclass(kind) or typing.get_origin(kind) is tuple or kind is str:
         raise KeyError("it is a table, a list or a name; address a number inside it")
     return kind, value
@@ -641,25 +641,12 @@ def _kind(model: str, base: Any, path: str) -> Any:
     return entry[1]
 
 
-@cache
-def _hints(cls: type[Any]) -> dict[str, Any]:
-    """The fields' types of a parameter dataclass (typing.get_type_hints: slow, so kept)."""
-    return typing.get_type_hints(cls)
-
-
-def _optional_of(kind: Any) -> Any:
-    args = typing.get_args(kind)
-    if type(None) in args and len(args) == 2:
-        return args[0] if args[1] is type(None) else args[1]
-    return kind
-
-
 def _range_text(path: str) -> str:
     if path.startswith("run."):
         low, high = RUN_RANGES[path[4:]]
         return f"{low:g} <= value <= {high:g}"
-    key = presets.range_key(path)
-    return presets.describe_range(key) if key in presets.RANGES else "any number"
+    allowed = schema.range_of(path)
+    return allowed.text(schema.unit_of(path.split(".")[-1])) if allowed else "any number"
 
 
 def value_problem(
@@ -671,34 +658,14 @@ def value_problem(
         kind = _kind(model, base, path) if kinds else field_type(model, base, path)[0]
     except KeyError as exc:
         return f"{path}: unknown parameter: {exc.args[0]}"
-    if kind is bool:
-        return None if isinstance(value, bool) else f"{path} = {value!r}: expected true or false"
+    if not path.startswith("run."):
+        return schema.number_problem(path, kind, value, whole_floats=True)
     if isinstance(value, bool) or not isinstance(value, int | float):
         return f"{path} = {value!r}: expected a number with {_range_text(path)}"
-    if kind is int and not (isinstance(value, int) or float(value).is_integer()):
-        return f"{path} = {value!r}: expected a whole number"
-    number = float(value)
-    if path.startswith("run."):
-        low, high = RUN_RANGES[path[4:]]
-        inside = math.isfinite(number) and low <= number <= high
-    else:
-        key = presets.range_key(path)
-        inside = key not in presets.RANGES or _in_range(key, number)
-    if not inside:
-        unit = presets.unit_of(path.split(".")[-1])
-        return f"{path} = {number:g} {unit} is out of range: allowed {_range_text(path)}".replace(
-            "  ", " "
-        )
+    low, high = RUN_RANGES[path[4:]]
+    if not (math.isfinite(float(value)) and low <= float(value) <= high):
+        return f"{path} = {float(value):g} is out of range: allowed {_range_text(path)}"
     return None
-
-
-def _in_range(key: str, value: float) -> bool:
-    low, high, low_in, high_in = presets.RANGES[key]
-    if not math.isfinite(value):
-        return False
-    return (value >= low if low_in else value > low) and (
-        value <= high if high_in else value < high
-    )
 
 
 def _check_value(
