@@ -27,10 +27,15 @@ class StageMechanics:
     """
 
     mass_kg: float
+    """Mass m of the lever, reflected at the knob, in this stage."""
     stiffness_N_m: float
+    """Stiffness k of this stage's spring toward its rest position x0 (0: no spring)."""
     damping_N_s_m: float
+    """Viscous damping c of the lever in this stage."""
     static_friction_N: float
+    """Static (break-away) friction F_st in this stage."""
     sliding_friction_N: float
+    """Sliding friction F_sl in this stage."""
 
 
 def stick_slip_step(

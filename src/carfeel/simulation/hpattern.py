@@ -160,8 +160,14 @@ class HPatternSetup:
     """What an H-pattern preset holds besides the engagement (which a shift preset gives)."""
 
     layout: hpattern.Layout
+    """The gate: the planes, the gear slots, the neutral corridor (and a truck's box)."""
     select: hpattern.SelectParams
+    """The select (y) axis: the lever's mass, friction and springs across the gate."""
     walls: hpattern.WallParams
+    """The gate's walls: the corridor's edges where no slot opens, and its ends."""
     synchronizer: SynchronizerParams
+    """Synchronizer, clutch and input shaft: when the synchro gate opens; grinding."""
     feel: hpattern.FeelParams
+    """Latch and click cues on top of the gearbox's own forces."""
     driver: HPatternDriverParams
+    """How the offline driver selects across the gate (its push and pull: the shift preset's)."""

@@ -23,7 +23,9 @@ class PrndDriver:
     hand_N: float = 25.0
     """The hand's force during a move, N (above the detents' 15 N peak)."""
     hold_s: float = 0.6
+    """Longest push per move: the hand pushes hand_N until the target registers or this runs out."""
     rest_s: float = 0.4
+    """How long the hand lets go after each move."""
 
     def __post_init__(self) -> None:
         check_driver("prnd driver", self)
@@ -34,7 +36,9 @@ class PrndSetup:
     """A prnd preset's tables: the selector and the offline driver."""
 
     selector: pr.PrndParams = field(default_factory=pr.PrndParams)
+    """The selector: its positions, detents, locks and walls."""
     driver: PrndDriver = field(default_factory=PrndDriver)
+    """The offline driver's hand: its force and timing per move."""
 
 
 def parse_moves(text: str, positions: tuple[str, ...]) -> tuple[int, ...]:

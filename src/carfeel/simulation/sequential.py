@@ -23,7 +23,9 @@ class SequentialDriver:
     hand_N: float = 45.0
     """The hand's force during a move, N (the click's peak plus the spring there is ~ 40 N)."""
     hold_s: float = 0.3
+    """How long the hand pushes or pulls with hand_N in each move."""
     rest_s: float = 0.3
+    """How long the hand lets go after each move."""
 
     def __post_init__(self) -> None:
         check_driver("sequential driver", self)
@@ -47,7 +49,9 @@ class SequentialSetup:
     """A sequential preset's tables: the lever and the offline driver."""
 
     lever: sq.SequentialParams = field(default_factory=sq.SequentialParams)
+    """The lever: its springs, click, drum, walls and neutral mode."""
     driver: SequentialDriver = field(default_factory=SequentialDriver)
+    """The offline driver's hand: its force and timing per move."""
 
 
 def parse_moves(text: str) -> tuple[str, ...]:

@@ -21,7 +21,9 @@ MAX_STEP_S = 2e-3
 @dataclass(frozen=True, slots=True)
 class ShiftParams:
     gearbox: engagement.EngagementParams
+    """The engagement along the slot: positions, stage mechanics, detents and chamfers."""
     driver: driver.ShiftDriverParams
+    """The driver's hand: eq. (10)'s push, its grip on the knob, and the pull out."""
 
 
 class ShiftState(NamedTuple):

@@ -56,10 +56,15 @@ class SteeringCar:
     """
 
     vehicle: VehicleParams
+    """The car: the single-track model's mass, geometry, cornering stiffnesses and steering."""
     torque: SteeringTorqueParams
+    """The paper's steering torque law, K1..K9 (equations 4-7)."""
     driver: PathDriverParams
+    """The path-following driver: preview, lag and rate limit."""
     tyres: TyreParams | None = None
+    """Brush tyres and load transfer of the physical model (absent: the paper's law only)."""
     steering_system: SystemParams | None = None
+    """The EPS steering system of the physical model (absent: the paper's law only)."""
 
     @property
     def has_physical(self) -> bool:

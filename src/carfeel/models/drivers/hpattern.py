@@ -46,8 +46,11 @@ class HPatternDriverParams:
     """How this driver selects; the push and pull along x are the shift driver's (`hand`)."""
 
     select_force_N: float
+    """Largest force of the hand across the gate (y): its aim spring is capped at this."""
     select_stiffness_N_m: float
+    """Stiffness of the hand's aim toward the target plane along y, before the cap."""
     select_damping_N_s_m: float
+    """Damping of the hand along y: it caps the crossing speed at select_force_N / this."""
     select_tolerance_m: float
     """Close enough to the plane to push in."""
     hold_s: float

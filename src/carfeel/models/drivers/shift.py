@@ -43,8 +43,11 @@ class ShiftDriverParams:
     push_velocity_m_s: float
     """V0 of eq. (10): the hand speed at which the driver stops pushing."""
     hand_mass_kg: float
+    """Mass m_h of the hand, which holds the knob through its grip."""
     hand_stiffness_N_m: float
+    """Stiffness k_h of the hand's grip on the knob."""
     hand_damping_N_s_m: float
+    """Damping c_h of the hand's grip on the knob."""
     activation_time_s: float
     """Time constant of the muscle force building up at the start of a push or pull."""
     release_position_m: float
@@ -54,8 +57,12 @@ class ShiftDriverParams:
     hold_s: float
     """Time from letting go until the hand leaves the knob, or pulls it out."""
     pull_out: bool
+    """true: hold_s after letting go the hand pulls the lever back to neutral; false: it leaves the
+    knob."""
     pull_force_N: float
+    """F_pull: the pull's force at rest (the mirror of eq. (10)'s F_max)."""
     pull_velocity_m_s: float
+    """V_pull: the hand speed back toward neutral at which the pull's force falls to 0."""
     neutral_position_m: float
     """The pull ends (the hand leaves the knob) once the knob is within this of neutral."""
 

@@ -23,7 +23,9 @@ from carfeel.models.vehicle.single_track import VehicleParams, VehicleState
 @dataclass(frozen=True, slots=True)
 class PathDriverParams:
     preview_time_s: float
+    """T_p: the driver aims at the path point V * T_p ahead (at least min_preview_m)."""
     min_preview_m: float
+    """Shortest preview distance: the aim point is never nearer than this."""
     lag_s: float
     """Time constant of the steering wheel angle following its target."""
     max_rate_rad_s: float

@@ -86,8 +86,11 @@ class DetentParams:
     width_m: float
     """From the seat to the crest."""
     seat_force_N: float
+    """Peak force of the flank between the seat and the crest, toward the seat."""
     far_force_N: float
+    """Peak force of the flank past the crest, away from the seat."""
     far_width_m: float
+    """Length of the flank past the crest (0: no such flank); beyond it the force is 0."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -115,9 +118,12 @@ class ChamferParams:
     lever_ratio: float
     """Knob travel per unit of sleeve travel."""
     linkage_efficiency: float
+    """Share of the knob's work the linkage passes to the sleeve; the gear's mass and drag at the
+    knob are divided by it."""
     travel_m: float
     """Knob travel over a whole chamfer (the largest relative angle)."""
     no_contact_fraction: float
+    """Chance f (0..1) that the teeth meet gap to gap (no contact)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -125,9 +131,13 @@ class EngagementParams:
     """Parameters of one engagement. Positions in m along the slot, forces in N, times in s."""
 
     synchronization_position_m: float
+    """x_sync: where the sleeve meets the synchro (blocker) ring."""
     teeth_position_m: float
+    """x_teeth: where the sleeve's chamfers meet the gear's dog teeth."""
     teeth_end_position_m: float
+    """x_teeth_end: where the teeth are passed; free travel to the stop from here."""
     in_gear_position_m: float
+    """x_gear: the in-gear position, the stop's rest; the rear stop is at -x_gear."""
     detent_release_m: float
     """How far the lever must be pulled back from x_gear before the in-gear detent lets it go."""
     synchronization_duration_s: float
@@ -138,31 +148,48 @@ class EngagementParams:
     stick_velocity_m_s: float
     """Below this speed the static friction applies (Karnopp's velocity band)."""
     settle_velocity_m_s: float
+    """Speed below which the stop may hand over to in_gear (within settle_distance_m of x_gear)."""
     settle_distance_m: float
-    """The stop stage hands over to in_gear once speed and distance to x_gear are below these."""
+    """Distance to x_gear within which the stop may hand over to in_gear (below
+    settle_velocity_m_s)."""
     neutral: StageMechanics
+    """Mechanics in neutral, rest position 0 (its spring centres the lever)."""
     gate_open: StageMechanics
+    """Mechanics from the ring to the teeth once the gate has opened (rest position 0)."""
     engagement: StageMechanics
+    """Mechanics through the teeth (rest position 0); each engagement adds its tooth force to both
+    frictions."""
     free_travel: StageMechanics
+    """Mechanics from the end of the teeth to the stop (rest position 0)."""
     stop: StageMechanics
+    """Mechanics of the elastic end stop: its spring and damping around x_gear."""
     in_gear: StageMechanics
+    """Mechanics once settled in gear: the spring holding the lever at x_gear."""
     returning: StageMechanics
+    """Mechanics on the way back from past the ring to neutral (rest position 0)."""
     ring_release_force_N: float
     """The ring lets go when the push drops below the force that pushes the sleeve back at
     x_sync (neutral spring and detent, `hold_force_N`) plus this."""
     desynchronization_time_s: float
     """Fixed synchronizer: after the ring lets go the progress falls by dt / this."""
     reversal_force_N: float
+    """A pull on the knob beyond this, held reversal_time_s, reverses in the teeth or takes the
+    lever out of gear."""
     reversal_time_s: float
-    """In the teeth a pull counts as a reversal only beyond this force, held this long; in
-    gear, as a pull out of gear."""
+    """How long a pull beyond reversal_force_N must be held to count: a reversal in the teeth,
+    a pull out of gear in gear."""
     neutral_detent: DetentParams
+    """The spring-ball detent centring the lever in neutral (seat 0, crest toward the gear)."""
     gear_detent: DetentParams
+    """The detent holding the gear (seat x_gear, crest toward neutral); past its crest, the
+    suck-in."""
     chamfer: ChamferParams
+    """The sleeve's chamfers indexing the gear's dog teeth in the engagement stage."""
     linkage_stiffness_N_m: float
     """Compliance of the linkage against the blocked ring (0: rigid, the knob held at x_sync);
     a cable linkage lets the knob in by F / k while the ring blocks."""
     linkage_damping_N_s_m: float
+    """Damping of the linkage against the blocked ring (acts with linkage_stiffness_N_m > 0)."""
     stop_travel_m: float = 0.0
     """How far the knob can press into the elastic stop before the lever meets the gate's end
     (rigid and plastic: the lever stops there); 0: no end (the stop's spring alone)."""

@@ -91,7 +91,9 @@ class TruckGear:
     slot: str
     """The lever's slot (a `GearSlot.name`)."""
     range_high: bool
+    """The range of this row: true high, false low."""
     splitter_high: bool
+    """The splitter position of this row: true high, false low."""
     gear: int
     """The gear number as the game counts it: 1.. forward, -1.. reverse."""
     ratio: float
@@ -108,11 +110,15 @@ class TruckGear:
 @dataclass(frozen=True, slots=True)
 class Layout:
     planes_y_m: tuple[float, ...]
+    """The y of each select plane, increasing (`GearSlot.plane` indexes it)."""
     centre_plane: int
     """The plane the select spring centres the knob on (the 3-4 plane of a 5-speed)."""
     gears: tuple[GearSlot, ...]
+    """The gear slots: each one's name, plane, direction, ratio and synchronizer."""
     slot_width_m: float
+    """Width of each gear slot along y: its walls hold the knob beyond half of it from the plane."""
     corridor_width_m: float
+    """Width of the neutral corridor along x (|x| <= half of it); the slots start at its edges."""
     reverse_lockout_N: float
     """Extra select force to pass into a plane that holds only reverse (0: no lockout)."""
     truck: tuple[TruckGear, ...] = ()
@@ -175,22 +181,37 @@ class SelectParams:
     """The y (select) axis: the lever's select mechanics and its springs."""
 
     mass_kg: float
+    """Mass of the lever along y (select), reflected at the knob."""
     damping_N_s_m: float
+    """Viscous damping of the lever along y (the walls' and the slot's add to it)."""
     static_friction_N: float
+    """Static (break-away) friction along y."""
     sliding_friction_N: float
+    """Sliding friction along y."""
     centring_stiffness_N_m: float
+    """Select spring centring the knob on `centre_plane` in the corridor (`high_centre_plane` in a
+    double-H's high half)."""
     detent_stiffness_N_m: float
+    """Stiffness of the detent well toward each plane, within detent_width_m of it (in the
+    corridor)."""
     detent_width_m: float
     """Half-width of the detent well around each plane."""
     slot_stiffness_N_m: float
+    """Stiffness of a slot's walls, holding the knob within half slot_width_m of its plane."""
     slot_damping_N_s_m: float
+    """Damping of a slot's walls while the knob presses them."""
     lockout_stiffness_N_m: float
+    """Stiffness of the reverse lockout's spring, preloaded to reverse_lockout_N, from halfway to
+    the reverse plane."""
 
 
 @dataclass(frozen=True, slots=True)
 class WallParams:
     stiffness_N_m: float
+    """Stiffness of the gate walls: the corridor's edge where no slot faces the knob, and its ends
+    along y."""
     damping_N_s_m: float
+    """Damping of the gate walls while the knob presses them."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -205,12 +226,19 @@ class FeelParams:
     """
 
     latch_position_m: float
+    """Where the latch's friction peaks, measured into each slot from neutral."""
     latch_width_m: float
+    """Half-width of the latch: its friction falls linearly to 0 this far either side."""
     latch_force_N: float
+    """Peak friction of the latch, added to the static and sliding (0: no latch)."""
     click_amplitude_N: float
+    """Amplitude A of the click's vibration on the rendered force (0: no click)."""
     click_frequency_hz: float
+    """Frequency f of the click's vibration."""
     click_decay_s: float
+    """Time constant of the click's decay (it is cut off after five of these)."""
     click_speed_m_s: float
+    """The click plays when the lever enters the end stop faster than this."""
 
 
 @dataclass(frozen=True, slots=True)

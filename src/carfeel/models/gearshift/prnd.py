@@ -61,7 +61,9 @@ class PrndParams:
     reverse_lock_speed_m_s: float = 2.0
     """Into R from N is locked above this road speed, m/s."""
     wall_N_m: float = 40000.0
+    """Stiffness of the lock walls and the end stops, N/m."""
     wall_N_s_m: float = 60.0
+    """Damping of the lock walls and the end stops, N*s/m."""
 
     def __post_init__(self) -> None:
         checks = [

@@ -40,24 +40,33 @@ NEUTRAL_MODES = ("lift", "pull")
 @dataclass(frozen=True, slots=True)
 class SequentialParams:
     forward_gears: int = 6
+    """Number of forward gears: gears run -1 (R), 0 (N), 1 .. this."""
     up_direction: int = -1
     """+1: push (x > 0) for up; -1: pull for up (most rally levers)."""
     neutral: str = "lift"
+    """Neutral mode. "lift": 1 to N and N to R need the lift button; "pull": 1 to N is a plain
+    pull (R still needs the button)."""
     mass_kg: float = 0.6
     """The lever's inertia at the knob, kg."""
     damping_N_s_m: float = 30.0
     """About 0.65 of critical with the centring spring: a released lever returns without
     swinging past the centre toward the other click."""
     centring_N_m: float = 900.0
+    """Stiffness of the centring spring toward the centre, N/m."""
     centring_preload_N: float = 6.0
+    """Preload of the centring spring: its force toward the centre just off it, N."""
     click_m: float = 0.022
     """Travel from centre to the click (the shift point), m."""
     click_width_m: float = 0.004
+    """Reach of the click either side of click_m: it resists over this before the point, helps
+    over this after."""
     click_N: float = 25.0
     """The click's peak: resisting before the point, helping after it."""
     end_m: float = 0.035
     """The end stop's travel from centre, m."""
     rearm_m: float = 0.006
+    """After a shift, the next registers only once the lever has come back within this of the
+    centre."""
     lock_m: float = 0.012
     """Where a locked move's wall stands (travel from centre, m): short of the click's bump,
     so the wall's compliance (a few mm at a firm hand's impact) never reaches the click."""
@@ -66,8 +75,11 @@ class SequentialParams:
     dog_N: float = 8.0
     """The dog-engagement bump's peak, halfway from the click to the end stop, N."""
     dog_width_m: float = 0.002
+    """Half-width of the dog-engagement bump (a triangle about its peak), m."""
     wall_N_m: float = 40000.0
+    """Stiffness of a locked move's wall and of the end stops, N/m."""
     wall_N_s_m: float = 60.0
+    """Damping of a locked move's wall and of the end stops, N*s/m."""
     friction_velocity_m_s: float = 0.01
     """The speed over which Coulomb forces ramp to full (regularised friction), m/s."""
 

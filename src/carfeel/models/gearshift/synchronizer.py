@@ -55,10 +55,16 @@ LOCATIONS = (OUTPUT, INPUT, NONE)
 @dataclass(frozen=True, slots=True)
 class SynchronizerParams:
     physics: bool
+    """true: the gate opens when the cone has matched the speeds; false: the engagement's own timer
+    (the paper's)."""
     input_inertia_kg_m2: float
+    """Inertia J at the input shaft: the clutch disc, the input shaft and the gears it drives."""
     cone_friction: float
+    """Friction coefficient mu of the synchronizer cone."""
     cone_radius_m: float
+    """Mean radius R_cone of the synchronizer cone."""
     cone_half_angle_rad: float
+    """Half-angle alpha of the cone: T_cone = mu * F_axial * R_cone / sin(alpha)."""
     lever_ratio: float
     """Knob travel per unit of sleeve travel (the ideal force ratio)."""
     linkage_efficiency: float
@@ -70,12 +76,22 @@ class SynchronizerParams:
     clutch_open_above: float
     """Pedal position (0 released .. 1 pressed) beyond which the clutch transmits nothing."""
     drag_torque_Nm: float
+    """Drag torque T_drag slowing the input shaft toward 0 (bearings, oil)."""
     speed_tolerance_rad_s: float
+    """Speeds count as matched when |w_in - w_out * r| is below this (the gate opens in physics
+    mode)."""
     grind_force_N: float
+    """A push beyond this grinds while the speeds differ and the blocking has failed (no
+    synchronizer, or no margin)."""
     grind_amplitude_N: float
+    """Amplitude of the grinding vibration at the knob."""
     dog_teeth: int
+    """Number of dog teeth: the grinding's frequency is this times the gear's speed difference
+    over 2 pi."""
     final_drive_ratio: float
+    """Final drive ratio: the output shaft turns at w_out = V / wheel_radius_m * this."""
     wheel_radius_m: float
+    """Rolling radius of the driven wheels (for the output shaft speed w_out)."""
 
 
 class SynchronizerState(NamedTuple):

@@ -65,7 +65,9 @@ class TyreParams:
     relaxation_length_m: float
     """sigma: rolling distance over which the slip angle builds."""
     cg_height_m: float
+    """Height h of the centre of gravity, for the lateral load transfer m*Ay*h/track."""
     track_m: float
+    """Track width, for the lateral load transfer m*Ay*h/track."""
     front_roll_share: float
     """Share of the lateral load transfer taken by the front axle (its roll stiffness share)."""
     patch_radius_m: float
@@ -79,17 +81,22 @@ class SystemParams:
     """The steering system in hand-wheel units (torques at the pinion, angles at the rim)."""
 
     hand_wheel_inertia_kg_m2: float
+    """Inertia J_h of the rim and the column above the torsion bar (integrated hands off)."""
     rack_inertia_kg_m2: float
     """Pinion, rack, EPS motor and road wheels, referred to the pinion."""
     torsion_bar_stiffness_Nm_rad: float
+    """Stiffness k_tb of the torsion bar between the column and the pinion (the EPS senses its
+    torque)."""
     compensation_damping_Nm_s_rad: float
     """Damper across the torsion bar: the EPS controller's torque-derivative compensation."""
     mechanical_trail_m: float
     """Caster trail at the ground."""
     kingpin_inclination_rad: float
+    """Kingpin inclination lambda; with kingpin_offset_m it sets the jacking torque."""
     kingpin_offset_m: float
     """Lateral distance from the kingpin axis to the wheel plane at the wheel centre."""
     column_friction_Nm: float
+    """Friction of the column at the rim (a stick element of friction_stiffness_Nm_rad)."""
     rack_friction_Nm: float
     """Rack, pinion and joint friction referred to the pinion."""
     friction_stiffness_Nm_rad: float
@@ -99,29 +106,35 @@ class SystemParams:
     the micro-slip of real contacts dissipates before they slide); with the spring, bounded by
     the friction level."""
     rack_damping_Nm_s_rad: float
+    """Viscous damping of the rack on the pinion's rate, besides the EPS's."""
     assist_deadband_Nm: float
     """Torsion-bar torque below which the motor does not boost."""
     assist_gain_standstill_1_Nm: float
-    """Boost = gain * (|T_tb| - deadband)^2 at standstill..."""
+    """Assist gain at standstill: boost = gain * (|T_tb| - deadband)^2, at most max_assist_Nm."""
     assist_gain_high_speed_1_Nm: float
-    """...falling to this gain at high speed."""
+    """Assist gain at high speed: the gain falls from the standstill one to this with speed."""
     assist_fade_speed_m_s: float
     """Speed at which the gain is halfway between its two values."""
     max_assist_Nm: float
     """Motor torque limit at the pinion."""
     eps_damping_Nm_s_rad: float
-    """Motor damping on the pinion's rate at standstill (felt through the driver's torque)..."""
+    """Motor damping on the pinion's rate at standstill (felt through the driver's torque)."""
     eps_damping_high_speed_Nm_s_rad: float
-    """...rising to this at speed, on the assist's schedule: it damps the released wheel..."""
+    """Motor damping on the pinion's rate at high speed, reached on the assist's speed schedule:
+    it damps the released wheel."""
     eps_damping_rise_Nm_s3_rad_m2: float
-    """...and further with the square of the speed, V^2 times this (the released wheel's weave
+    """Motor damping added as V^2 times this, on top of the schedule (the released wheel's weave
     with the car at 200-250 km/h needs more damping than the release at 100 km/h wants)."""
     active_return_Nm_rad: float
+    """Stiffness of the EPS's active return toward centre, on the pinion angle (0: off)."""
     active_return_max_Nm: float
+    """Largest torque of the active return, at the pinion."""
     active_return_fade_speed_m_s: float
     """Active return is full from 2 m/s and gone above about twice this speed."""
     stop_stiffness_Nm_rad: float
+    """Stiffness of the end stops beyond the car's steering lock, on the pinion angle."""
     stop_damping_Nm_s_rad: float
+    """Damping of the end stops while the rack is beyond the lock (they only push back)."""
 
 
 @dataclass(frozen=True, slots=True)

@@ -33,12 +33,17 @@ from typing import NamedTuple
 @dataclass(frozen=True, slots=True)
 class VehicleParams:
     mass_kg: float
+    """Vehicle mass m."""
     yaw_inertia_kg_m2: float
+    """Yaw moment of inertia I_z about the centre of gravity."""
     wheelbase_m: float
+    """Wheelbase L."""
     cg_to_front_axle_m: float
     """a: distance from the centre of gravity to the front axle."""
     front_cornering_stiffness_N_rad: float
+    """Front axle cornering stiffness C_f (both tyres)."""
     rear_cornering_stiffness_N_rad: float
+    """Rear axle cornering stiffness C_r (both tyres)."""
     steering_ratio: float
     """Steering wheel angle per front wheel angle, dimensionless."""
     width_m: float
