@@ -246,49 +246,6 @@ _STAGE_DOCS = {
 }
 
 
-_FALLBACK_DOCS = {
-    "StageMechanics.mass_kg": "Mass of the lever, reflected at the knob, in this stage",
-    "StageMechanics.stiffness_N_m": "Stiffness of this stage's spring toward its rest position",
-    "StageMechanics.damping_N_s_m": "Viscous damping in this stage",
-    "StageMechanics.static_friction_N": "Static (break-away) friction in this stage",
-    "StageMechanics.sliding_friction_N": "Sliding friction in this stage",
-    "DetentParams.seat_force_N": "Peak force of the flank toward the seat",
-    "DetentParams.far_force_N": "Peak force past the crest, away from the seat",
-    "DetentParams.far_width_m": "Length of the flank past the crest",
-    "ChamferParams.linkage_efficiency": "Share of the knob's work the linkage passes to the sleeve",
-    "ChamferParams.no_contact_fraction": "Chance that the teeth meet gap to gap (no contact)",
-    "EngagementParams.synchronization_position_m": "Where the synchro ring is met, x_sync",
-    "EngagementParams.teeth_position_m": "Where the sleeve meets the gear's dog teeth",
-    "EngagementParams.teeth_end_position_m": "Where the teeth are passed",
-    "EngagementParams.in_gear_position_m": "The in-gear position x_gear (the stop's rest)",
-    "EngagementParams.settle_velocity_m_s": "Speed below which the stop hands over to in_gear",
-    "EngagementParams.linkage_damping_N_s_m": "Damping of the linkage against the blocked ring",
-    "VehicleParams.mass_kg": "Vehicle mass",
-    "VehicleParams.yaw_inertia_kg_m2": "Yaw moment of inertia",
-    "VehicleParams.wheelbase_m": "Wheelbase L",
-    "VehicleParams.front_cornering_stiffness_N_rad": "Front axle cornering stiffness C_f",
-    "VehicleParams.rear_cornering_stiffness_N_rad": "Rear axle cornering stiffness C_r",
-    "TyreParams.cg_height_m": "Height of the centre of gravity (lateral load transfer)",
-    "TyreParams.track_m": "Track width (lateral load transfer)",
-    "SystemParams.hand_wheel_inertia_kg_m2": "Inertia of the rim and column",
-    "SystemParams.torsion_bar_stiffness_Nm_rad": "Torsion bar stiffness",
-    "SystemParams.kingpin_inclination_rad": "Kingpin inclination (jacking)",
-    "SystemParams.column_friction_Nm": "Column friction",
-    "SystemParams.rack_damping_Nm_s_rad": "Rack damping",
-    "SystemParams.active_return_Nm_rad": "Active return stiffness of the EPS",
-    "SystemParams.active_return_max_Nm": "Active return's largest torque",
-    "SystemParams.stop_stiffness_Nm_rad": "End stop stiffness at the car's lock",
-    "SystemParams.stop_damping_Nm_s_rad": "End stop damping",
-    "SystemParams.assist_gain_high_speed_1_Nm": "Assist gain at high speed (the boost is gain * "
-    "(|T_tb| - deadband)^2)",
-    "SystemParams.eps_damping_high_speed_Nm_s_rad": "EPS damping on the pinion's rate at speed, "
-    "on the assist's schedule: it damps the released wheel",
-    "EngagementParams.reversal_force_N": "In the teeth a pull counts as a reversal only beyond "
-    "this force, held reversal_time_s",
-}
-"""Descriptions of the parameters whose dataclass field has no docstring of its own."""
-
-
 def _parameter(table: str, path: str, value: float, doc: str, c_member: str) -> Variable:
     name = f"{table}.{path}"
     leaf = path.split(".")[-1]
@@ -318,7 +275,7 @@ def _table_parameters(
         if owner not in docs:
             docs[owner] = field_docs(owner)
         member = f"{c_struct or table}.{path}"
-        doc = _FALLBACK_DOCS.get(f"{owner.__name__}.{field}") or docs[owner].get(field, "")
+        doc = docs[owner].get(field, "")
         yield _parameter(table, path, value, doc, member)
 
 

@@ -47,7 +47,7 @@ class VehicleParams:
     steering_ratio: float
     """Steering wheel angle per front wheel angle, dimensionless."""
     width_m: float
-    """Overall width b, for the ISO 3888 lanes."""
+    """Overall width of the car (ISO 3888's b, not the CG-to-rear-axle b): sets the lanes."""
     steering_lock_rad: float
     """Largest steering wheel angle either way."""
     kinematic_speed_m_s: float
