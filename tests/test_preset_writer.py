@@ -17,15 +17,13 @@ from carfeel import cli
 from carfeel.errors import InputError, PresetError
 from carfeel.io import presets
 from carfeel.io.presets import (
-    MAX_KEY_PARTS,
-    MAX_TOML_BYTES,
-    MAX_TOML_NESTING,
     from_toml,
     load_hpattern,
     load_shift,
     load_steering,
     to_toml,
 )
+from carfeel.io.tomlread import MAX_KEY_PARTS, MAX_TOML_BYTES, MAX_TOML_NESTING
 
 PIECES = ('"', "'", "\\", "\n", "\r", "\t", '"""', "'''", "#", "[", "]", "=", "\x00", "\x1f",
           "\x7f", "\u2028", "é", "C:\\logs\\", "${x}", "%s")  # fmt: skip

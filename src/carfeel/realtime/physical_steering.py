@@ -110,7 +110,7 @@ def rendered_params(
     device's (model units), at least MIN_RIM_SHARE of the car's, and at least what keeps the
     rim's stiffest mode and its dampers (the torsion bar, the column's stick spring and damper,
     the stiffest coupling the device holds) within w*h, c*h/J <= 0.5 at the model's step, the
-    presets' rule for the physical model (`io.presets._check_steering_system`)."""
+    presets' rule for the physical model (`io.preset_checks._check_steering_system`)."""
     system = params.system
     fs, ps = scaling.force_scale, scaling.position_scale
     car_rim = system.hand_wheel_inertia_kg_m2

@@ -60,7 +60,7 @@ class CarProfile:
 
 
 def _parse(label: str, text: str) -> dict[str, dict[str, Any]]:
-    from carfeel.io.presets import load_toml
+    from carfeel.io.tomlread import load_toml
 
     data = load_toml(label, text, InputError)
     cars = data.get("cars", {})
@@ -83,7 +83,7 @@ def _parse(label: str, text: str) -> dict[str, dict[str, Any]]:
 
 def load_car_map(path: Path) -> dict[str, dict[str, Any]]:
     """The file's [cars] tables, read within the presets' limits (size, nesting)."""
-    from carfeel.io.presets import read_limited
+    from carfeel.io.tomlread import read_limited
 
     label = f"--car-presets {path}"
     try:

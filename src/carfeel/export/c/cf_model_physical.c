@@ -11,7 +11,7 @@ void cf_model_clear(cf_model *m) { memset(m, 0, sizeof *m); }
 
 double cf_model_step_size(const cf_model *m) { return m->model_step_s; }
 
-/* presets._check_steering_system: semi-implicit Euler must resolve the stiffest and most
+/* preset_checks._check_steering_system: semi-implicit Euler must resolve the stiffest and most
  * damped modes at 1 ms (w*h and c*h/J under 0.5). */
 static int check_system(const cf_system_params *s, char *message, size_t size) {
     const double h = 1e-3;
