@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -101,3 +102,38 @@ def source_options(parser: argparse.ArgumentParser) -> None:
 
 def sources_of(args: argparse.Namespace) -> tuple[Path | None, Path | None]:
     return (Path(args.channels) if args.channels else None, Path(args.dbc) if args.dbc else None)
+
+
+def lever_run_options(parser: argparse.ArgumentParser, kind: str, default: str) -> None:
+    """`--preset`, `--dt` and `--out` of a one-axis lever's offline run (`simulate sequential`,
+    `simulate prnd`)."""
+    parser.add_argument(
+        "--preset", default=default, metavar="NAME|PATH",
+        help=f"{kind} preset name or TOML file (default: {default})",
+    )  # fmt: skip
+    parser.add_argument(
+        "--dt", type=positive_float, default=1e-3, metavar="S",
+        help="model step and sample period, s (default: 0.001)",
+    )  # fmt: skip
+    parser.add_argument("--out", required=True, metavar="FILE.csv", help="CSV file to write")
+    parser.set_defaults(plot=None)
+
+
+def check_lever_step(dt_s: float, largest_s: float, lever: str) -> None:
+    """InputError unless `dt_s` is small enough for the lever's walls (stiff springs)."""
+    from carfeel.errors import InputError
+
+    if dt_s > largest_s:
+        raise InputError(
+            f"--dt {dt_s:g}: at most {largest_s:g} s ({lever}'s walls need small steps)"
+        )
+
+
+def changes(values: Iterable[object]) -> list[str]:
+    """`values` with each run of repeats shown once: the gears or positions a lever went
+    through."""
+    out: list[str] = []
+    for value in values:
+        if not out or str(value) != out[-1]:
+            out.append(str(value))
+    return out

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from carfeel.commands.common import outputs_of, positive_float
+from carfeel.commands.common import changes, check_lever_step, lever_run_options, outputs_of
 
 
 def register_prnd(models: Any) -> None:
@@ -39,27 +39,15 @@ def register_prnd(models: Any) -> None:
         help="the car's road speed during each move, m/s: once for all, or once per move "
         "(default: 0)",
     )  # fmt: skip
-    parser.add_argument(
-        "--preset", default="automatic", metavar="NAME|PATH",
-        help="prnd preset name or TOML file (default: automatic)",
-    )  # fmt: skip
-    parser.add_argument(
-        "--dt", type=positive_float, default=1e-3, metavar="S",
-        help="model step and sample period, s (default: 0.001)",
-    )  # fmt: skip
-    parser.add_argument("--out", required=True, metavar="FILE.csv", help="CSV file to write")
-    parser.set_defaults(plot=None)
+    lever_run_options(parser, "prnd", "automatic")
 
 
 def simulate_prnd_command(args: argparse.Namespace) -> int:
-    from carfeel.errors import InputError
     from carfeel.io.presets import load_prnd
     from carfeel.runs import write_metadata
     from carfeel.simulation.prnd import parse_flags, parse_moves, parse_speeds, simulate_prnd
 
-    if args.dt > 0.002:
-        raise InputError(f"--dt {args.dt:g}: at most 0.002 s (the selector's walls need small "
-                         "steps)")  # fmt: skip
+    check_lever_step(args.dt, 0.002, "the selector")
     preset = load_prnd(args.preset)
     positions = preset.params.selector.positions
     moves = parse_moves(args.moves, positions)
@@ -69,7 +57,7 @@ def simulate_prnd_command(args: argparse.Namespace) -> int:
     staging = outputs_of(args)
     result = simulate_prnd(preset.params, moves, brake, button, speeds, args.dt)
     seen = result["position"]
-    path = [str(g) for k, g in enumerate(seen) if k == 0 or g != seen[k - 1]]
+    path = changes(seen)
     depth_mm = 1000.0 * float(result["wall_depth_m"].max())
     with staging.outputs:
         result.to_csv(staging.out)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from carfeel.commands.common import outputs_of, positive_float
+from carfeel.commands.common import changes, check_lever_step, lever_run_options, outputs_of
 
 
 def register_sequential(models: Any) -> None:
@@ -27,37 +27,26 @@ def register_sequential(models: Any) -> None:
         "button held, for neutral and reverse)",
     )  # fmt: skip
     parser.add_argument(
-        "--preset", default="rally-6", metavar="NAME|PATH",
-        help="sequential preset name or TOML file (default: rally-6)",
-    )  # fmt: skip
-    parser.add_argument(
         "--locked", choices=("up", "down"), action="append", default=[],
         help="the game reports this direction locked (repeatable): its moves meet the wall",
     )  # fmt: skip
-    parser.add_argument(
-        "--dt", type=positive_float, default=1e-3, metavar="S",
-        help="model step and sample period, s (default: 0.001)",
-    )  # fmt: skip
-    parser.add_argument("--out", required=True, metavar="FILE.csv", help="CSV file to write")
-    parser.set_defaults(plot=None)
+    lever_run_options(parser, "sequential", "rally-6")
 
 
 def simulate_sequential_command(args: argparse.Namespace) -> int:
-    from carfeel.errors import InputError
     from carfeel.io.presets import load_sequential
     from carfeel.runs import write_metadata
     from carfeel.simulation.sequential import parse_moves, simulate_sequential
 
     moves = parse_moves(args.moves)
-    if args.dt > 0.01:
-        raise InputError(f"--dt {args.dt:g}: at most 0.01 s (the lever's walls need small steps)")
+    check_lever_step(args.dt, 0.01, "the lever")
     preset = load_sequential(args.preset)
     staging = outputs_of(args)
     result = simulate_sequential(
         preset.params, moves, args.dt, "up" in args.locked, "down" in args.locked
     )
     shifts = [int(s) for s in result["shift"] if s]
-    gears = [g for k, g in enumerate(result["gear"]) if k == 0 or g != result["gear"][k - 1]]
+    gears = changes(result["gear"])
     depth_mm = 1000.0 * float(result["wall_depth_m"].max())
     with staging.outputs:
         result.to_csv(staging.out)
