@@ -10,6 +10,7 @@ import pytest
 from carfeel.errors import PresetError
 from carfeel.models.gearshift import sequential as sq
 from carfeel.telemetry.gearout import sequential_for
+from tests.preset_edits import assert_each_edit_is_named
 
 DT_S = 0.001
 PUSH_N = 45.0
@@ -137,22 +138,16 @@ def test_the_shipped_preset_loads_and_a_bad_one_names_its_problem(tmp_path: Path
 
     preset = presets.load_sequential("rally-6")
     assert preset.params.lever.up_direction == -1 and preset.params.lever.forward_gears == 6
-    text = presets.resolve("sequential", "rally-6")[1]
-    for old, new, named in (
+    edits = (
         ("up_direction = -1", "up_direction = 0", "up_direction must be"),
         ("drum_N = 10.0", "drum_N = nan", "drum_N = nan"),
         ("click_N = 25.0", 'click_N = "x"', "lever.click_N = 'x'"),
+        ("end_m = 0.035", "end_m = 35", "lever.end_m = 35 m is out of range"),
         ("hold_s = 0.3", "hold_s = 0.0", "hold_s = 0.0"),
         ("[driver]", "[drivr]", "drivr: unknown key"),
-    ):
-        path = tmp_path / "bad.toml"
-        path.write_text(text.replace(old, new), encoding="utf-8")
-        with pytest.raises(PresetError, match=r"bad\.toml is not valid") as info:
-            presets.load("sequential", str(path))
-        assert named in str(info.value)
-    path.write_text(presets.resolve("hpattern", "5r")[1], encoding="utf-8")
-    with pytest.raises(PresetError, match="is an hpattern preset"):
-        presets.load("sequential", str(path))
+    )
+    other = ("hpattern", "5r", "is an hpattern preset")
+    assert_each_edit_is_named("sequential", "rally-6", edits, tmp_path, other)
 
 
 def test_simulate_sequential_command_and_its_refusals(
