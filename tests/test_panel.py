@@ -27,7 +27,8 @@ pytest.importorskip("httpx2", reason="Starlette's TestClient needs httpx2 (carfe
 from starlette.testclient import TestClient
 
 from carfeel.panel import ring
-from carfeel.panel.server import PanelConfig, Session, create_app
+from carfeel.panel.config import PanelConfig
+from carfeel.panel.server import Session, create_app
 
 JSON = {"Content-Type": "application/json"}
 SEQUENCE = ",".join(["N", "1", "2", "3", "4", "N"] * 4)

@@ -26,18 +26,15 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import hmac
 import json
 import math
 import multiprocessing
 import os
 import re
-import secrets
-import sys
 import time
 from collections import deque
-from collections.abc import AsyncIterator, Awaitable, Callable, Mapping, MutableMapping
-from dataclasses import asdict, dataclass, field, is_dataclass
+from collections.abc import AsyncIterator, Awaitable, Callable
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -51,92 +48,29 @@ from starlette.websockets import WebSocket, WebSocketDisconnect
 from carfeel.errors import CarfeelError, InputError
 from carfeel.models.rng import MAX_SEED
 from carfeel.panel import plotting, ring, tuning
-from carfeel.text import finite, shown
+from carfeel.panel.auth import SUBPROTOCOL, BodyTooLarge, Guard
+from carfeel.panel.config import KINDS, PanelConfig
+from carfeel.panel.values import error_response, inside, jsonable, number_of, safe_name, said
+from carfeel.text import shown
 
 STATIC = Path(__file__).parent / "static"
-STREAM_HZ = 30.0
 MAX_FRAME_ROWS = 2000
 """A client that falls further behind than this (2 s at 1 kHz) skips to the newest rows."""
 STRING_COLUMNS = ("region", "gear", "event", "stage")
-NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,79}")
-"""A file name of the panel's folder; always `fullmatch` (`$` matches before a final newline)."""
-MAX_BODY_BYTES = 64 * 1024
-"""The largest request body (a session's or a tuning's is under 2 kB); larger is refused with
-413 before it is read, a chunked one as soon as it runs past."""
 MAX_WS_MESSAGE_BYTES = 64 * 1024
 """The largest message a WebSocket client may send (uvicorn closes the socket past it)."""
 START_TIMEOUT_S = 180.0
 """Spawn, imports and the sizing: seconds on a quiet machine, a minute on a loaded one."""
 STOP_TIMEOUT_S = 10.0
-KINDS = {"shift": "shift", "hpattern": "hpattern", "steering": "steering"}
 MAX_SIDECAR_BYTES = 1024 * 1024
 DETECT_EVERY_S = 5.0
 """How long a look at the machine's devices holds (it opens each one)."""
-
-Scope = MutableMapping[str, Any]
-Receive = Callable[[], Awaitable[MutableMapping[str, Any]]]
-Send = Callable[[MutableMapping[str, Any]], Awaitable[None]]
-ASGI = Callable[[Scope, Receive, Send], Awaitable[None]]
-
-
-@dataclass
-class PanelConfig:
-    folder: Path
-    """Recordings go to folder/recordings, presets to folder/presets/KIND; nothing leaves it."""
-    token: str = field(default_factory=lambda: secrets.token_urlsafe(32))
-    """Every request but the page's own files carries it (`Guard`); a panel always has one."""
-    hosts: tuple[str, ...] = ("127.0.0.1", "localhost", "[::1]")
-    """Host headers accepted (a page elsewhere reaching 127.0.0.1 by DNS rebinding is refused)."""
-    loop_cpu: int | None = None
-    """Pin the loop's process to this core (benchmarks)."""
-    stream_hz: float = STREAM_HZ
-
-
-def said(value: object) -> str:
-    """A request's value as an error message quotes it: its repr, shortened when long (a name
-    of 60 kB is not copied back into the answer)."""
-    if isinstance(value, str) and len(value) > 200:
-        value = value[:100] + value[-50:]  # the repr of 60 kB need not be built to shorten it
-    if isinstance(value, int) and not isinstance(value, bool) and value.bit_length() > 128:
-        return f"(a whole number of {value.bit_length()} bits)"
-    if isinstance(value, list | dict) and len(value) > 20:
-        return f"(a {type(value).__name__} of {len(value)} items)"
-    return shown(repr(value), 60)
-
-
-def safe_name(name: object, what: str) -> str:
-    """A file name for the panel's folder: letters, digits, '.', '_', '-'; no way out of it."""
-    if not isinstance(name, str) or not NAME.fullmatch(name) or ".." in name:
-        raise InputError(
-            f"{what} name {said(name)}: use 1-80 letters, digits, '.', '_' or '-' (starting "
-            "with a letter or digit; no '/', no '..', no line break: files stay in the panel's "
-            "folder)"
-        )
-    return name
-
-
-def inside(folder: Path, name: str) -> Path:
-    path = (folder / name).resolve()
-    if not path.is_relative_to(folder.resolve()):
-        raise InputError(f"{said(name)} would leave the panel's folder {folder}")
-    return path
 
 
 VIRTUAL_CHANGES = re.compile(r"[A-Za-z_]+=[0-9.eE+-]+x?(,[A-Za-z_]+=[0-9.eE+-]+x?)*")
 """`virtual:KIND:KEY=VALUE,...`'s changes to the true plant: names and numbers, nothing else."""
 MAX_TEXT_CHARS = 200
 """The longest text field of a session's request (a device, a mode, a telemetry source)."""
-
-
-def number_of(key: str, value: object) -> float:
-    """A request's number as a float; InputError (not an OverflowError) for a whole number
-    beyond any float, a string or a boolean."""
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise InputError(f"{key} {said(value)}: expected a number")
-    try:
-        return float(value)
-    except OverflowError:
-        raise InputError(f"{key} {said(value)}: a number beyond {sys.float_info.max:.3g}") from None
 
 
 def replay_problem(path: Path) -> str | None:
@@ -162,19 +96,6 @@ def replay_problem(path: Path) -> str | None:
             f"{' and '.join(JOYSTICK_COLUMNS)} or {' and '.join(WHEEL_COLUMNS)}"
         )
     return None
-
-
-def jsonable(value: Any) -> Any:
-    """Dataclasses, tuples and NaN as strict JSON values."""
-    if is_dataclass(value) and not isinstance(value, type):
-        value = asdict(value)
-    if isinstance(value, dict):
-        return {str(k): jsonable(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [jsonable(v) for v in value]
-    if isinstance(value, Path):
-        return str(value)
-    return finite(value)
 
 
 class Session:
@@ -910,128 +831,6 @@ def _no_constant(name: str) -> Any:
     raise ValueError(f"{name} is not a JSON number")
 
 
-def _error(status: int, message: str) -> JSONResponse:
-    return JSONResponse({"error": message}, status_code=status)
-
-
-PUBLIC = frozenset({"/", "/static/panel.js", "/static/panel.css"})
-"""What is served without the credential: the page and its script and style, the package's own
-files (the same bytes as in site-packages), which hold no data and no secret. The page reads the
-credential from its URL's fragment (`#token=T`, which a browser never sends to a server)."""
-SUBPROTOCOL = "carfeel"
-TOKEN_PROTOCOL = "carfeel.token."
-"""A browser cannot set headers on a WebSocket: the page offers the subprotocols `carfeel` and
-`carfeel.token.T`; the panel answers with `carfeel` (the token is never echoed)."""
-
-
-def bearer(headers: Mapping[str, str]) -> str:
-    """The token of an `Authorization: Bearer T` header ('' without one)."""
-    given = headers.get("authorization", "")
-    return given[7:].strip() if given[:7].lower() == "bearer " else ""
-
-
-class Guard:
-    """Refuses what lacks the credential, comes with a foreign Host, a WebSocket from a foreign
-    Origin, and a body over MAX_BODY_BYTES (before it is read). The credential goes in the
-    `Authorization: Bearer T` header (a WebSocket: that header, or the subprotocol
-    `carfeel.token.T`); never in a cookie (cookies are not port-scoped: every other server on
-    127.0.0.1 would receive it) nor in a URL (address bar, history, logs, the Referer). Only
-    PUBLIC is served without it."""
-
-    def __init__(self, app: ASGI, config: PanelConfig) -> None:
-        self.app, self.config = app, config
-
-    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] not in ("http", "websocket"):
-            await self.app(scope, receive, send)
-            return
-        headers = {k.decode("latin-1").lower(): v.decode("latin-1") for k, v in scope["headers"]}
-        problem = self.problem(scope, headers)
-        if problem is None and scope["type"] == "http":
-            problem = body_problem(headers)
-            if problem is not None:
-                await _error(413, problem)(scope, receive, send)
-                return
-            receive = _bounded(receive, MAX_BODY_BYTES)
-        if problem is None:
-            await self.app(scope, receive, send)
-            return
-        if scope["type"] == "websocket":
-            await receive()  # the connect message
-            await send({"type": "websocket.close", "code": 1008, "reason": problem[:120]})
-            return
-        response = _error(401 if problem.startswith("credential") else 403, problem)
-        response.headers["WWW-Authenticate"] = 'Bearer realm="carfeel panel"'
-        await response(scope, receive, send)
-
-    def problem(self, scope: Scope, headers: dict[str, str]) -> str | None:
-        """What is wrong with the request (None: nothing)."""
-        host = headers.get("host", "")
-        name = host.rsplit(":", 1)[0] if not host.endswith("]") else host
-        if self.config.hosts and name not in self.config.hosts and host not in self.config.hosts:
-            return f"host {shown(host)!r} is not this panel's"
-        origin = headers.get("origin")
-        if scope["type"] == "websocket" and origin and origin.split("://", 1)[-1] != host:
-            return f"origin {shown(origin)!r} is not this panel's page"
-        if (
-            scope["type"] == "http"
-            and scope["path"] in PUBLIC
-            and scope["method"] in ("GET", "HEAD")
-        ):
-            return None
-        given = bearer(headers)
-        if not given and scope["type"] == "websocket":
-            offered = [p.strip() for p in headers.get("sec-websocket-protocol", "").split(",")]
-            given = next((p[len(TOKEN_PROTOCOL) :] for p in offered
-                          if p.startswith(TOKEN_PROTOCOL)), "")  # fmt: skip
-        if given and hmac.compare_digest(given.encode(), self.config.token.encode()):
-            return None
-        hint = (
-            "; a token in the URL is not taken (it stays in the address bar, the history and "
-            "logs): send the header"
-            if b"token=" in scope.get("query_string", b"") else ""
-        )  # fmt: skip
-        return (
-            "credential missing or wrong: send Authorization: Bearer TOKEN (the page takes it "
-            f"from the URL carfeel panel printed, http://...#token=...){hint}"
-        )
-
-
-def body_problem(headers: Mapping[str, str]) -> str | None:
-    """A declared body over MAX_BODY_BYTES, refused before a byte of it is read."""
-    length = headers.get("content-length")
-    if length is None:
-        return None
-    if not length.isascii() or not length.strip().isdigit() or len(length) > 20:
-        return f"Content-Length {shown(length)!r} is not a byte count"
-    if int(length) > MAX_BODY_BYTES:
-        return (f"the body is {int(length)} bytes; the panel takes at most {MAX_BODY_BYTES} "
-                "bytes in a request")  # fmt: skip
-    return None
-
-
-class BodyTooLarge(InputError):
-    """A chunked body ran past MAX_BODY_BYTES while it was read."""
-
-
-def _bounded(receive: Receive, limit: int) -> Receive:
-    """`receive` that stops a body (one without a Content-Length: chunked) past `limit` bytes."""
-    seen = 0
-
-    async def receiving() -> MutableMapping[str, Any]:
-        nonlocal seen
-        message = await receive()
-        if message["type"] == "http.request":
-            seen += len(message.get("body", b""))
-            if seen > limit:
-                raise BodyTooLarge(
-                    f"the body ran past {limit} bytes, the most the panel takes in a request"
-                )
-        return message
-
-    return receiving
-
-
 def create_app(config: PanelConfig) -> Starlette:
     panel = Panel(config)
 
@@ -1042,11 +841,13 @@ def create_app(config: PanelConfig) -> Starlette:
             try:
                 result = await handler(request)
             except BodyTooLarge as exc:
-                return _error(413, str(exc))
+                return error_response(413, str(exc))
             except CarfeelError as exc:
-                return _error(400, str(exc))
+                return error_response(400, str(exc))
             except OSError as exc:
-                return _error(400, f"cannot use {exc.filename or 'a file'}: {exc.strerror or exc}")
+                return error_response(
+                    400, f"cannot use {exc.filename or 'a file'}: {exc.strerror or exc}"
+                )
             if isinstance(result, Response):
                 return result
             return JSONResponse(jsonable(result))
