@@ -28,7 +28,8 @@ from starlette.testclient import TestClient
 
 from carfeel.panel import ring
 from carfeel.panel.config import PanelConfig
-from carfeel.panel.server import Session, create_app
+from carfeel.panel.server import create_app
+from carfeel.panel.session import Session
 
 JSON = {"Content-Type": "application/json"}
 SEQUENCE = ",".join(["N", "1", "2", "3", "4", "N"] * 4)
@@ -398,7 +399,7 @@ PARENT = textwrap.dedent(
     """
     import sys, time
     from pathlib import Path
-    from carfeel.panel.server import Session
+    from carfeel.panel.session import Session
     run = {"model": "hpattern", "device": "virtual:joystick", "clock": "simulated",
            "duration_s": 3600.0, "sequence": tuple("N12341N" * 200), "calibrate": False}
     session = Session(run, None, None)
