@@ -27,7 +27,8 @@ class Session:
     def __init__(self, run: dict[str, Any], preset: Any, physics: bool | None) -> None:
         self.run = run
         self.model: str = run["model"]
-        self.kind = tuning.kind_of(self.model, run.get("steering_model", "paper"))
+        self.steering_model: str = run.get("steering_model", "paper")
+        self.kind = tuning.kind_of(self.model, self.steering_model)
         """The tunables' model key (the physical steering's differ from the law's)."""
         self.preset = preset
         self.physics = physics

@@ -172,7 +172,7 @@ class Panel:
         if s.ready is None:
             raise InputError("the session is still starting: tune it once it runs")
         return tuning.Session(
-            s.model, s.preset, s.physics, s.ready, s.run.get("steering_model", "paper"),
+            s.model, s.preset, s.physics, s.ready, s.steering_model,
             s.run.get("road"), s.model_speed_m_s,
         )  # fmt: skip
 
@@ -213,7 +213,7 @@ class Panel:
         values = tuning.values_of(s.kind, s.preset)
         return {
             "model": s.model,
-            "steering_model": s.run.get("steering_model", "paper") if s.model == "steering"
+            "steering_model": s.steering_model if s.model == "steering"
             else None,
             "tunables": [t.as_dict() | {"value": values[t.path]}
                          for t in tuning.tunables_for(s.kind)],

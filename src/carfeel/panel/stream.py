@@ -19,6 +19,8 @@ from carfeel.panel.values import jsonable
 MAX_FRAME_ROWS = 2000
 """A client that falls further behind than this (2 s at 1 kHz) skips to the newest rows."""
 STRING_COLUMNS = ("region", "gear", "event", "stage")
+BACKLOG_ROWS = 3000
+"""A new client's first frame starts this many rows back (3 s at 1 kHz)."""
 
 
 @dataclass
@@ -98,12 +100,12 @@ class Stream:
         if s is not self.session or len(s.events) != self.seen_events or s.changed.is_set():
             s.changed.clear()
             self.session, self.seen_events = s, len(s.events)
-            self.cursor = max(0, s.side.rows_written - 3000) if self.cursor < 0 else self.cursor
+            self.cursor = self._start(s) if self.cursor < 0 else self.cursor
             out["session"] = s.describe()
         if not s.columns:
             return out
         if self.cursor < 0:
-            self.cursor = max(0, s.side.rows_written - 3000)
+            self.cursor = self._start(s)
         behind = s.side.rows_written - self.cursor
         lost = 0
         if behind > MAX_FRAME_ROWS:
@@ -126,3 +128,8 @@ class Stream:
                 columns[name] = [None if v != v else round(v, 6) for v in values.tolist()]
         out |= {"columns": columns, "lost": lost, "status": s.status, "health": s.health}
         return jsonable(out)  # type: ignore[no-any-return]
+
+    @staticmethod
+    def _start(s: Session) -> int:
+        """Where a new client starts reading: BACKLOG_ROWS back from the newest row."""
+        return max(0, s.side.rows_written - BACKLOG_ROWS)
