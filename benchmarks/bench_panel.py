@@ -63,7 +63,8 @@ TOKEN = secrets.token_urlsafe(32)
 SERVER = """
 import os, socket, sys, uvicorn
 from pathlib import Path
-from carfeel.panel.server import PanelConfig, create_app
+from carfeel.panel.config import PanelConfig
+from carfeel.panel.server import create_app
 cpu = int(sys.argv[3]) if sys.argv[3] != "none" else None
 if sys.argv[4] == "old-plots":  # before issue 24: in a thread of the server, one at a time
     import asyncio, threading

@@ -27,7 +27,9 @@ pytest.importorskip("httpx2", reason="Starlette's TestClient needs httpx2 (carfe
 from starlette.testclient import TestClient
 
 from carfeel.panel import ring
-from carfeel.panel.server import PanelConfig, Session, create_app
+from carfeel.panel.config import PanelConfig
+from carfeel.panel.server import create_app
+from carfeel.panel.session import Session
 
 JSON = {"Content-Type": "application/json"}
 SEQUENCE = ",".join(["N", "1", "2", "3", "4", "N"] * 4)
@@ -397,7 +399,7 @@ PARENT = textwrap.dedent(
     """
     import sys, time
     from pathlib import Path
-    from carfeel.panel.server import Session
+    from carfeel.panel.session import Session
     run = {"model": "hpattern", "device": "virtual:joystick", "clock": "simulated",
            "duration_s": 3600.0, "sequence": tuple("N12341N" * 200), "calibrate": False}
     session = Session(run, None, None)

@@ -14,7 +14,8 @@ from hypothesis import strategies as st
 pytest.importorskip("starlette", reason="the panel needs carfeel[panel]")
 
 from carfeel.errors import CarfeelError, InputError
-from carfeel.panel.server import Panel, PanelConfig
+from carfeel.panel.config import PanelConfig
+from carfeel.panel.state import Panel
 
 FIELDS = ("model", "preset", "device", "mode", "speed_kmh", "hand", "clock", "sequence",
           "duration_s", "seed", "telemetry", "synchronizer", "rate_hz", "force", "aligning",

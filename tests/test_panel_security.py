@@ -41,7 +41,9 @@ from starlette.websockets import WebSocketDisconnect
 
 from carfeel.cli import main
 from carfeel.panel import plotting
-from carfeel.panel.server import MAX_BODY_BYTES, PUBLIC, STATIC, PanelConfig, create_app
+from carfeel.panel.auth import MAX_BODY_BYTES, PUBLIC
+from carfeel.panel.config import PanelConfig
+from carfeel.panel.server import STATIC, create_app
 
 TOKEN = "the-panels-credential-0123456789"
 JSON = {"Content-Type": "application/json"}

@@ -171,7 +171,8 @@ def _handle(args: argparse.Namespace) -> int:
     try:
         import uvicorn
 
-        from carfeel.panel.server import MAX_WS_MESSAGE_BYTES, PanelConfig, create_app
+        from carfeel.panel.config import PanelConfig
+        from carfeel.panel.server import MAX_WS_MESSAGE_BYTES, create_app
     except ImportError as exc:
         raise InputError(
             f"carfeel panel needs the extra carfeel[panel] ({exc.name} is missing): "
