@@ -19,7 +19,7 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import Protocol
 
-from carfeel.realtime.clock import Clock
+from carfeel.realtime.clock import Clock, WallClock
 from carfeel.realtime.devices.base import Device, DeviceLost
 from carfeel.realtime.recording import Recorder
 from carfeel.realtime.rendering import Renderer
@@ -265,6 +265,11 @@ def run_loop(
         start = clock.now_ns()
         last = start
         ticks = round(config.duration_s * config.rate_hz)
+        # A renderer that measures (telemetry's packet-to-force latency) is told when each
+        # tick's commands went out: on the wall clock only (simulated time has no latency).
+        sent: Callable[[int], None] | None = (
+            getattr(renderer, "sent", None) if isinstance(clock, WallClock) else None
+        )
         for k in range(1, ticks + 1):
             deadline = start + k * period_ns
             clock.sleep_until(deadline)
@@ -307,6 +312,8 @@ def run_loop(
                 watchdog.fault(f"device lost: {exc}")
                 stopped = "fault"
                 break
+            if sent is not None:
+                sent(clock.now_ns())
             max_force = max(max_force, *(abs(f) for f in safe))
             at_limit += any(abs(f) >= top for f in safe)
             if passivity is not None:

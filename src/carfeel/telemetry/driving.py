@@ -268,6 +268,11 @@ class TelemetryDriven:
                  int(bool(self.cues.refused)) if self.cues else 0, grind)  # fmt: skip
         return commands, (*row, *extra)
 
+    def sent(self, now_ns: int) -> None:
+        """The loop sent this tick's commands at `now_ns` (the wall clock's): the newest
+        packet's packet-to-force latency (`VehicleSource.sent`)."""
+        self.source.sent(now_ns)
+
     def close(self) -> None:
         """Release the gear output's buttons and the socket (stop, fault or exit)."""
         c = self.cues

@@ -19,7 +19,10 @@ import contextlib
 import errno
 import ipaddress
 import math
+import platform
 import socket
+import struct
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -49,6 +52,20 @@ ANY = "any"
 FOREIGN_SHOWN = 8
 """Foreign addresses remembered for the summary (the count goes on past them)."""
 _ACCEPT_MEMO = 1024
+_SO_TIMESTAMPNS = 35
+"""SO_TIMESTAMPNS (= SCM_TIMESTAMPNS) of asm-generic/socket.h: Python's socket module does not
+name it; the architectures below use the generic value (alpha, mips, parisc and sparc do not)."""
+KERNEL_STAMPS = sys.platform == "linux" and platform.machine() in (
+    "x86_64", "aarch64", "arm64", "riscv64",
+)  # fmt: skip
+"""Linux stamps each datagram with its arrival (SO_TIMESTAMPNS): the packet-to-force latency
+then counts from the network's arrival, not from the poll that read it (up to a tick later).
+Elsewhere a datagram's arrival is when it was read."""
+STAMP_TRUSTED_NS = 10_000_000_000
+"""A stamp older than this (or in the future: the real-time clock was stepped) is not used."""
+_TIMESPEC = struct.Struct("@qq")
+"""struct timespec on 64-bit Linux (time_t, long): the ancillary data of SCM_TIMESTAMPNS."""
+_ANCILLARY_BYTES = socket.CMSG_SPACE(_TIMESPEC.size) if KERNEL_STAMPS else 0
 
 Network = ipaddress.IPv4Network
 
@@ -231,7 +248,11 @@ class Receiver:
         self.first_error = ""
         self.first_ns = 0
         self.arrival_ns = 0
-        """time.monotonic_ns() of the poll that saw the latest good state (for the benchmark)."""
+        """When the latest good state arrived, time.perf_counter_ns() (the loop's wall clock):
+        the kernel's receive stamp where it gives one (`KERNEL_STAMPS`), else when it was
+        read."""
+        self.stamped = False
+        """The arrivals are the kernel's stamps."""
         self._buffer = bytearray(2048)
         self._view = memoryview(self._buffer)
         self._memo: dict[str, bool] = {}
@@ -251,6 +272,10 @@ class Receiver:
             sock.close()
             raise InputError(_bind_error(source, exc)) from exc
         sock.setblocking(False)
+        if KERNEL_STAMPS and _TIMESPEC.size == 16:
+            with contextlib.suppress(OSError):
+                sock.setsockopt(socket.SOL_SOCKET, _SO_TIMESTAMPNS, 1)
+                self.stamped = True
         self.socket = sock
         self.bound = self.address
         """Where it listens (port 0 given: the one the system chose)."""
@@ -305,13 +330,13 @@ class Receiver:
         replays' clock (a socket has its own). Never raises."""
         fresh = 0
         fmt = self.format
-        recv = self.socket.recvfrom_into
         view = self._view
         latest = self.latest
         accepts = self._memo.get
+        stamp = 0
         for _ in range(MAX_PER_POLL):
             try:
-                n, sender = recv(self._buffer)
+                n, sender, stamped_ns = self._receive()
             except (BlockingIOError, InterruptedError):
                 break
             except OSError:  # e.g. ICMP port unreachable from an earlier send to the game
@@ -338,6 +363,7 @@ class Receiver:
                 if self._assetto and self.car:
                     state = state._replace(car=self.car)
                 latest = state
+                stamp = stamped_ns
                 fresh += 1
                 if sink is not None:
                     sink(state)
@@ -346,11 +372,29 @@ class Receiver:
         if fresh:
             self.packets += fresh
             self.latest = latest
-            self.arrival_ns = time.monotonic_ns()
+            now = time.perf_counter_ns()
+            # The kernel stamps on the real-time clock: how long ago it came, taken to the loop's
+            # clock (a stamp from a stepped real-time clock is not believed).
+            late = time.time_ns() - stamp
+            self.arrival_ns = now - late if 0 <= late < STAMP_TRUSTED_NS else now
             self.first_ns = self.first_ns or self.arrival_ns
         elif self._assetto and not self.subscribed and time.monotonic() - self._sent_s > AC_RETRY_S:
             self._handshake()
         return fresh
+
+    def _receive(self) -> tuple[int, Any, int]:
+        """One datagram into the buffer: (its size, the sender, the kernel's arrival stamp on
+        the real-time clock in ns, or 0)."""
+        if not self.stamped:
+            n, sender = self.socket.recvfrom_into(self._buffer)
+            return n, sender, 0
+        n, ancillary, _, sender = self.socket.recvmsg_into([self._buffer], _ANCILLARY_BYTES)
+        for level, kind, data in ancillary:
+            ours = level == socket.SOL_SOCKET and kind == _SO_TIMESTAMPNS
+            if ours and len(data) >= _TIMESPEC.size:
+                seconds, nanoseconds = _TIMESPEC.unpack_from(data)
+                return n, sender, seconds * 1_000_000_000 + nanoseconds
+        return n, sender, 0
 
     def flush(self, limit: int = 1024) -> int:
         """Drop what queued before now (at most `limit` datagrams, more than the 64 KiB buffer

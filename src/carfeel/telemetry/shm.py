@@ -388,7 +388,7 @@ class MapReceiver:
                 self.bad += 1
         if fresh:
             self.packets += fresh
-            self.arrival_ns = time.monotonic_ns()
+            self.arrival_ns = time.perf_counter_ns()  # a map's frame: when it was seen
             self.first_ns = self.first_ns or self.arrival_ns
             self.arrival_s = t
         return fresh

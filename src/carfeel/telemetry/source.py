@@ -18,9 +18,43 @@ AGE_BIN_S = 0.0005
 AGE_BINS = 2000
 """Packet ages are counted in 0.5 ms bins to 1 s (then one bin for older): a bounded memory for
 any session length, percentiles to half a millisecond."""
+LATENCY_BIN_S = 0.00005
+LATENCY_BINS = 2000
+"""Packet-to-force latencies in 50 us bins to 100 ms (then one bin for longer)."""
 STALE_AFTER_S = 0.1
 """Six missed packets of a 60 Hz game; 100 of a 1 kHz simulator."""
 FADE_S = 0.2
+
+
+class Histogram:
+    """Counts of durations in `bins` bins of `width_s`, one more for all longer ones: bounded
+    memory whatever the session's length; percentiles to a bin's upper edge."""
+
+    def __init__(self, width_s: float, bins: int) -> None:
+        self.width_s, self.bins = width_s, bins
+        self.counts = [0] * (bins + 1)
+        self.total = 0
+
+    def add(self, duration_s: float) -> None:
+        index = int(duration_s / self.width_s) if duration_s >= 0.0 else 0
+        self.counts[min(self.bins, index)] += 1
+        self.total += 1
+
+    def percentiles(self) -> dict[str, float]:
+        """p50, p99 and max, s (a bin's upper edge; inf past the last bin); {} when empty."""
+        if not self.total:
+            return {}
+        out: dict[str, float] = {}
+        seen = 0
+        for i, count in enumerate(self.counts):
+            seen += count
+            edge = (i + 1) * self.width_s if i < self.bins else math.inf
+            for name, q in (("p50", 0.5), ("p99", 0.99)):
+                if name not in out and seen >= q * self.total:
+                    out[name] = edge
+            if count:
+                out["max"] = edge
+        return out
 
 
 class VehicleSource:
@@ -47,7 +81,15 @@ class VehicleSource:
         self._started = False
         self.age_s = math.inf
         """The loop's time since the newest good packet came (0 on the tick it comes)."""
-        self._ages = [0] * (AGE_BINS + 1)
+        self.ages = Histogram(AGE_BIN_S, AGE_BINS)
+        self.latencies = Histogram(LATENCY_BIN_S, LATENCY_BINS)
+        """Packet-to-force latency: from a good packet's arrival (the kernel's receive time
+        where the socket gives it, else when it was read) to the first command sent to the
+        device that was computed from it (`sent`); wall-clock runs only."""
+        self.latency_s = math.nan
+        """The newest packet's latency, s."""
+        self._unsent_ns = 0
+        """Arrival (time.perf_counter_ns()) of a good packet no command has used yet; 0: none."""
 
     def update(self, t_s: float) -> tuple[VehicleState, float]:
         dt = max(0.0, t_s - self._t)
@@ -61,9 +103,10 @@ class VehicleSource:
             if self.needs(state):
                 self.state = state
                 self._last_good_s = t_s
+                self._unsent_ns = receiver.arrival_ns
         age = self.age_s = t_s - self._last_good_s
         if age < math.inf:
-            self._ages[min(AGE_BINS, int(age / AGE_BIN_S))] += 1
+            self.ages.add(age)
         healthy = age <= self.stale_after_s
         if healthy != self.healthy:
             what = "back" if healthy else f"stale (no good packet for {self.stale_after_s:g} s)"
@@ -81,25 +124,22 @@ class VehicleSource:
     def age_percentiles(self) -> dict[str, float]:
         """p50, p99 and max of the packet age over the ticks since the first good packet, s
         (to the 0.5 ms bin's upper edge; inf past 1 s); empty before any packet."""
-        total = sum(self._ages)
-        if not total:
-            return {}
-        out: dict[str, float] = {}
-        seen = 0
-        wanted = (("p50", 0.5), ("p99", 0.99))
-        for i, count in enumerate(self._ages):
-            seen += count
-            for name, q in wanted:
-                if name not in out and seen >= q * total:
-                    out[name] = (i + 1) * AGE_BIN_S if i < AGE_BINS else math.inf
-            if count:
-                out["max"] = (i + 1) * AGE_BIN_S if i < AGE_BINS else math.inf
-        return out
+        return self.ages.percentiles()
+
+    def sent(self, now_ns: int) -> None:
+        """The loop sent the device this tick's commands at `now_ns` (time.perf_counter_ns(),
+        the wall clock's): the newest good packet's latency, if this is its first command."""
+        if self._unsent_ns:
+            latency = self.latency_s = (now_ns - self._unsent_ns) / 1e9
+            self.latencies.add(latency)
+            self._unsent_ns = 0
 
     def status(self) -> dict[str, float | int | bool | str]:
         """What a panel shows of the source now: health, weight, packet age, counters."""
         r = self.receiver
+        latency = self.latencies.percentiles()
         return {"healthy": self.healthy, "weight": self.weight, "age_s": self.age_s,
+                "latency_s": self.latency_s, "latency_p99_s": latency.get("p99", math.nan),
                 "packets": r.packets, "bad": r.bad, "car": r.latest.car}  # fmt: skip
 
     def close(self) -> None:
@@ -113,6 +153,13 @@ class VehicleSource:
                 f"telemetry packet age (loop time since the newest good packet, each tick): "
                 f"p50 {ages['p50'] * 1e3:.1f} ms, p99 {ages['p99'] * 1e3:.1f} ms, max "
                 f"{ages['max'] * 1e3:.1f} ms"
+            )
+        latency = self.latencies.percentiles()
+        if latency:
+            self.events.append(
+                f"telemetry packet-to-force latency (arrival to the first command sent from "
+                f"it, {self.latencies.total} packets): p50 {latency['p50'] * 1e3:.2f} ms, p99 "
+                f"{latency['p99'] * 1e3:.2f} ms, max {latency['max'] * 1e3:.2f} ms"
             )
         if r.foreign:
             shown = ", ".join(f"{a} ({k})" for a, k in r.foreign_from.items())
