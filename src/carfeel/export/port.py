@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from carfeel.export.fmu import flat_values
+from carfeel.export.variables import flat_values
 from carfeel.models.gearshift.engagement import (
     EngagementInputs,
     EngagementParams,
