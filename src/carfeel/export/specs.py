@@ -19,7 +19,7 @@ from carfeel.export.variables import (
 from carfeel.io.force_profile import MAX_FORCE_N
 from carfeel.io.presets import STEERING_STEP_S as PHYSICAL_MAX_STEP_S
 from carfeel.io.presets import Preset
-from carfeel.models.gearshift.engagement import Stage
+from carfeel.models.gearshift.engagement import EngagementParams, Stage
 from carfeel.schema import unit_of
 from carfeel.simulation.shift import MAX_STEP_S as SHIFT_MAX_STEP_S
 from carfeel.simulation.shift import ShiftParams
@@ -46,12 +46,10 @@ _STAGE_DOCS = {
 }
 
 
-def shift_spec(preset: Preset[ShiftParams], seed: int = 0) -> ModelSpec:
-    """The shift FMU: the 1-DOF engagement of `preset`'s gearbox, driven by a knob force."""
-    gearbox = preset.params.gearbox
-    name = checked_name(preset.name)
+def _shift_variables(gearbox: EngagementParams, seed: int) -> list[Variable]:
+    """The shift FMU's variables: inputs, the gearbox's parameters, seed, step, outputs."""
     real = "real"
-    variables = [
+    return [
         Variable("driver_force_N", "input", "continuous", real, "inputs.driver_force_N",
                  "Force the driver applies to the knob along the engagement slot, N, positive "
                  "toward the gear (carfeel's force_N)", 0.0, "N", -MAX_FORCE_N, MAX_FORCE_N),
@@ -78,7 +76,7 @@ def shift_spec(preset: Preset[ShiftParams], seed: int = 0) -> ModelSpec:
                  "and from 2^64 - 2^31; FMI 3's Int64 all)", signed_seed(seed),
                  fmi3_integer="Int64"),
         model_step(SHIFT_MAX_STEP_S, "at most carfeel's shift step, where a hand closing the "
-                    "loop through the importer stays accurate"),
+                   "loop through the importer stays accurate"),
         Variable("position_m", "output", "continuous", real, "outputs.position_m",
                  "Knob position along the engagement slot, m, 0 = neutral, positive toward the "
                  "gear (carfeel's position_m)", unit="m"),
@@ -98,6 +96,13 @@ def shift_spec(preset: Preset[ShiftParams], seed: int = 0) -> ModelSpec:
                  "Share of the synchronization done by the fixed synchronizer, 0..1; the gate "
                  "opens at 1"),
     ]  # fmt: skip
+
+
+def shift_spec(preset: Preset[ShiftParams], seed: int = 0) -> ModelSpec:
+    """The shift FMU: the 1-DOF engagement of `preset`'s gearbox, driven by a knob force."""
+    gearbox = preset.params.gearbox
+    name = checked_name(preset.name)
+    variables = _shift_variables(gearbox, seed)
     defaults = preset_values("gearbox", gearbox)
     defaults += [("seed", signed_seed(seed)), ("model_step_s", MODEL_STEP_S)]
     stages = tuple((s.value, _STAGE_DOCS[s]) for s in Stage)
@@ -128,13 +133,11 @@ _AY_DOCS = (
 )
 
 
-def steering_spec(preset: Preset[SteeringCar]) -> ModelSpec:
-    """The steering FMU: the paper's torque law of `preset`'s car, Ay from the importer or the
-    FMU's single-track car."""
-    car = preset.params
-    name = checked_name(preset.name)
+def _steering_variables(car: SteeringCar) -> list[Variable]:
+    """The paper's law's variables: inputs, the torque law's and the car's parameters, the
+    source of Ay, the step, outputs."""
     real = "real"
-    variables = [
+    return [
         Variable("speed_m_s", "input", "continuous", real, "speed_m_s",
                  "Vehicle speed Vx, m/s (carfeel's speed_m_s): the tire spin term falls with "
                  "|Vx|; the FMU's car needs it", 0.0, "m/s"),
@@ -157,7 +160,7 @@ def steering_spec(preset: Preset[SteeringCar]) -> ModelSpec:
                      enumerate(zip(AY_SOURCES, _AY_DOCS, strict=True))), 0,
                  low=0, high=len(AY_SOURCES) - 1),
         model_step(STEERING_MAX_STEP_S, "the car's trapezoidal step (with ay_source vehicle or "
-                    "front_axle) and the friction's memory (torque.k10_Nm > 0)"),
+                   "front_axle) and the friction's memory (torque.k10_Nm > 0)"),
         Variable("torque_Nm", "output", "continuous", real, "torque_Nm",
                  "Steering wheel torque tau = tau0 + tau1 + tau2 + tau3, Nm: the torque the "
                  "driver applies, positive counter-clockwise; each term resists the driver "
@@ -181,6 +184,14 @@ def steering_spec(preset: Preset[SteeringCar]) -> ModelSpec:
                  "The FMU's car's sideslip, rad (0 unless ay_source is vehicle or front_axle)",
                  unit="rad"),
     ]  # fmt: skip
+
+
+def steering_spec(preset: Preset[SteeringCar]) -> ModelSpec:
+    """The steering FMU: the paper's torque law of `preset`'s car, Ay from the importer or the
+    FMU's single-track car."""
+    car = preset.params
+    name = checked_name(preset.name)
+    variables = _steering_variables(car)
     defaults = preset_values("torque", car.torque) + preset_values("vehicle", car.vehicle)
     defaults += [("ay_source", 0), ("model_step_s", MODEL_STEP_S)]
     sources = tuple(zip(AY_SOURCES, _AY_DOCS, strict=True))
@@ -290,7 +301,7 @@ def physical_steering_spec(preset: Preset[SteeringCar]) -> ModelSpec:
             "steering_system", car.steering_system, None, "params.system"
         ),
         model_step(PHYSICAL_MAX_STEP_S, "the preset's checks size the steering system for "
-                    "1 ms (semi-implicit Euler)"),
+                   "1 ms (semi-implicit Euler)"),
         *(Variable(name, "output", "continuous", real, f"outputs.{member}", doc,
                    unit=unit_of(name)) for name, member, doc in _PHYSICAL_OUTPUTS),
     ]  # fmt: skip
