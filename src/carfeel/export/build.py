@@ -31,6 +31,7 @@ CFLAGS = (
 """How the FMU's library is compiled; the same flags give the port's bit-for-bit equality."""
 
 PLATFORM_FOLDER = {2: "linux64", 3: "x86_64-linux"}
+"""The folder under binaries/ of the Linux x86-64 library, by FMI version (each standard's name)."""
 
 
 def fmi_header_dir() -> Path:

@@ -18,10 +18,12 @@ from carfeel.models.steering.torque import SteeringTorqueParams
 from carfeel.models.vehicle.single_track import VehicleParams
 
 PORT_SOURCES = ("cf_engagement.c", "cf_steering.c", "cf_physical.c", "cf_port_runs.c")
+"""The C ports alone, without FMI: the library the ctypes tests and the benchmark drive."""
 HEADERS = {
     2: ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h"),
     3: ("fmi3Functions.h", "fmi3FunctionTypes.h", "fmi3PlatformTypes.h"),
 }
+"""The standard's FMI headers an FMU's sources/ holds (copied from FMPy), by FMI version."""
 
 
 def c_source_dir() -> Path:
