@@ -23,7 +23,7 @@ from hypothesis import strategies as st
 
 from carfeel.cli import main
 from carfeel.errors import InputError, PresetError
-from carfeel.export import fmu
+from carfeel.export import description, fmu
 from carfeel.io import presets
 
 FRAGMENTS = (
@@ -160,7 +160,7 @@ def neutral(kind: str, version: int) -> tuple[str, list[bytes], ET.Element, list
     spec = spec_of(kind, "plain")
     code, literals = c_code_and_literals(fmu.generated_c(spec, fmu.token_of(spec, version)))
     root = ET.fromstring(fmu.model_description(spec, version, "T").encode())
-    return code, literals, root, html_of(fmu._documentation(spec, version)).tags
+    return code, literals, root, html_of(description.documentation(spec, version)).tags
 
 
 def check_generated(kind: str, version: int, name: str) -> None:
@@ -186,7 +186,7 @@ def check_generated(kind: str, version: int, name: str) -> None:
         (t, [a for a in items if a[0] != "modelName"]) for t, items in expected
     ]
     # The documentation: the same tags, the name as the page's text only.
-    page = html_of(fmu._documentation(spec, version))
+    page = html_of(description.documentation(spec, version))
     assert page.tags == plain_tags
     assert page.title == spec.title
 

@@ -11,7 +11,7 @@ import pytest
 
 from carfeel import schema
 from carfeel.errors import PresetError
-from carfeel.export.fmu import fmi_unit
+from carfeel.export.variables import fmi_unit
 from carfeel.io import presets
 from carfeel.panel.tuning import TUNABLES
 from carfeel.simulation.hpattern import HPatternSetup

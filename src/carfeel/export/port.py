@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from carfeel.export.fmu import flat_values
+from carfeel.export.variables import flat_values
 from carfeel.models.gearshift.engagement import (
     EngagementInputs,
     EngagementParams,
@@ -116,7 +116,7 @@ def python_state(record: Any) -> EngagementState:
 
 
 class Port:
-    """The compiled ports (`carfeel.export.fmu.build_port_library`)."""
+    """The compiled ports (`carfeel.export.build.build_port_library`)."""
 
     def __init__(self, library: Path) -> None:
         self.library = ctypes.CDLL(str(library))
