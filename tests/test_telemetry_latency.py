@@ -74,7 +74,7 @@ def test_the_latency_counts_from_the_arrival_to_the_first_command_sent_from_it()
     assert any("packet-to-force latency" in e and "1 packets" in e for e in source.events)
     status = source.status()
     assert status["latency_s"] == source.latency_s
-    assert status["latency_p99_s"] >= source.latency_s
+    assert float(status["latency_p99_s"]) >= source.latency_s
 
 
 def test_without_a_new_packet_no_latency_is_counted():
@@ -172,3 +172,24 @@ def test_a_wall_clock_run_reports_the_latency_of_the_packets_it_used():
     assert len(notes) == 1, result.summary.notes
     counted = int(notes[0].split("it, ")[1].split(" packets")[0])
     assert 1 <= counted <= result.summary.periods
+
+
+def test_the_panel_shows_the_packet_age_and_the_latency():
+    """The loop's process writes the packet age, the newest latency and the session's p99 into
+    the panel's status (NaN without telemetry)."""
+    from types import SimpleNamespace
+
+    from carfeel.panel.worker import Observer
+
+    source = VehicleSource(Receiver(Source.parse("carfeel:127.0.0.1:0")))
+    for latency in [0.0008] * 99 + [0.004]:
+        source.latencies.add(latency)
+    source.latency_s, source.age_s = 0.004, 0.012
+    observer = Observer(None, None, None)
+    observer.parts = SimpleNamespace(renderer=SimpleNamespace(source=source))
+    age, latency, p99 = observer._telemetry_status()
+    assert (age, latency) == (0.012, 0.004)
+    assert p99 == pytest.approx(0.00085)  # the bin of 0.8 ms: 0.80-0.85 ms
+    source.close()
+    observer.parts = SimpleNamespace(renderer=object())  # a run without telemetry
+    assert all(math.isnan(v) for v in observer._telemetry_status())

@@ -53,6 +53,9 @@ STATUS = (
     "recording",
     "recorded_rows",
     "calibrating",
+    "telemetry_age_s",
+    "telemetry_latency_s",
+    "telemetry_latency_p99_s",
 )
 """The status fields, in order (see `worker.Observer._status`)."""
 

@@ -30,6 +30,8 @@ from carfeel.panel.tuning import Ramp
 
 STATUS_EVERY = 33
 """Ticks between status writes (30 Hz at 1 kHz)."""
+LATENCY_P99_EVERY = 30
+"""Status writes between two counts of the latency's p99 (once a second)."""
 LIFELINE_EVERY = 50
 MAX_PENDING_ROWS = 10_000
 """Rows kept while a recording's file opens (10 s at 1 kHz; beyond, the oldest are dropped)."""
@@ -66,6 +68,8 @@ class Observer:
         self.priority = ""
         self.gears: list[str] | None = None
         self._engaged = 0
+        self._statuses = 0
+        self._latency_p99_s = math.nan
 
     # -- the session's hooks ---------------------------------------------------------------
     def prepare(self, parts: Any) -> None:
@@ -263,8 +267,20 @@ class Observer:
             float(self._recorder is not None or self._opening is not None),
             float(self._recorder.rows if self._recorder is not None else 0),
             float(calibrating),
+            *self._telemetry_status(),
         )
         side.status(values)
+
+    def _telemetry_status(self) -> tuple[float, float, float]:
+        """Packet age, the newest packet-to-force latency and its p99 over the session, s (NaN
+        without telemetry); the p99 is counted once a second (a tenth of a millisecond)."""
+        source = getattr(self.parts.renderer, "source", None) if self.parts else None
+        if source is None:
+            return math.nan, math.nan, math.nan
+        if self._statuses % LATENCY_P99_EVERY == 0:
+            self._latency_p99_s = source.latencies.percentiles().get("p99", math.nan)
+        self._statuses += 1
+        return float(source.age_s), float(source.latency_s), self._latency_p99_s
 
     def _describe(self, parts: Any) -> dict[str, Any]:
         """What the panel needs to draw and to check tunings (pickled: dataclasses kept)."""

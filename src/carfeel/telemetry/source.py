@@ -8,6 +8,8 @@ good packet the telemetry-driven forces are gone within stale_after_s + fade_s (
 
 from __future__ import annotations
 
+import bisect
+import itertools
 import math
 from collections.abc import Callable
 
@@ -44,17 +46,14 @@ class Histogram:
         """p50, p99 and max, s (a bin's upper edge; inf past the last bin); {} when empty."""
         if not self.total:
             return {}
-        out: dict[str, float] = {}
-        seen = 0
-        for i, count in enumerate(self.counts):
-            seen += count
-            edge = (i + 1) * self.width_s if i < self.bins else math.inf
-            for name, q in (("p50", 0.5), ("p99", 0.99)):
-                if name not in out and seen >= q * self.total:
-                    out[name] = edge
-            if count:
-                out["max"] = edge
+        cumulative = list(itertools.accumulate(self.counts))
+        out = {name: self._edge(bisect.bisect_left(cumulative, q * self.total))
+               for name, q in (("p50", 0.5), ("p99", 0.99))}  # fmt: skip
+        out["max"] = self._edge(bisect.bisect_left(cumulative, self.total))
         return out
+
+    def _edge(self, index: int) -> float:
+        return (index + 1) * self.width_s if index < self.bins else math.inf
 
 
 class VehicleSource:

@@ -731,6 +731,10 @@ function drawFigures() {
     rows.push(["telemetry weight", fmt(wt[k], 2), wt[k] < 1 ? "warn" : "good"]);
     rows.push(["game speed", fmt((buf.game_speed_m_s || [])[k] * 3.6) + " km/h"]);
     rows.push(["game gear, rpm", `${fmt((buf.game_gear || [])[k])}, ${fmt((buf.game_engine_speed_rpm || [])[k])}`]);
+    const ms = (v) => Number.isFinite(v) ? (1e3 * v).toFixed(2) + " ms" : "–";
+    rows.push(["packet age", ms(st.telemetry_age_s), st.telemetry_age_s > 0.1 ? "warn" : ""]);
+    rows.push(["packet-to-force latency, p99", ms(st.telemetry_latency_s) + ", " + ms(st.telemetry_latency_p99_s),
+      st.telemetry_latency_p99_s > 2 / rate ? "warn" : ""]);
   } else {
     rows.push(["telemetry", session.run && session.run.telemetry ? session.run.telemetry : "none (fixed speed " + fmt(session.speed_kmh) + " km/h)"]);
   }
