@@ -26,6 +26,14 @@ def steady_ay(
     return np.asarray(v2 * (angle / ratio) / (wheelbase * (1.0 + k_us / wheelbase * v2)))
 
 
+def car_steady_ay(speed: FloatArray, angle: FloatArray, vehicle: VehicleParams) -> FloatArray:
+    """`steady_ay` (m/s^2) of `vehicle`: its steering ratio, understeer gradient and wheelbase."""
+    return steady_ay(
+        speed, angle, vehicle.steering_ratio, vehicle.understeer_gradient_rad_s2_m,
+        vehicle.wheelbase_m,
+    )  # fmt: skip
+
+
 QUASI_STEADY_AY_M_S2 = (1.0, 6.0)
 """|Ay| range of the quasi-steady samples the unit checks compare (V > 5 m/s, |rate| < 0.2
 rad/s)."""
@@ -41,10 +49,7 @@ def ay_ratio(
     """Median of a measured Ay over the car's steady-state Ay from speed and angle, on the
     quasi-steady samples (None with fewer than 50 of them): about 1 for a log in SI units and a
     car like `vehicle`, 1/57 for an angle in degrees."""
-    model = steady_ay(
-        speed, angle, vehicle.steering_ratio, vehicle.understeer_gradient_rad_s2_m,
-        vehicle.wheelbase_m,
-    )  # fmt: skip
+    model = car_steady_ay(speed, angle, vehicle)
     low, high = QUASI_STEADY_AY_M_S2
     usable = (speed > 5.0) & (np.abs(rate) < 0.2) & (np.abs(ay) > low) & (np.abs(ay) < high)
     usable &= np.abs(model) > 0.1
@@ -57,10 +62,7 @@ def ay_gain(speed: FloatArray, angle: FloatArray, ay: FloatArray, vehicle: Vehic
     """The least-squares gain of a measured Ay on the car's steady-state Ay from speed and angle,
     over the samples at speed with |Ay| > 0.5 m/s^2 (NaN without any): for any manoeuvre, not
     only quasi-steady ones (a weave's lag takes a few % off it), so a coarse check of units."""
-    model = steady_ay(
-        speed, angle, vehicle.steering_ratio, vehicle.understeer_gradient_rad_s2_m,
-        vehicle.wheelbase_m,
-    )  # fmt: skip
+    model = car_steady_ay(speed, angle, vehicle)
     use = (speed > 5.0) & (np.abs(ay) > 0.5)
     power = float(np.sum(model[use] ** 2))
     return float(np.sum(ay[use] * model[use]) / power) if power > 0.0 else math.nan
@@ -89,10 +91,7 @@ def ay_angle_correlation(
         return None
     n = max(1, round(SIGN_SMOOTHING_S / dt))
     window = np.ones(n) / n
-    model = steady_ay(
-        speed, angle, vehicle.steering_ratio, vehicle.understeer_gradient_rad_s2_m,
-        vehicle.wheelbase_m,
-    )  # fmt: skip
+    model = car_steady_ay(speed, angle, vehicle)
     smooth_model = np.convolve(model, window, mode="same")
     smooth_ay = np.convolve(ay, window, mode="same")
     smooth_angle = np.convolve(angle, window, mode="same")
@@ -154,10 +153,7 @@ def check_units(logs: Sequence[SteeringLog], vehicle: VehicleParams) -> list[str
                 f"{lock:.4g} rad ({math.degrees(lock):.0f} deg): that looks like degrees (convert "
                 "to radians); for a car with a wider lock, give --base a preset of it"
             )
-        ay_model = steady_ay(
-            speed, angle, vehicle.steering_ratio, vehicle.understeer_gradient_rad_s2_m,
-            vehicle.wheelbase_m,
-        )  # fmt: skip
+        ay_model = car_steady_ay(speed, angle, vehicle)
         measured = log.lateral_accel_m_s2
         if measured is None and np.any(speed > 5.0):
             peak_g = float(np.percentile(np.abs(ay_model[speed > 5.0]), 99)) / 9.80665
