@@ -342,7 +342,7 @@ def test_km_h_read_as_m_s_is_warned_about():
     # too high: within what another car could give, so a warning, not a refusal. The warnings
     # come from the checks before the fit (`_check_units`, which `fit_steering` returns them
     # from): checked there, without a fit that costs seconds and adds nothing.
-    from carfeel.identification.steering_fit import _check_units
+    from carfeel.identification.steering_checks import check_units as _check_units
 
     base, _ = car()
     time, signals = weave_signals(km_h=True)
@@ -379,7 +379,7 @@ def test_an_angle_in_degrees_without_ay_is_refused_before_the_fit():
 def test_logs_in_radians_without_ay_pass_the_unit_checks():
     """The refusals above do not catch good logs: every test manoeuvre (parking to the lock, the
     lane change at 0.76 g) without its Ay column, with the noise and offsets of `measured`."""
-    from carfeel.identification.steering_fit import _check_units
+    from carfeel.identification.steering_checks import check_units as _check_units
 
     base, _ = car()
     for seed in (0, 1):
@@ -401,7 +401,7 @@ def test_a_torque_channel_that_logged_nothing_is_named():
     with pytest.raises(InputError, match="steering_torque_Nm is 0 Nm in every row: the channel "
                        "logged nothing"):  # fmt: skip
         read_log(Result(time, signals), "zero.csv")
-    from carfeel.identification.steering_fit import _check_units
+    from carfeel.identification.steering_checks import check_units as _check_units
 
     # Zero only where the car corners (a channel that drops out): not a sign flip either.
     base, _ = car()
@@ -462,7 +462,7 @@ def test_one_log_in_degrees_among_good_ones_is_refused_by_name():
 def test_a_steady_circle_one_way_is_not_taken_for_a_flipped_sign():
     """A log at nearly constant Ay: a slope of torque on Ay would be noise there (and refused
     4 seeds in 20); the sign test sees +4 Nm with +3 m/s^2 on every seed."""
-    from carfeel.identification.steering_fit import _check_units
+    from carfeel.identification.steering_checks import check_units as _check_units
 
     base, _ = car()
     name, r = next(run for run in clean_runs() if run[0] == "iso4138-left")

@@ -89,7 +89,7 @@ def _check_angle_unit(
     csv_path: Path, result: Result, preset: str | None, ratio: float, wheelbase: float
 ) -> None:
     """An angle in degrees makes the sensitivity 57 times too small: Ay gives it away."""
-    from carfeel.identification.steering_fit import (
+    from carfeel.identification.steering_checks import (
         ay_angle_correlation,
         ay_gain,
         looks_like_degrees,

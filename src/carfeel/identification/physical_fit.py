@@ -47,19 +47,22 @@ import numpy as np
 import numpy.typing as npt
 
 from carfeel.errors import InputError
-from carfeel.identification import physical_batch, rms_r2
-from carfeel.identification.steering_fit import (
-    BLOCK_S,
-    MAX_DELAY_S,
-    PARKING_SPEED_M_S,
+from carfeel.identification import physical_batch, rms_r2, uncertainty
+from carfeel.identification.delay import MAX_DELAY_S, RESCAN_S, minimize_delay
+from carfeel.identification.signals import lowpass
+from carfeel.identification.steering_checks import check_units
+from carfeel.identification.steering_fit import PARKING_SPEED_M_S
+from carfeel.identification.steering_problem import offset_basis
+from carfeel.identification.steering_types import (
     Estimate,
     SteeringFit,
     SteeringLog,
-    _check_units,
-    _robust_scale,
-    lowpass,
-    minimize_delay,
-    offset_basis,
+    log_figures,
+    poorly_pinned,
+)
+from carfeel.identification.uncertainty import (
+    BLOCK_S,
+    robust_scale,
     sandwich_finish,
     sandwich_terms,
     soft_l1_cost,
@@ -109,8 +112,6 @@ STATE_WEIGHTS = np.array([
     0.1,  # Ay: through the load transfer
 ])  # fmt: skip
 BATCH_CHECK_NM = 1e-3
-RESCAN_S = 0.005
-"""After the fit, a delay scan that finds a better minimum further than this starts it again."""
 FD_STEP = 1e-3
 """Forward-difference step, relative to a parameter's scale."""
 MAX_BATCH = 1024
@@ -739,7 +740,7 @@ def fit_physical(
         )
     if drift_s is not None and not drift_s > 0:
         raise InputError(f"--drift {drift_s:g}: the knot spacing must be a positive time in s")
-    unit_warnings = _check_units(logs, base.vehicle)
+    unit_warnings = check_units(logs, base.vehicle)
     runs = runs_of(logs)
     pieces = pieces_of(runs)
     data = _data(logs, runs, drift_s)
@@ -800,7 +801,7 @@ def fit_physical(
     r -= data.torque_Nm
     exact = _evaluate(data, batch, base, x, free, counter, exact=True)
     check = float(np.max(np.abs(exact.r - r)))
-    scale = _robust_scale(r) or 0.1
+    scale = robust_scale(r) or 0.1
     covariance, _ = _covariance(exact, r, np.flatnonzero(free), scale, data.blocks)
     del exact
     sigma_all = np.full(len(x), math.nan)
@@ -810,14 +811,7 @@ def fit_physical(
                  notes.get(i, ""))
         for i, name in enumerate(NAMES)
     )  # fmt: skip
-    free_idx = np.flatnonzero(free)
-    d = np.sqrt(np.clip(np.diag(covariance), 1e-300, None))
-    corr = covariance / np.outer(d, d)
-    shown = [j for j, i in enumerate(free_idx) if i < n_par]
-    correlation = (
-        tuple(NAMES[free_idx[j]] for j in shown),
-        tuple(tuple(round(float(corr[a, b]), 4) for b in shown) for a in shown),
-    )
+    correlation = uncertainty.correlation(covariance, free, n_par, NAMES)
     warnings = [*unit_warnings, *_identifiability(estimates)]
     if check > BATCH_CHECK_NM:
         warnings.append(
@@ -827,17 +821,9 @@ def fit_physical(
     per_log: dict[str, dict[str, float]] = {}
     offset_values = data.offsets @ x[n_par + 1 :]
     for log, rows in zip(logs, data.log_rows, strict=True):
-        some = rows.stop > rows.start
-        log_rms, log_r2 = rms_r2(data.torque_Nm[rows], data.torque_Nm[rows] + r[rows])
-        per_log[log.name] = {
-            "rms_error_Nm": log_rms,
-            "r2": log_r2,
-            "mean_residual_Nm": float(np.mean(r[rows])) if some else math.nan,
-            "samples": float(len(log.time_s)),
-            "offset_Nm": float(np.mean(offset_values[rows])) if some else math.nan,
-            "offset_range_Nm": float(np.ptp(offset_values[rows])) if some else 0.0,
-            "offset_end_Nm": float(offset_values[rows][-1]) if some else math.nan,
-        }
+        per_log[log.name] = log_figures(
+            data.torque_Nm[rows], r[rows], offset_values[rows], len(log.time_s)
+        )
     rms, r2 = rms_r2(data.torque_Nm, data.torque_Nm + r)
     if not r2 > 0.5:
         warnings.append(
@@ -884,7 +870,7 @@ def _scan_delay(data: _Data, grids: Sequence[npt.NDArray[np.floating]], x: Float
     point = [g[:1] for g in grids]
     n_par = len(PARAMETERS)
     r0 = data.predict(point, float(x[n_par]))[0] + data.offsets @ x[n_par + 1 :] - data.torque_Nm
-    scale = float(1.4826 * np.median(np.abs(r0 - np.median(r0)))) or 0.1
+    scale = robust_scale(r0) or 0.1
 
     def cost(delay: float) -> float:
         rest = data.torque_Nm - data.predict(point, delay)[0]
@@ -973,7 +959,7 @@ def _covariance(
     ev: _Evaluation, r: FloatArray, idx: npt.NDArray[np.intp], scale: float,
     blocks: npt.NDArray[np.intp],
 ) -> tuple[FloatArray, npt.NDArray[np.bool_]]:  # fmt: skip
-    """`steering_fit.sandwich` of the residual r with ev's Jacobian over idx, a chunk of rows
+    """`uncertainty.sandwich` of the residual r with ev's Jacobian over idx, a chunk of rows
     at a time (the column norms in a first pass)."""
     squares = np.zeros(len(idx))
     for lo in range(0, len(r), CHUNK_ROWS):
@@ -1014,7 +1000,7 @@ def _settle(
     """`_Point` of ev: three passes over its Jacobian's chunks (a batch evaluation costs
     hundreds of such passes)."""
     a, g = _normal_equations(ev, idx, scale)
-    covariance, unconstrained = _covariance(ev, ev.r, idx, _robust_scale(ev.r) or scale, blocks)
+    covariance, unconstrained = _covariance(ev, ev.r, idx, robust_scale(ev.r) or scale, blocks)
     return _Point(ev.x, ev.r, soft_l1_cost(ev.r, scale), a, g, covariance, unconstrained)
 
 
@@ -1119,7 +1105,7 @@ def _solve(
 
         x_all[idx] = np.clip(x_all[idx], lower[idx] + 1e-9, upper[idx] - 1e-9)
         first = evaluate(x_all)
-        scale = _robust_scale(first.r) or 0.1
+        scale = robust_scale(first.r) or 0.1
 
         def settle(ev: _Evaluation, idx: npt.NDArray[np.intp] = idx, scale: float = scale
                    ) -> _Point:  # fmt: skip
@@ -1166,12 +1152,7 @@ def _identifiability(estimates: Sequence[Estimate]) -> list[str]:
     for reason in dict.fromkeys(e.note for e in estimates if e.status == "kept"):
         kept = [e.name for e in estimates if e.note == reason]
         warnings.append(f"{', '.join(kept)} not identifiable, {reason}")
-    for e in estimates:
-        if e.status == "fitted" and e.value > 0 and e.sigma > 0.5 * abs(e.value):
-            warnings.append(
-                f"{e.name} = {e.value:.3g} +- {e.sigma:.2g}: the data pin it down poorly"
-            )
-    return warnings
+    return warnings + poorly_pinned(estimates)
 
 
 def simulate_log(
