@@ -37,7 +37,7 @@ import numpy as np
 
 from carfeel.errors import InputError
 from carfeel.sweep import tasks
-from carfeel.sweep.spec import SpecError, SweepSpec
+from carfeel.sweep.definition import SpecError, SweepSpec
 from carfeel.sweep.tasks import Chunk, Row, Task, as_chunk
 
 PART_VERSION = 2
