@@ -96,7 +96,7 @@ def all_at_once(sweep: spec.SweepSpec) -> list[dict[str, Any]]:
 def test_draws_made_block_by_block_equal_the_draws_made_at_once(monkeypatch, sampling):
     """Tolerance 0: a resumed sweep must meet the very cases it left (77: blocks that do not
     divide the samples, so that every block boundary is crossed mid-grid)."""
-    monkeypatch.setattr(spec, "DRAW_BLOCK", 77)
+    monkeypatch.setattr("carfeel.sweep.draws.DRAW_BLOCK", 77)
     sweep = spec.from_toml(LATIN.format(sampling=sampling))
     assert spec.parameter_sets(sweep) == all_at_once(sweep)
     assert isinstance(sweep.seeds, tuple) and sweep.n_cases == 2 * 1000 * 2

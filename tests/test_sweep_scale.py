@@ -35,7 +35,7 @@ def test_a_task_makes_the_cases_the_whole_sweep_makes(monkeypatch):
     """Any run of cases, made by a worker from the spec alone, equals those cases of the whole
     sweep, bit for bit: across grid points, seeds and blocks of draws (77 samples a block
     here, so that runs cross them)."""
-    monkeypatch.setattr(spec, "DRAW_BLOCK", 77)
+    monkeypatch.setattr("carfeel.sweep.draws.DRAW_BLOCK", 77)
     sweep = spec.from_toml(LATIN_GRID)
     every = spec.cases(sweep)
     assert len(every) == sweep.n_cases == 2 * 300 * 3

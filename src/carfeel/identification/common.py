@@ -6,14 +6,13 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import os
-import sys
-import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from carfeel import progress
 from carfeel.errors import InputError, PresetError
 from carfeel.simulation.result import Result
 
@@ -35,23 +34,22 @@ def one_blas_thread() -> Iterator[None]:
         yield
 
 
-class Progress:
-    """A one-line progress display on stderr, for fits that take more than a moment."""
+class Progress(progress.Progress):
+    """A fit's evaluation counter on stderr (a terminal), shown once the fit has taken more than
+    half a second."""
 
     def __init__(self, label: str, enabled: bool) -> None:
-        self.label, self.enabled = label, enabled and sys.stderr.isatty()
-        self.start = time.monotonic()
-        self.shown = False
+        super().__init__(enabled=enabled, delay_s=0.5)
+        self.label = label
 
     def __call__(self, evaluations: int, rms: float) -> None:
-        if self.enabled and time.monotonic() - self.start > 0.5:
-            self.shown = True
-            print(f"\r{self.label}: evaluation {evaluations}, rms {rms:.4g}", end="",
-                  file=sys.stderr, flush=True)  # fmt: skip
+        """`evaluations` of the model so far; `rms`: the residuals' at the latest (the fit's
+        unit)."""
+        self.show(f"{self.label}: evaluation {evaluations}, rms {rms:.4g}")
 
     def done(self) -> None:
-        if self.shown:
-            print(file=sys.stderr)
+        """End the line, if one was shown."""
+        self.close()
 
 
 def write_checked_preset(

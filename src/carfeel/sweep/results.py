@@ -16,7 +16,10 @@ from typing import Any
 
 from carfeel import __version__
 from carfeel.errors import InputError
-from carfeel.sweep.spec import SweepSpec, base_params, field_type, metric_names
+from carfeel.sweep.base import base_params
+from carfeel.sweep.definition import SweepSpec
+from carfeel.sweep.paths import field_type
+from carfeel.sweep.settings import metric_names
 from carfeel.sweep.tasks import Chunk
 
 Row = dict[str, Any]

@@ -35,9 +35,10 @@ from typing import Any, TextIO
 
 import numpy as np
 
+from carfeel import progress
 from carfeel.errors import InputError
 from carfeel.sweep import tasks
-from carfeel.sweep.spec import SpecError, SweepSpec
+from carfeel.sweep.definition import SpecError, SweepSpec
 from carfeel.sweep.tasks import Chunk, Row, Task, as_chunk
 
 PART_VERSION = 2
@@ -232,7 +233,7 @@ class Tally:
                 self.first_invalid = {n: v[i] for n, v in chunk.columns.items()}
 
 
-class Progress:
+class Progress(progress.Progress):
     """A one-line bar on a terminal (stderr): cases done, cases per second over the last
     half minute (the rate now, not the start-up's), the time left; nothing when stderr is not
     a terminal."""
@@ -240,11 +241,8 @@ class Progress:
     WINDOW_S = 30.0
 
     def __init__(self, total: int, done: int, stream: TextIO | None = None) -> None:
-        self.stream = stream if stream is not None else sys.stderr
-        self.enabled = self.stream.isatty()
+        super().__init__(stream, every_s=0.1)
         self.total, self.done, self.start_done = total, done, done
-        self.started = time.monotonic()
-        self._shown = 0.0
         self._history: collections.deque[tuple[float, int]] = collections.deque()
         self._history.append((self.started, done))
 
@@ -256,26 +254,25 @@ class Progress:
         return (self.done - done_then) / (now - then) if now > then else 0.0
 
     def update(self, n: int) -> None:
+        """`n` more cases done."""
         self.done += n
         now = time.monotonic()
         self._history.append((now, self.done))
-        if self.enabled and (now - self._shown > 0.1 or self.done >= self.total):
-            self._shown = now
-            fraction = self.done / self.total if self.total else 1.0
-            width = 30
-            bar = "#" * int(fraction * width) + "." * (width - int(fraction * width))
-            rate = self.rate(now)
-            left = (self.total - self.done) / rate if rate > 0 else math.nan
-            eta = f"{left:.0f} s left" if math.isfinite(left) else ""
-            self.stream.write(
-                f"\r[{bar}] {self.done}/{self.total} cases, {rate:.1f} cases/s {eta}   "
-            )
-            self.stream.flush()
+        self.show(lambda: self.text(now), now, last=self.done >= self.total)
 
-    def close(self) -> None:
-        if self.enabled:
-            self.stream.write("\n")
-            self.stream.flush()
+    def text(self, now: float) -> str:
+        """The bar, the cases done, the rate and the time left."""
+        fraction = self.done / self.total if self.total else 1.0
+        width = 30
+        bar = "#" * int(fraction * width) + "." * (width - int(fraction * width))
+        rate = self.rate(now)
+        left = (self.total - self.done) / rate if rate > 0 else math.nan
+        eta = f"{left:.0f} s left" if math.isfinite(left) else ""
+        return f"[{bar}] {self.done}/{self.total} cases, {rate:.1f} cases/s {eta}   "
+
+    def close(self, always: bool = True) -> None:
+        """End the line: on a terminal, always (a sweep with nothing left to run too)."""
+        super().close(always)
 
 
 def iter_tasks(spec: SweepSpec, done: np.ndarray, workers: int = 1) -> Iterator[Task]:

@@ -23,7 +23,10 @@ from carfeel.analysis.hpattern_features import EngagementStream
 from carfeel.analysis.shift_features import ShiftFeatures, ShiftFeatureStream
 from carfeel.errors import CarfeelError
 from carfeel.simulation.stream import Columns, FiniteCheck, Tee
-from carfeel.sweep.spec import Case, SweepSpec, base_params, checked_case, gears_of, iter_cases
+from carfeel.sweep.base import HPatternCase, base_params
+from carfeel.sweep.cases import checked_case, iter_cases
+from carfeel.sweep.definition import Case, SweepSpec
+from carfeel.sweep.settings import gears_of
 
 Row = dict[str, Any]
 
@@ -248,7 +251,6 @@ def _shift_batch(
 def _hpattern(params: Any, seed: int, settings: dict[str, Any]) -> dict[str, Any]:
     from carfeel.models.drivers.hpattern import Script
     from carfeel.simulation.hpattern import HPatternRun, stream_hpattern
-    from carfeel.sweep.spec import HPatternCase
 
     assert isinstance(params, HPatternCase)
     setup, shift = params.setup, params.shift
