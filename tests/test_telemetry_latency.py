@@ -64,8 +64,8 @@ def test_the_latency_counts_from_the_arrival_to_the_first_command_sent_from_it()
         source.update(0.001)
         assert source.state.speed_m_s == 20.0
         now = time.perf_counter_ns()
-        source.sent(now)
-        source.sent(now + 1_000_000)  # the next tick: the same packet, no new latency
+        source.commanded(now)
+        source.commanded(now + 1_000_000)  # the next tick: the same packet, no new latency
         source.close()
     assert source.latencies.total == 1
     assert 0.0 <= source.latency_s <= (now - before_send) / 1e9
@@ -81,7 +81,7 @@ def test_without_a_new_packet_no_latency_is_counted():
     source = VehicleSource(Receiver(Source.parse("carfeel:127.0.0.1:0")))
     for k in range(10):
         source.update(k * 0.001)
-        source.sent(time.perf_counter_ns())
+        source.commanded(time.perf_counter_ns())
     source.close()
     assert source.latencies.total == 0
     assert math.isnan(source.latency_s)
@@ -116,7 +116,7 @@ class Timed(ShiftRenderer):
         super().__init__(*args)  # type: ignore[arg-type]
         self.sent_at: list[int] = []
 
-    def sent(self, now_ns: int) -> None:
+    def commanded(self, now_ns: int) -> None:
         self.sent_at.append(now_ns)
 
 

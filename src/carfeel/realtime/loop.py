@@ -267,8 +267,8 @@ def run_loop(
         ticks = round(config.duration_s * config.rate_hz)
         # A renderer that measures (telemetry's packet-to-force latency) is told when each
         # tick's commands went out: on the wall clock only (simulated time has no latency).
-        sent: Callable[[int], None] | None = (
-            getattr(renderer, "sent", None) if isinstance(clock, WallClock) else None
+        commanded: Callable[[int], None] | None = (
+            getattr(renderer, "commanded", None) if isinstance(clock, WallClock) else None
         )
         for k in range(1, ticks + 1):
             deadline = start + k * period_ns
@@ -312,8 +312,8 @@ def run_loop(
                 watchdog.fault(f"device lost: {exc}")
                 stopped = "fault"
                 break
-            if sent is not None:
-                sent(clock.now_ns())
+            if commanded is not None:
+                commanded(clock.now_ns())
             max_force = max(max_force, *(abs(f) for f in safe))
             at_limit += any(abs(f) >= top for f in safe)
             if passivity is not None:

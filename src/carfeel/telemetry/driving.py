@@ -268,10 +268,10 @@ class TelemetryDriven:
                  int(bool(self.cues.refused)) if self.cues else 0, grind)  # fmt: skip
         return commands, (*row, *extra)
 
-    def sent(self, now_ns: int) -> None:
+    def commanded(self, now_ns: int) -> None:
         """The loop sent this tick's commands at `now_ns` (the wall clock's): the newest
-        packet's packet-to-force latency (`VehicleSource.sent`)."""
-        self.source.sent(now_ns)
+        packet's packet-to-force latency (`VehicleSource.commanded`)."""
+        self.source.commanded(now_ns)
 
     def close(self) -> None:
         """Release the gear output's buttons and the socket (stop, fault or exit)."""

@@ -84,7 +84,7 @@ class VehicleSource:
         self.latencies = Histogram(LATENCY_BIN_S, LATENCY_BINS)
         """Packet-to-force latency: from a good packet's arrival (the kernel's receive time
         where the socket gives it, else when it was read) to the first command sent to the
-        device that was computed from it (`sent`); wall-clock runs only."""
+        device that was computed from it (`commanded`); wall-clock runs only."""
         self.latency_s = math.nan
         """The newest packet's latency, s."""
         self._unsent_ns = 0
@@ -125,7 +125,7 @@ class VehicleSource:
         (to the 0.5 ms bin's upper edge; inf past 1 s); empty before any packet."""
         return self.ages.percentiles()
 
-    def sent(self, now_ns: int) -> None:
+    def commanded(self, now_ns: int) -> None:
         """The loop sent the device this tick's commands at `now_ns` (time.perf_counter_ns(),
         the wall clock's): the newest good packet's latency, if this is its first command."""
         if self._unsent_ns:
