@@ -609,7 +609,7 @@ class Panel:
 
     def run_of(self, body: dict[str, Any]) -> dict[str, Any]:
         """The request's session as RealtimeRun keyword arguments, checked as `carfeel run`'s."""
-        from carfeel.realtime.session import MODELS, RealtimeRun, _check
+        from carfeel.realtime.run_options import MODELS, RealtimeRun, check_run
         from carfeel.simulation.sequence import parse_sequence
 
         allowed = {"model", "preset", "device", "mode", "speed_kmh", "hand", "clock", "sequence",
@@ -667,7 +667,7 @@ class Panel:
         run.setdefault("duration_s", 600.0)
         run["preset"] = self.preset_spec(model, body.get("preset"))
         try:
-            _check(RealtimeRun(**run))
+            check_run(RealtimeRun(**run))
         except TypeError as exc:  # pragma: no cover - the fields are filtered above
             raise InputError(str(exc)) from None
         if "telemetry" in run:  # loopback only, unless the panel itself is on the network
