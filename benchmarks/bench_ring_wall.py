@@ -24,7 +24,7 @@ import numpy as np
 
 from carfeel.errors import InputError
 from carfeel.io.presets import load_shift
-from carfeel.realtime import rendering, session, stability
+from carfeel.realtime import building, rendering, stability
 from carfeel.realtime.rendering import velocity_sections
 from carfeel.realtime.session import RealtimeRun, run_realtime
 from carfeel.simulation.result import Result
@@ -46,14 +46,14 @@ def plateau(device: str, mode: str, seed: int, wall: bool, folder: Path) -> dict
     record = folder / f"{device.replace(':', '_')}-{mode}-{seed}-{wall}.csv"
     original = rendering.ring_wall
     if not wall:  # the session as it was: the coupling alone holds the ring
-        setattr(session, "ring_wall", lambda *args: None)  # noqa: B010
+        setattr(building, "ring_wall", lambda *args: None)  # noqa: B010
     try:
         result = run_realtime(
             RealtimeRun(model="shift", mode=mode, clock="simulated", record=record,
                         device=device, seed=seed)
         )  # fmt: skip
     finally:
-        setattr(session, "ring_wall", original)  # noqa: B010
+        setattr(building, "ring_wall", original)  # noqa: B010
     rec = Result.from_csv(record)
     sync = np.flatnonzero(np.asarray(rec["stage"]) == "synchronization")
     x = np.asarray(rec["x_device"], dtype=float)[sync]
@@ -134,7 +134,7 @@ def main() -> None:
                 print(f"  {device} {delay_ms:g} ms each way: refused ({str(refused)[:60]}...)")
                 continue
             scaling = rendering.default_scaling(
-                session.MODEL_FORCE_N, shift.gearbox.in_gear_position_m + 0.005, known
+                building.MODEL_FORCE_N, shift.gearbox.in_gear_position_m + 0.005, known
             )
             push = shift.driver.push_force_N * scaling.force_scale
             sized = stability.size(known, 1000.0, sections)
@@ -147,7 +147,7 @@ def main() -> None:
     for device in DEVICES:
         known = identified(device, 2.0)
         scaling = rendering.default_scaling(
-            session.MODEL_FORCE_N, shift.gearbox.in_gear_position_m + 0.005, known
+            building.MODEL_FORCE_N, shift.gearbox.in_gear_position_m + 0.005, known
         )
         stability.size.cache_clear()
         stability.size_ring_wall.cache_clear()

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from carfeel.io.presets import load_shift
-from carfeel.realtime import session, stability
+from carfeel.realtime import building, stability
 from carfeel.realtime.clock import SimulatedClock
 from carfeel.realtime.devices.virtual import virtual_device
 from carfeel.realtime.hands import ReleasingHand, ShiftHand
@@ -42,7 +42,7 @@ def plateau(tmp_path, monkeypatch, device: str, mode: str, wall: bool):
     record = tmp_path / f"{device.replace(':', '_')}-{mode}-{wall}.csv"
     with monkeypatch.context() as patch:
         if not wall:  # the session as it was: the coupling (or servo) holds the ring
-            patch.setattr(session, "ring_wall", lambda *args: None)
+            patch.setattr(building, "ring_wall", lambda *args: None)
         result = run_realtime(
             RealtimeRun(model="shift", mode=mode, clock="simulated", record=record,
                         device=device)
@@ -239,7 +239,7 @@ def hpattern_blocks(tmp_path, monkeypatch, device: str, mode: str, wall: bool):
     record = tmp_path / f"hp-{device.replace(':', '_')}-{mode}-{wall}.csv"
     with monkeypatch.context() as patch:
         if not wall:
-            patch.setattr(session, "ring_wall", lambda *args: None)
+            patch.setattr(building, "ring_wall", lambda *args: None)
         result = run_realtime(
             RealtimeRun(model="hpattern", mode=mode, clock="simulated", record=record,
                         device=device, sequence=("N", "1", "2", "3", "2", "N"))

@@ -503,8 +503,8 @@ def test_options_that_would_do_nothing_are_refused(capsys: pytest.CaptureFixture
         assert cli.main(args) == 2, args
         err = capsys.readouterr().err
         assert reason in err and "Traceback" not in err, (args, err)
-    from carfeel.realtime.session import _check
+    from carfeel.realtime.run_options import check_run
 
     with pytest.raises(InputError) as too_fast:
-        _check(RealtimeRun(rate_hz=20_000.0))
+        check_run(RealtimeRun(rate_hz=20_000.0))
     assert "below" not in str(too_fast.value)  # it said "below" for a rate above the range

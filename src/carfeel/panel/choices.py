@@ -117,7 +117,7 @@ def run_of(
     network: bool,
 ) -> dict[str, Any]:
     """The request's session as RealtimeRun keyword arguments, checked as `carfeel run`'s."""
-    from carfeel.realtime.session import MODELS, RealtimeRun, _check
+    from carfeel.realtime.run_options import MODELS, RealtimeRun, check_run
     from carfeel.simulation.sequence import parse_sequence
 
     allowed = {"model", "preset", "device", "mode", "speed_kmh", "hand", "clock", "sequence",
@@ -175,7 +175,7 @@ def run_of(
     run.setdefault("duration_s", 600.0)
     run["preset"] = preset_spec(model, body.get("preset"), preset_folder)
     try:
-        _check(RealtimeRun(**run))
+        check_run(RealtimeRun(**run))
     except TypeError as exc:  # pragma: no cover - the fields are filtered above
         raise InputError(str(exc)) from None
     if "telemetry" in run:  # loopback only, unless the panel itself is on the network

@@ -316,12 +316,13 @@ def _cross_checks(model: str, preset: Any) -> list[str]:
 
 def _steering_sized(session: Session, car: Any) -> tuple[tuple[float, float], ...]:
     """The new law's damping schedule, or InputError when the wheel cannot render it stably."""
+    from carfeel.realtime.fitting import steering_scaling
     from carfeel.realtime.rendering import (
         SCHEDULE_SPEEDS_M_S,
         SteeringRenderer,
         SteeringRendering,
     )
-    from carfeel.realtime.session import RealtimeRun, _steering_scaling
+    from carfeel.realtime.session import RealtimeRun
 
     p = session.parts
     info, sizing, scaling, rate = p["info"], p["sizing"], p["scaling"], p["rate_hz"]
@@ -330,7 +331,7 @@ def _steering_sized(session: Session, car: Any) -> tuple[tuple[float, float], ..
     run = RealtimeRun(model="steering", rate_hz=rate, speed_kmh=speed * 3.6)
     notes: list[str] = []
     try:
-        wanted = _steering_scaling(car, run, info, sizing, notes)
+        wanted = steering_scaling(car, run, info, sizing, notes)
     except InputError as exc:
         raise InputError(f"refused: {exc}") from None
     if wanted.force_scale < scaling.force_scale * (1.0 - 1e-9):
