@@ -11,7 +11,7 @@ import pytest
 
 from carfeel.cli import main
 from carfeel.errors import InputError
-from carfeel.io import logs
+from carfeel.io import log_limits, logs
 from carfeel.simulation.result import Result
 from tests.datafiles import data_file
 
@@ -755,7 +755,7 @@ def test_a_line_longer_than_the_limit_is_refused_before_it_is_read(tmp_path, cap
     """A 1 GB CSV line was read whole; now the scan stops at the limit (1 MiB; 4 KiB here, so
     the test writes 40 KB instead of a gigabyte: `benchmarks/bench_log_limits.py` measures the
     real one)."""
-    monkeypatch.setattr(logs, "MAX_LINE_BYTES", 4096)
+    monkeypatch.setattr(log_limits, "MAX_LINE_BYTES", 4096)
     path = tmp_path / "long.csv"
     path.write_text("time_s,speed_m_s\n0,1\n" + "1" * 40_000 + ",2\n")
     assert main(["metrics", "steering", str(path)]) == 2
@@ -770,7 +770,7 @@ def test_more_rows_than_the_limit_are_refused_before_any_is_parsed(
 ):
     """A 10-million-row CSV took 7.3 GB: the scan counts lines before a row is parsed (1,000
     here, 4 million in use: the benchmark measures the real file)."""
-    monkeypatch.setattr(logs, "MAX_SAMPLES", 1000)
+    monkeypatch.setattr(log_limits, "MAX_SAMPLES", 1000)
     path = tmp_path / "rows.csv"
     path.write_text(
         "time_s,steering_torque_Nm\n" + "".join(f"{i * 0.01:.2f},0.1\n" for i in range(5000))
@@ -788,7 +788,7 @@ def test_a_parquet_file_is_sized_from_its_metadata(tmp_path, capsys, monkeypatch
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    monkeypatch.setattr(logs, "MAX_SAMPLES", 1000)
+    monkeypatch.setattr(log_limits, "MAX_SAMPLES", 1000)
     path = tmp_path / "big.parquet"
     pq.write_table(pa.table({"time_s": np.arange(5000) * 0.01, "speed_m_s": np.ones(5000)}), path)
     assert main(["channels", str(path)]) == 2
@@ -822,7 +822,7 @@ def test_a_dbc_scale_no_sensor_has_is_refused(tmp_path, capsys):
 
 
 def test_a_channel_map_too_large_is_refused_unread(tmp_path, monkeypatch):
-    monkeypatch.setattr(logs, "MAX_MAP_BYTES", 1024)
+    monkeypatch.setattr(log_limits, "MAX_MAP_BYTES", 1024)
     path = tmp_path / "map.toml"
     path.write_text("[channels]\n" + "# padding\n" * 200 + "speed_m_s = 'V'\n")
     with pytest.raises(InputError, match=r"2,027 bytes, beyond the 1 KiB a channel map may have"):
