@@ -131,7 +131,7 @@ def _time_in_model(fit: str) -> list[float]:
     import functools
     import time
 
-    from carfeel.identification import physical_fit, steering_fit
+    from carfeel.identification import physical_solver, steering_fit
 
     total = [0.0, 0.0]
 
@@ -148,7 +148,7 @@ def _time_in_model(fit: str) -> list[float]:
         return wrapper
 
     if fit == "physical":
-        physical_fit._evaluate = timed(physical_fit._evaluate, 1.0)
+        physical_solver._evaluate = timed(physical_solver._evaluate, 1.0)
     else:
         problem = steering_fit._Problem
         problem.residual = timed(problem.residual, 0.5)  # type: ignore[method-assign]
