@@ -78,6 +78,34 @@ def test_every_preset_field_is_in_the_reference(site: Path):
                     assert key in page, f"{kind} {name}: {key}"
 
 
+def test_every_schema_field_has_its_row_with_the_schema_s_unit_and_range(site: Path):
+    """The reference is the schema rendered: each field of each kind has a row whose unit and
+    allowed range are the schema's (a range changed in carfeel.schema changes the page)."""
+    from carfeel import schema
+    from carfeel.simulation.hpattern import HPatternSetup
+    from carfeel.simulation.prnd import PrndSetup
+    from carfeel.simulation.sequential import SequentialSetup
+    from carfeel.simulation.shift import ShiftParams
+    from carfeel.simulation.steering import SteeringCar
+
+    raw = (site / "reference/presets/index.html").read_text(encoding="utf-8")
+    cell = r"<td>([^<]*)</td>"
+    row = re.compile(rf"<tr>\n<td><code>([^<]+)</code></td>\n{cell}\n{cell}")
+    rows = {
+        html.unescape(m.group(1)): (html.unescape(m.group(2)), html.unescape(m.group(3)))
+        for m in row.finditer(raw)
+    }
+    kinds = (ShiftParams, SteeringCar, HPatternSetup, SequentialSetup, PrndSetup)
+    fields = [f for cls in kinds for f in schema.fields(cls)]
+    assert len(fields) > 200
+    for f in fields:
+        assert f.path in rows, f.path
+        unit, allowed = rows[f.path]
+        shown = f.unit or {float: "-", int: "whole number"}.get(f.kind, unit)
+        assert unit == shown, f.path
+        assert allowed == (f.range_text() or "any"), f.path
+
+
 def _keys(table: dict[str, object], prefix: str) -> list[str]:
     keys = []
     for k, v in table.items():
