@@ -53,10 +53,24 @@ def test_dt_and_substeps_options(tmp_path):
 
 
 @pytest.mark.slow  # over 8 s here: the full suite (make test) runs it, make check does not
-def test_demo_writes_into_the_folder_it_names(tmp_path, capsys):
+def test_demo_writes_into_the_folder_it_names(tmp_path, capsys, monkeypatch):
+    """... and its real-time part, stopped once by a stall of a busy machine, runs again."""
+    from carfeel.realtime import session
+    from carfeel.realtime.identify import IdentificationError
+
+    real, calls = session.run_realtime, []
+
+    def busy_once(run, *args, **kwargs):
+        calls.append(run)
+        if len(calls) == 1:
+            raise IdentificationError("the identification of virtual joystick stopped: stall")
+        return real(run, *args, **kwargs)
+
+    monkeypatch.setattr(session, "run_realtime", busy_once)
     folder = tmp_path / "demo"
     assert main(["demo", "--clock", "simulated", "--out-dir", str(folder)]) == 0
     printed = capsys.readouterr().out
+    assert len(calls) == 2 and "stopped: stall; once more:" in printed
     assert str(folder.resolve()) in printed
     for name in ("shift.csv", "shift.png", "hpattern.png", "hpattern-reverse.png",
                  "realtime-hpattern.csv", "realtime-hpattern.png", "steering-iso3888.png",
