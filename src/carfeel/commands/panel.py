@@ -9,6 +9,7 @@ import re
 import secrets
 import socket
 import stat
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -229,7 +230,8 @@ def listen(host: str, port: int) -> socket.socket:
     """The listening socket, bound here so that a port in use is bad input (exit 2)."""
     family = socket.AF_INET6 if ":" in host else socket.AF_INET
     sock = socket.socket(family, socket.SOCK_STREAM)
-    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    if sys.platform != "win32":  # Windows' SO_REUSEADDR binds a port another socket listens on
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     try:
         sock.bind((host, port))
     except OSError as exc:

@@ -1,0 +1,44 @@
+"""What Windows and macOS take differently, simulated here (issue 29): the other platform's
+`sys.platform`, its missing modules, its coarse clock; and the workflow that runs the portable
+tests on the real ones (.github/workflows/portable.yml), checked against pyproject's markers.
+
+Nothing here has run on Windows or macOS: each test states what the code must do there, as
+far as it can be said on Linux."""
+
+from __future__ import annotations
+
+import socket
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from carfeel.commands import panel as panel_command
+
+ROOT = Path(__file__).resolve().parents[1]
+WORKFLOW = ROOT / ".github" / "workflows" / "portable.yml"
+
+
+# --- the panel's listening socket ----------------------------------------------------------
+
+
+@pytest.mark.parametrize(("platform", "reused"), [("linux", True), ("win32", False)])
+def test_the_panel_s_socket_does_not_share_its_port_on_windows(
+    monkeypatch: pytest.MonkeyPatch, platform: str, reused: bool
+) -> None:
+    """Windows' SO_REUSEADDR lets a second socket bind a port another one listens on (POSIX's
+    only allows a port in TIME_WAIT again): there, `carfeel panel` on a port in use would
+    start instead of refusing, and share the port with the other program."""
+    options: list[tuple[int, int]] = []
+
+    class Recording(socket.socket):
+        def setsockopt(self, *args: Any) -> None:
+            options.append((args[0], args[1]))
+            super().setsockopt(*args)
+
+    monkeypatch.setattr(socket, "socket", Recording)
+    monkeypatch.setattr(sys, "platform", platform)
+    with panel_command.listen("127.0.0.1", 0):
+        pass
+    assert ((socket.SOL_SOCKET, socket.SO_REUSEADDR) in options) is reused
