@@ -15,6 +15,8 @@ from typing import Any
 import pytest
 
 from carfeel.commands import panel as panel_command
+from carfeel.errors import InputError
+from carfeel.telemetry import gearout
 
 ROOT = Path(__file__).resolve().parents[1]
 WORKFLOW = ROOT / ".github" / "workflows" / "portable.yml"
@@ -42,3 +44,32 @@ def test_the_panel_s_socket_does_not_share_its_port_on_windows(
     with panel_command.listen("127.0.0.1", 0):
         pass
     assert ((socket.SOL_SOCKET, socket.SO_REUSEADDR) in options) is reused
+
+
+# --- gear output ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("platform", "said"),
+    [("win32", "use --gear-output vjoy"), ("darwin", "carfeel has no gear output")],
+)
+def test_uinput_elsewhere_says_it_is_linux_s_and_what_there_is(
+    monkeypatch: pytest.MonkeyPatch, platform: str, said: str
+) -> None:
+    """python-evdev installs on Linux only (the `devices` extra's marker): elsewhere the old
+    message said to install carfeel[devices], which does not bring it."""
+    monkeypatch.setitem(sys.modules, "evdev", None)  # not installed: ImportError
+    monkeypatch.setattr(sys, "platform", platform)
+    with pytest.raises(InputError) as refused:
+        gearout.UInputGearOutput(6)
+    text = str(refused.value)
+    assert "Linux's" in text and said in text and "pip install" not in text
+
+
+def test_uinput_on_linux_without_evdev_still_says_what_to_install(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setitem(sys.modules, "evdev", None)
+    monkeypatch.setattr(sys, "platform", "linux")
+    with pytest.raises(InputError, match=r"pip install 'carfeel\[devices\]'"):
+        gearout.UInputGearOutput(6)

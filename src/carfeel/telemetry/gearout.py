@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import importlib
 import math
+import sys
 from typing import Any, Protocol
 
 from carfeel.errors import InputError
@@ -239,6 +240,16 @@ class UInputGearOutput:
         try:
             evdev: Any = importlib.import_module("evdev")
         except ImportError as exc:
+            if not sys.platform.startswith("linux"):  # python-evdev installs on Linux only
+                instead = (
+                    "use --gear-output vjoy (the vJoy driver)"
+                    if sys.platform == "win32"
+                    else "carfeel has no gear output"
+                )
+                raise InputError(
+                    f"--gear-output uinput is Linux's (the kernel's uinput); on {sys.platform} "
+                    f"{instead}"
+                ) from exc
             raise InputError(
                 "--gear-output uinput needs python-evdev: pip install 'carfeel[devices]'"
             ) from exc
