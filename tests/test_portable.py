@@ -16,7 +16,7 @@ import pytest
 
 from carfeel.commands import panel as panel_command
 from carfeel.errors import InputError
-from carfeel.telemetry import gearout
+from carfeel.telemetry import gearout, shm
 
 ROOT = Path(__file__).resolve().parents[1]
 WORKFLOW = ROOT / ".github" / "workflows" / "portable.yml"
@@ -73,3 +73,16 @@ def test_uinput_on_linux_without_evdev_still_says_what_to_install(
     monkeypatch.setattr(sys, "platform", "linux")
     with pytest.raises(InputError, match=r"pip install 'carfeel\[devices\]'"):
         gearout.UInputGearOutput(6)
+
+
+# --- shared memory -------------------------------------------------------------------------
+
+
+def test_a_live_map_on_macos_is_refused_with_what_to_read_instead(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """macOS has neither Windows' named memory nor a /dev/shm a bridge could write: it waited
+    for ever, saying "is the game running?"."""
+    monkeypatch.setattr(sys, "platform", "darwin")
+    with pytest.raises(InputError, match=r"darwin has neither: read a file image \(iracing:file"):
+        shm.MapReceiver(shm.MapSource(shm.MAP_FORMATS["iracing"]))

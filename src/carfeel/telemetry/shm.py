@@ -327,6 +327,12 @@ class MapReceiver:
             self._images = (image,)
             self.latest = VehicleState(car=self.reader.car)
         else:
+            if sys.platform != "win32" and not sys.platform.startswith("linux"):
+                raise InputError(
+                    f"{source.text}: a game's live map is read on Windows (its named memory) "
+                    f"and on Linux (a bridge's file under {SHM_DIR}); {sys.platform} has "
+                    f"neither: read a file image ({source.format.name}:file:PATH)"
+                )
             self._look()
 
     @property
