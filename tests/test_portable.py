@@ -7,8 +7,11 @@ far as it can be said on Linux."""
 
 from __future__ import annotations
 
+import json
 import socket
+import subprocess
 import sys
+import textwrap
 from pathlib import Path
 from typing import Any
 
@@ -86,3 +89,49 @@ def test_a_live_map_on_macos_is_refused_with_what_to_read_instead(
     monkeypatch.setattr(sys, "platform", "darwin")
     with pytest.raises(InputError, match=r"darwin has neither: read a file image \(iracing:file"):
         shm.MapReceiver(shm.MapSource(shm.MAP_FORMATS["iracing"]))
+
+
+# --- text files ----------------------------------------------------------------------------
+
+WRITERS = textwrap.dedent(
+    """
+    import json, sys, warnings, webbrowser
+    from pathlib import Path
+
+    import numpy as np
+
+    from carfeel import cli
+    from carfeel.commands.panel import open_in_browser
+    from carfeel.simulation.result import Result
+    from carfeel.simulation.stream import CsvWriter
+
+    folder = Path(sys.argv[1])
+    webbrowser.open = lambda url: True  # the page is written; no browser is started
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always", EncodingWarning)
+        result = Result(np.array([0.0, 0.001]), {"x_m": np.array([0.0, 1.0])}, {})
+        result.to_csv(folder / "to_csv.csv")
+        with CsvWriter(folder / "stream.csv") as writer:
+            writer.write(result)
+        assert cli.main(["telemetry", "listen", "forza:127.0.0.1:0", "--duration", "0.2",
+                         "--json", "--record", str(folder / "telemetry.csv")]) == 0
+        open_in_browser("http://127.0.0.1:9/#token=x")
+    ours = [f"{Path(w.filename).name}:{w.lineno}" for w in seen
+            if issubclass(w.category, EncodingWarning) and "carfeel" in Path(w.filename).parts]
+    print("WARNED " + json.dumps(ours))
+    """
+)
+
+
+def test_text_files_are_written_as_utf8_whatever_the_locale(tmp_path: Path) -> None:
+    """A text file opened without `encoding` is written in the locale's encoding: Windows'
+    ANSI code page (cp1252), where carfeel reads its CSV files as UTF-8. Python says where
+    (`-X warn_default_encoding`): none of the writers of a run's files may rely on it."""
+    done = subprocess.run(
+        [sys.executable, "-X", "warn_default_encoding", "-c", WRITERS, str(tmp_path)],
+        capture_output=True, text=True, timeout=120, check=False,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    warned = json.loads(done.stdout.rsplit("WARNED ", 1)[1])
+    assert warned == [], f"text files opened without an encoding at {warned}"
+    assert (tmp_path / "telemetry.csv").read_text(encoding="utf-8").startswith("time_s,")

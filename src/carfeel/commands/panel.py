@@ -152,7 +152,8 @@ def open_in_browser(url: str) -> None:
 
     folder = Path(tempfile.mkdtemp(prefix="carfeel-panel-"))
     page = folder / "open.html"
-    with os.fdopen(os.open(page, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600), "w") as f:
+    descriptor = os.open(page, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    with os.fdopen(descriptor, "w", encoding="utf-8") as f:
         f.write(f"<!doctype html><meta charset=utf-8><title>carfeel panel</title>"
                 f"<script>location.replace({json.dumps(url)})</script>")  # fmt: skip
 

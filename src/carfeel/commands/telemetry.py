@@ -115,7 +115,7 @@ def _receive(args: argparse.Namespace, receiver: Any, staged: Path | None) -> di
 
     from carfeel.telemetry.state import FIELDS, VehicleState, gear_name
 
-    handle = staged.open("w", newline="") if staged is not None else None
+    handle = staged.open("w", newline="", encoding="utf-8") if staged is not None else None
     writer = csv.writer(handle) if handle is not None else None
     rows = 0
     start = last_print = time.monotonic()

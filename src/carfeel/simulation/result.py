@@ -126,7 +126,7 @@ class Result:
             raise InputError(f"cannot write {target}: folder {directory} does not exist")
         fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{target.name}.", suffix=".tmp")
         try:
-            with os.fdopen(fd, "w", newline="") as handle:
+            with os.fdopen(fd, "w", newline="", encoding="utf-8") as handle:
                 writer = csv.writer(handle)
                 writer.writerow(self.names)
                 for start in range(0, len(self), 4096):  # a block's strings at a time

@@ -133,7 +133,7 @@ class CsvWriter:
         self.samples = 0
 
     def __enter__(self) -> CsvWriter:
-        self._handle = self.staged.open("w", newline="")
+        self._handle = self.staged.open("w", newline="", encoding="utf-8")
         self._writer = csv.writer(self._handle)
         return self
 
