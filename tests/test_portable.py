@@ -8,10 +8,12 @@ far as it can be said on Linux."""
 from __future__ import annotations
 
 import json
+import math
 import socket
 import subprocess
 import sys
 import textwrap
+import time
 from pathlib import Path
 from typing import Any
 
@@ -19,7 +21,8 @@ import pytest
 
 from carfeel.commands import panel as panel_command
 from carfeel.errors import InputError
-from carfeel.telemetry import gearout, shm
+from carfeel.telemetry import gearout, replay, shm
+from tests.test_telemetry_record import FORZA, _free_port, _listen, _packets, _rows, _wait_bound
 
 ROOT = Path(__file__).resolve().parents[1]
 WORKFLOW = ROOT / ".github" / "workflows" / "portable.yml"
@@ -135,3 +138,33 @@ def test_text_files_are_written_as_utf8_whatever_the_locale(tmp_path: Path) -> N
     warned = json.loads(done.stdout.rsplit("WARNED ", 1)[1])
     assert warned == [], f"text files opened without an encoding at {warned}"
     assert (tmp_path / "telemetry.csv").read_text(encoding="utf-8").startswith("time_s,")
+
+
+# --- clocks --------------------------------------------------------------------------------
+
+WINDOWS_TICK_S = 1 / 64
+"""time.monotonic's step on Windows before Python 3.13 (GetTickCount64: 15.6 ms)."""
+
+
+def test_a_telemetry_recording_stamps_its_rows_finer_than_windows_monotonic_tick(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """`telemetry listen --record` stamps each row with its arrival: on time.monotonic, which
+    steps by 15.6 ms on Windows (3.11, 3.12), a 250 Hz stream's rows shared their stamps."""
+    real = time.monotonic
+    monkeypatch.setattr(
+        time, "monotonic", lambda: math.floor(real() / WINDOWS_TICK_S) * WINDOWS_TICK_S
+    )
+    good = _packets(*FORZA)[:20]
+    port, record = _free_port(), tmp_path / "state.csv"
+    codes: list[int] = []
+    listener = _listen(["telemetry", "listen", f"forza:127.0.0.1:{port}", "--duration", "2",
+                        "--json", "--record", str(record)], codes)  # fmt: skip
+    _wait_bound(port)
+    assert replay.send(good, ("127.0.0.1", port), 250.0) == len(good)
+    listener.join(30.0)
+    assert codes == [0]
+    arrivals = [float(r["time_s"]) for r in _rows(record)]
+    assert len(arrivals) == len(good)
+    assert len(set(arrivals)) == len(arrivals), arrivals
+    assert arrivals == sorted(arrivals)
