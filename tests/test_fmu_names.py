@@ -222,6 +222,7 @@ ATTACK = (
 other hostile pieces: it must export, validate and load without running anything."""
 
 
+@pytest.mark.needs_tools  # a C compiler (gcc on Linux x86-64, else cmake's)
 @pytest.mark.parametrize("model", fmu.MODELS)
 @pytest.mark.parametrize("version", fmu.FMI_VERSIONS)
 def test_the_attack_name_exports_validates_and_runs_nothing(tmp_path, model, version):

@@ -118,6 +118,8 @@ def test_a_run_with_memory_adds_k10_z_to_the_friction_and_the_torque():
 
 
 @needs_cc
+@pytest.mark.linux_only  # the C port built by gcc as on Linux x86-64 (a .so)
+@pytest.mark.needs_tools
 def test_the_c_port_of_the_memory_is_bit_for_bit(tmp_path):
     import ctypes
 
@@ -139,6 +141,8 @@ def test_the_c_port_of_the_memory_is_bit_for_bit(tmp_path):
 
 
 @needs_cc
+@pytest.mark.linux_only  # bit for bit: the gcc build's claim (elsewhere: FMPy's CMake)
+@pytest.mark.needs_tools
 def test_the_steering_fmu_carries_the_memory_as_carfeel_runs_it(tmp_path):
     """The FMU's parameters torque.k10_Nm and torque.k11_rad, set at start, give carfeel's own
     run with that law bit for bit (inputs as tests/test_fmu_export gives them)."""

@@ -506,6 +506,7 @@ def test_carfeel_panel_refuses_a_port_in_use(tmp_path, capsys):
 
 
 @pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
+@pytest.mark.linux_only  # /dev/shm, /proc/PID/stat, a child's -SIGTERM
 def test_the_panel_stops_promptly_with_a_stream_open_and_a_session_running(tmp_path):
     """SIGTERM to `carfeel panel` while a WebSocket client is connected (and reads nothing)
     and a session runs: uvicorn's shutdown must not wait on the stream, and the loop's

@@ -26,7 +26,7 @@ import pytest
 from tests.test_panel import synchronization_runs
 
 # A real browser beside the panel: make test (and CI) runs these, make check does not.
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.needs_tools]  # chromium (CARFEEL_CHROMIUM)
 
 CHROMIUM = Path(os.environ.get("CARFEEL_CHROMIUM", "/usr/bin/chromium"))
 ARGS = [

@@ -482,6 +482,7 @@ def test_a_running_panel_refuses_clients_without_the_credential(tmp_path, host):
 
 
 @pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
+@pytest.mark.linux_only  # ps -eo, /proc/PID/cmdline
 def test_the_credential_is_not_on_a_command_line_nor_sent_back(tmp_path):
     """What `ps` shows of the panel and of its loop's process, while a session runs, holds no
     credential (given in the environment here; generated, it is printed only)."""
@@ -562,6 +563,7 @@ def test_another_local_user_can_neither_read_the_credential_nor_get_in(tmp_path)
         (["--token-file", "{fifo}"], "fifo", "not a regular file"),
     ],
 )
+@pytest.mark.posix_only  # permission bits (Windows checks no ACL), os.mkfifo
 def test_carfeel_panel_refuses_a_credential_others_could_read(tmp_path, capsys, options, setup,
                                                                 message):  # fmt: skip
     file = tmp_path / "token"

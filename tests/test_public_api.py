@@ -213,6 +213,7 @@ def test_fit_and_validate_steering_equal_the_command_line(tmp_path: Path):
 
 
 @pytest.mark.slow
+@pytest.mark.needs_tools  # a C compiler (gcc on Linux x86-64, else cmake's)
 def test_export_fmu_from_python_equals_the_command_line(tmp_path: Path):
     from carfeel.cli import main
 

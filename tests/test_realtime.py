@@ -256,6 +256,7 @@ def test_a_stop_request_ramps_the_force_down_within_the_slew():
 
 
 @pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
+@pytest.mark.posix_only  # SIGKILL
 def test_the_recording_is_readable_after_a_kill(tmp_path):
     """Killed mid-run: the recording so far is readable as NAME.part.csv, and what the user
     had at NAME.csv before is untouched."""
@@ -285,6 +286,7 @@ def test_the_recording_is_readable_after_a_kill(tmp_path):
 
 
 @pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
+@pytest.mark.posix_only  # SIGINT sent to a child
 def test_sigint_stops_a_real_time_run_cleanly(tmp_path):
     """Ctrl-C in a wall-clock run: force first, the recording kept, exit 130. On these shared
     cores a run can meet a 20+ ms stall before the signal and end on its watchdog (exit 3, the

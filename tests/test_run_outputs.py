@@ -39,6 +39,7 @@ def test_a_device_that_cannot_be_opened_leaves_the_recording_alone(precious, cap
     assert untouched(precious)
 
 
+@pytest.mark.posix_only  # /proc/x.png as the message writes it (Windows: \proc\x.png)
 def test_an_unwritable_plot_is_refused_before_the_run(precious, capsys):
     code = main(["run", "--clock", "simulated", "--model", "shift", "--duration", "0.5",
                  "--record", str(precious), "--plot", "/proc/x.png"])  # fmt: skip
@@ -133,6 +134,7 @@ def test_a_wheel_s_peak_command_is_in_nm(capsys):
         ["simulate", "hpattern", "--sequence", "N,1,N"],
     ],
 )
+@pytest.mark.posix_only  # /proc/x.png as the message writes it (Windows: \proc\x.png)
 def test_a_failed_simulation_leaves_the_user_s_files(precious, capsys, command):
     """The plot cannot be written: refused before the run, nothing replaced."""
     code = main([*command, "--out", str(precious), "--plot", "/proc/x.png"])
@@ -314,7 +316,9 @@ def test_a_report_replaces_an_old_one_whole_and_keeps_other_files(old_report, tm
         ("", "an output folder name is empty"),
         ("missing/report", "folder missing does not exist"),
         ("weave0.csv", "it exists and is not a folder"),
-        ("/proc/report", "folder /proc does not take new files"),
+        pytest.param(
+            "/proc/report", "folder /proc does not take new files", marks=pytest.mark.linux_only
+        ),
     ],
 )
 def test_a_report_folder_that_cannot_be_written_is_refused_first(
@@ -386,6 +390,7 @@ def test_the_readme_names_every_column_a_recording_has(tmp_path, model, device):
 
 @pytest.mark.parametrize(("signum", "code"), [("SIGINT", 130), ("SIGTERM", 143)])
 @pytest.mark.slow  # over 2 s: make test (and CI) runs it, make check does not
+@pytest.mark.posix_only  # SIGINT, SIGTERM sent to a child
 def test_a_signal_ends_the_recording_with_the_fade_to_zero(tmp_path, signum, code):
     """Issue 11: after SIGTERM or SIGINT the recording ended before the fade (its last command
     was 8.7 N), so the fade could not be checked from the file; and the run exited 0."""
