@@ -9,11 +9,13 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import socket
 import subprocess
 import sys
 import textwrap
 import time
+import tomllib
 from pathlib import Path
 from typing import Any
 
@@ -168,3 +170,32 @@ def test_a_telemetry_recording_stamps_its_rows_finer_than_windows_monotonic_tick
     assert len(arrivals) == len(good)
     assert len(set(arrivals)) == len(arrivals), arrivals
     assert arrivals == sorted(arrivals)
+
+
+# --- the workflow --------------------------------------------------------------------------
+
+
+def _registered_markers() -> set[str]:
+    config = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))
+    lines = config["tool"]["pytest"]["ini_options"]["markers"]
+    return {line.split(":", 1)[0].split("(", 1)[0].strip() for line in lines}
+
+
+def test_the_portable_workflow_runs_the_registered_markers_on_windows_and_macos() -> None:
+    """The workflow cannot run here: a renamed marker must break this test, not silently
+    select every test (or none) in the job."""
+    yaml = pytest.importorskip("yaml")
+    workflow = yaml.safe_load(WORKFLOW.read_text(encoding="utf-8"))
+    job = workflow["jobs"]["portable"]
+    matrix = job["strategy"]["matrix"]
+    assert {name.split("-")[0] for name in matrix["os"]} == {"windows", "macos"}
+    chosen = {entry["os"].split("-")[0]: entry["markers"] for entry in matrix["include"]}
+    assert set(chosen) == {"windows", "macos"}
+    commands = "\n".join(step.get("run", "") for step in job["steps"])
+    assert 'pytest -m "${{ matrix.markers }}"' in commands
+    registered = _registered_markers()
+    for system, expression in chosen.items():
+        names = set(re.findall(r"[A-Za-z_]\w*", expression)) - {"not", "and", "or"}
+        assert names <= registered, (system, expression, names - registered)
+        assert "not linux_only" in expression and "not slow" in expression, system
+    assert "not posix_only" in chosen["windows"]
