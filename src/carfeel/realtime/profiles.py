@@ -2,8 +2,9 @@
 
 A profile is a TOML file under the user's configuration folder (`profile_dir()`:
 `CARFEEL_CONFIG_DIR/devices`, else the platform's, e.g. `~/.config/carfeel/devices` on Linux,
-`%APPDATA%\\carfeel\\devices` on Windows), one per device, named after its `DeviceInfo.ident`
-(vendor and product ids, serial, backend path), or a path the user names (`--device-profile`).
+`%LOCALAPPDATA%\\carfeel\\devices` on Windows: platformdirs' local, not roaming, folder), one
+per device, named after its `DeviceInfo.ident` (vendor and product ids, serial, backend path),
+or a path the user names (`--device-profile`).
 It holds each axis's estimates with their standard deviations, how they were measured and
 when.
 
