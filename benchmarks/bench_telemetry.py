@@ -341,9 +341,9 @@ def shm_costs() -> None:
     from tests.test_telemetry_rf2 import crowd
 
     # The reader copies the player's parts of the two buffers: its telemetry record (found by
-    # mID), its scoring record to mVehicleName (100 bytes), telemetry's mNumVehicles (4),
-    # scoring's mNumVehicles to mInRealtime (12) and the used slots' mIsPlayer flags (one a
-    # car). The reference copies as many bytes and unpacks the 21 values read.
+    # mID), its scoring record to mVehicleName (100 bytes) and the used slots' mIsPlayer flags
+    # (one a car); the guards, counts and phase it unpacks in place. The reference copies as
+    # many bytes and unpacks the 21 values read.
     for label, rf2_frame, cars in (
         ("rf2 buffers (read)", rf2_build(), 3),
         ("rf2 128 cars, last (read)", crowd(127, 127, 128), 128),
@@ -356,7 +356,7 @@ def shm_costs() -> None:
             r._sequence = -1
             return r.read(0.0)
 
-        copied = pages.RF2_TELEMETRY_VEHICLE_BYTES + pages.RF2_PLAYER_BYTES + 4 + 12 + cars
+        copied = pages.RF2_TELEMETRY_VEHICLE_BYTES + pages.RF2_PLAYER_BYTES + cars
         rows.append((label, _best_us(rf2_read), _reference_us(rf2_images[0], 16, copied, 21)))
     from tests.test_telemetry_r3e import build as r3e_build
 

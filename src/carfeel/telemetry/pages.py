@@ -426,6 +426,21 @@ def _rf2_ids(cars: int) -> struct.Struct:
     return struct.Struct("<" + f"i{RF2_TELEMETRY_VEHICLE_BYTES - 4}x" * cars)
 
 
+_names: dict[bytes, str] = {}
+
+
+def _rf2_name(raw: bytes) -> str:
+    """mVehicleName (char[64]) as text ("" where it is not), cached by its bytes: it changes
+    with the car only."""
+    name = _names.get(raw)
+    if name is None:
+        name = _c_text(raw) or ""
+        if len(_names) > 16:
+            _names.clear()
+        _names[raw] = name
+    return name
+
+
 def rf2_identify(pages: Sequence[bytes]) -> tuple[str, float]:
     scoring = pages[1]
     slot = _rf2_player_slot(scoring, _I32.unpack_from(scoring, 116)[0])
@@ -435,20 +450,20 @@ def rf2_identify(pages: Sequence[bytes]) -> tuple[str, float]:
     return _c_text(scoring[at + 36 : at + 100]) or "", NAN
 
 
-def _select_rf2(pages: Sequence[Any]) -> tuple[bytes, bytes, bytes, bytes] | None:
-    """What `_decode_rf2` reads of the two buffers (the live maps, or a file frame's), copied
+def _select_rf2(pages: Sequence[Any]) -> tuple[tuple[int, ...], bytes, bytes] | None:
+    """What `_decode_rf2` reads of the two buffers (the live maps, or a file frame's), read
     between two reads of their guards (mVersionUpdateBegin, mVersionUpdateEnd): telemetry's
-    mNumVehicles; scoring's mNumVehicles to mInRealtime; the player's scoring record to its
-    mVehicleName (b"": no player); the player's telemetry record, the one with its mID (b"":
-    not there yet). The flags and the mIDs are scanned in place, not copied. None: torn (a
-    guard's begin differs from its end: being written; or a guard moved while these were read).
-    """
+    mNumVehicles with scoring's mNumVehicles, mGamePhase and mInRealtime (unpacked); a copy of
+    the player's scoring record to its mVehicleName (b"": no player) and of its telemetry
+    record, the one with its mID (b"": not there yet). The flags and the mIDs are scanned in
+    place, not copied. None: torn (a guard's begin differs from its end: being written; or a
+    guard moved while these were read)."""
     telemetry, scoring = pages
     guards = _RF2_GUARD.unpack_from(telemetry), _RF2_GUARD.unpack_from(scoring)
     if guards[0][0] != guards[0][1] or guards[1][0] != guards[1][1]:
         return None
-    cars, info = bytes(telemetry[12:16]), bytes(scoring[116 : 116 + _RF2_PHASE.size])
-    count, scored = _I32.unpack(cars)[0], _I32.unpack_from(info)[0]
+    head = _I32.unpack_from(telemetry, 12) + _RF2_PHASE.unpack_from(scoring, 116)
+    count, scored = head[0], head[1]
     player = record = b""
     if 0 <= count <= RF2_VEHICLES and 0 <= scored <= RF2_VEHICLES:
         slot = _rf2_player_slot(scoring, scored)
@@ -456,26 +471,25 @@ def _select_rf2(pages: Sequence[Any]) -> tuple[bytes, bytes, bytes, bytes] | Non
             at = RF2_SCORING_VEHICLES_AT + slot * RF2_SCORING_VEHICLE_BYTES
             player = bytes(scoring[at : at + RF2_PLAYER_BYTES])
             ids = _rf2_ids(count).unpack_from(telemetry, 16)
-            wanted = _I32.unpack_from(player)[0]
-            if wanted in ids:
-                at = 16 + ids.index(wanted) * RF2_TELEMETRY_VEHICLE_BYTES
+            try:
+                at = 16 + ids.index(_I32.unpack_from(player)[0]) * RF2_TELEMETRY_VEHICLE_BYTES
                 record = bytes(telemetry[at : at + RF2_TELEMETRY_VEHICLE_BYTES])
+            except ValueError:
+                pass  # not in telemetry yet
     if (_RF2_GUARD.unpack_from(telemetry), _RF2_GUARD.unpack_from(scoring)) != guards:
         return None
-    return cars, record, info, player
+    return head, record, player
 
 
 def _decode_rf2(parts: Sequence[Any], car: str, max_rpm: float) -> VehicleState | None:
-    cars, record, info, player = parts  # as _select_rf2 copied them
-    scored, phase, realtime = _RF2_PHASE.unpack(info)
-    count = _I32.unpack(cars)[0]
+    (count, scored, phase, realtime), record, player = parts  # as _select_rf2 read them
     if not (0 <= scored <= RF2_VEHICLES and 0 <= count <= RF2_VEHICLES and phase in RF2_PHASES):
         return BAD
     if not player:
         return None  # no player's car (the menus, or watching others)
     if not record:
         return None  # scoring has the player, telemetry not yet
-    name = _c_text(player[36:100]) or ""
+    name = _rf2_name(player[36:100])
     v = _RF2_DRIVE.unpack_from(record, 184)
     vel, acc, rot = v[0:3], v[3:6], v[6:9]
     gear, rpm, throttle, brake, steer, clutch, torque = v[9:16]
@@ -497,22 +511,25 @@ def _decode_rf2(parts: Sequence[Any], car: str, max_rpm: float) -> VehicleState 
     # the yaw rate left is its negative. mUnfilteredSteering is -1 left .. +1 right, over the
     # wheel's physical range (lock to lock). No real dump was found to check the signs.
     angle = -steer * math.radians(lock_deg) / 2.0 if lock_deg > 0.0 else NAN
-    return VehicleState(
-        speed_m_s=math.sqrt(vel[0] ** 2 + vel[1] ** 2 + vel[2] ** 2),
-        lateral_accel_m_s2=acc[0],
-        yaw_rate_rad_s=-rot[1],
-        engine_speed_rpm=rpm,
-        gear=REVERSE if gear < 0 else gear,
-        clutch_pedal=clutch,
-        throttle=throttle,
-        brake=brake,
-        steering_angle_rad=angle,
-        engine_max_rpm=top if 0.0 < top <= 30_000.0 else max_rpm,
-        car=name or car,
-        wheel_torque_Nm=torque,
-        replay=not realtime,
-        paused=phase == RF2_STOPPED,
-    )
+    speed = math.sqrt(vel[0] ** 2 + vel[1] ** 2 + vel[2] ** 2)
+    top = top if 0.0 < top <= 30_000.0 else max_rpm
+    return _new(  # positional, in the fields' order: half the keyword constructor's cost
+        (speed, acc[0], -rot[1], rpm, REVERSE if gear < 0 else gear, clutch, throttle, brake,
+         angle, top, name or car, *_TO_TORQUE, torque, *_TO_REPLAY, not realtime,
+         phase == RF2_STOPPED)
+    )  # fmt: skip
+
+
+_new = VehicleState._make
+_FIELDS, _DEFAULTS = VehicleState._fields, VehicleState._field_defaults
+_TO_TORQUE = tuple(
+    _DEFAULTS[f] for f in _FIELDS[_FIELDS.index("car") + 1 : _FIELDS.index("wheel_torque_Nm")]
+)
+"""The defaults between car and wheel_torque_Nm (cylinders .. time_s)."""
+_TO_REPLAY = tuple(
+    _DEFAULTS[f] for f in _FIELDS[_FIELDS.index("wheel_torque_Nm") + 1 : _FIELDS.index("replay")]
+)
+"""The defaults between wheel_torque_Nm and replay (then paused, the last field)."""
 
 
 RF2 = PageLayout("rf2", (RF2_TELEMETRY_BYTES, RF2_SCORING_BYTES), _check_rf2, _decode_rf2,
