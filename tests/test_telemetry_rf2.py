@@ -9,6 +9,7 @@ taken from carfeel's constants.
 from __future__ import annotations
 
 import math
+import mmap
 import random
 import struct
 from pathlib import Path
@@ -491,3 +492,20 @@ def test_the_live_read_equals_the_whole_buffer_decode_on_fuzzed_images() -> None
         key = "none" if want is None else "state" if plausible(want) else "bad"
         outcomes[key] += 1
     assert min(outcomes.values()) >= 10, outcomes
+
+
+def test_the_live_read_of_mapped_buffers(tmp_path: Path) -> None:
+    # The buffers as the game's maps are opened (mmap, read only): slices of a map are bytes.
+    frame = crowd(13, 5)
+    maps = []
+    for name, data in (("t", frame[:TELEMETRY_BYTES]), ("s", frame[TELEMETRY_BYTES:])):
+        (tmp_path / name).write_bytes(data)
+        with (tmp_path / name).open("rb") as handle:
+            maps.append(mmap.mmap(handle.fileno(), 0, access=mmap.ACCESS_READ))
+    try:
+        (state,) = pages.PagesReader(pages.RF2, maps, False).read(0.0)
+        assert repr(state) == repr(whole_decode(frame, "Oreca 07 #22"))
+        assert state is not None and state.engine_speed_rpm == 6500.0
+    finally:
+        for image in maps:
+            image.close()

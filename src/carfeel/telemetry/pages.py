@@ -79,9 +79,9 @@ class PageLayout:
     """A live map of another size than `page_bytes` is another layout: refused (rF2's)."""
     select: Callable[[Sequence[Any]], Sequence[Any] | None] | None = None
     """Where `decode` reads a small part of large pages (rF2's player, one of 128 cars): (the
-    pages: the live maps, or a file frame's) -> copies of those parts only, read between two
-    reads of the pages' own guards; None: torn. A live read copies no more than it; without
-    one, a live read copies `page_bytes` of each map."""
+    pages: the live maps, or a file frame's) -> those parts only (copied, or unpacked in
+    place), read between two reads of the pages' own guards; None: torn. A live read copies
+    no more than it; without one, a live read copies `page_bytes` of each map."""
 
     @property
     def stride(self) -> tuple[int, ...]:
@@ -674,12 +674,12 @@ class PagesReader:
         return [bytes(image[0:size]) for image, size in zip(self.images, sizes, strict=True)]
 
     def _decode_file(self, frame: int) -> VehicleState | None:
-        pages: Sequence[Any] | None = self._pages(frame)
-        select = self.layout.select
-        if select is not None and pages is not None:
-            pages = select(pages)
-        if pages is None:
-            return BAD  # torn when it was dumped
+        pages: Sequence[Any] = self._pages(frame)
+        if self.layout.select is not None:
+            parts = self.layout.select(pages)
+            if parts is None:
+                return BAD  # torn when it was dumped
+            pages = parts
         return self.layout.decode(pages, self.car, self.max_rpm)
 
     def read(self, now_s: float) -> list[VehicleState | None]:
