@@ -14,7 +14,8 @@ Runs, in one process (the sender in a second one, as a game would be):
    64 KiB buffer) fed by the same sender in the same run.
 5. the shared-memory games (`--only-shm` runs this part alone): decode cost per frame of each
    (iRacing's live map: header, copy of the latest buffer, its re-check and the unpack; an
-   .ibt record; ACC's and AC's three pages; the SCS map; rF2's two buffers; RaceRoom's map;
+   .ibt record; ACC's and AC's three pages; the SCS map; rF2's two buffers (the player's parts
+   of them, 3 cars and 128); RaceRoom's map;
    Project CARS' UDP datagram), each beside its reference measured in the same run: a copy of
    the same bytes and one struct unpack of as many fields; then the 1 kHz loop reading a live
    iRacing map that another process rewrites at 60 Hz under /dev/shm (as a Proton bridge does),
@@ -337,20 +338,26 @@ def shm_costs() -> None:
     rows.append(("scs map (read)", _best_us(scs_read),
                  _reference_us(scs_map, 0, pages.SCS_READ_BYTES, 40)))  # fmt: skip
     from tests.test_telemetry_rf2 import build as rf2_build
+    from tests.test_telemetry_rf2 import crowd
 
-    rf2_frame = rf2_build()
-    rf2_images = (bytearray(rf2_frame[: pages.RF2_TELEMETRY_BYTES]),
-                  bytearray(rf2_frame[pages.RF2_TELEMETRY_BYTES :]))  # fmt: skip
-    rf2_reader = pages.PagesReader(pages.RF2, rf2_images, False)
+    # The reader copies the player's parts of the two buffers: its telemetry record (found by
+    # mID), its scoring record to mVehicleName (100 bytes) and the used slots' mIsPlayer flags
+    # (one a car); the guards, counts and phase it unpacks in place. The reference copies as
+    # many bytes and unpacks the 21 values read.
+    for label, rf2_frame, cars in (
+        ("rf2 buffers (read)", rf2_build(), 3),
+        ("rf2 128 cars, last (read)", crowd(127, 127, 128), 128),
+    ):
+        rf2_images = (bytearray(rf2_frame[: pages.RF2_TELEMETRY_BYTES]),
+                      bytearray(rf2_frame[pages.RF2_TELEMETRY_BYTES :]))  # fmt: skip
+        rf2_reader = pages.PagesReader(pages.RF2, rf2_images, False)
 
-    def rf2_read() -> Any:
-        rf2_reader._sequence = -1
-        return rf2_reader.read(0.0)
+        def rf2_read(r: Any = rf2_reader) -> Any:
+            r._sequence = -1
+            return r.read(0.0)
 
-    # The reference copies both whole buffers (what the reader copies: the player may be in
-    # any of the 128 slots) and unpacks the 21 values read.
-    rf2_ref = _reference_us(rf2_images[0] + rf2_images[1], 0, len(rf2_frame), 21)
-    rows.append(("rf2 buffers (read)", _best_us(rf2_read, 2000), rf2_ref))
+        copied = pages.RF2_TELEMETRY_VEHICLE_BYTES + pages.RF2_PLAYER_BYTES + cars
+        rows.append((label, _best_us(rf2_read), _reference_us(rf2_images[0], 16, copied, 21)))
     from tests.test_telemetry_r3e import build as r3e_build
 
     r3e_map = bytearray(r3e_build())

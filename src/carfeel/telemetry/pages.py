@@ -7,10 +7,13 @@ pages are read at the sizes of the fields carfeel uses (a prefix of the game's p
 map is mapped at that size), and checked once at open (the static page's version string) and
 each frame (the graphics page's status, the physics page's own ranges). A torn frame (the
 physics page's packetId moved while it was copied) is copied again once, then counted bad.
+rFactor 2's buffers are large (128 cars each): its layout's `select` copies only the player's
+parts of them, between two reads of each buffer's own guard.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 import struct
 from collections.abc import Callable, Sequence
@@ -62,7 +65,8 @@ class PageLayout:
     check: Callable[[Sequence[bytes]], str | None]
     """Why the static pages are not this layout's (None: they are), checked at open."""
     decode: Callable[[Sequence[Any], str, float], VehicleState | None]
-    """(pages, car, max rpm) -> a state, None (no car driven) or BAD."""
+    """(pages, car, max rpm) -> a state, None (no car driven) or BAD; the pages as `select`
+    gives them where the layout has one."""
     identify: Callable[[Sequence[bytes]], tuple[str, float]] = lambda pages: ("", NAN)
     """(car, max rpm) from the pages at open (the static page where the game has one)."""
     sequence_offset: int = 0
@@ -73,6 +77,11 @@ class PageLayout:
     """The update counter is odd while the game writes (AMS2's mSequenceNumber): torn."""
     exact_bytes: bool = False
     """A live map of another size than `page_bytes` is another layout: refused (rF2's)."""
+    select: Callable[[Sequence[Any]], Sequence[Any] | None] | None = None
+    """Where `decode` reads a small part of large pages (rF2's player, one of 128 cars): (the
+    pages: the live maps, or a file frame's) -> those parts only (copied, or unpacked in
+    place), read between two reads of the pages' own guards; None: torn. A live read copies
+    no more than it; without one, a live read copies `page_bytes` of each map."""
 
     @property
     def stride(self) -> tuple[int, ...]:
@@ -373,9 +382,11 @@ RF2_SCORING_VEHICLES_AT = 12 + 548
 """rF2Scoring: the version pair, mBytesUpdatedHint, rF2ScoringInfo (548 bytes), the vehicles."""
 RF2_SCORING_BYTES = RF2_SCORING_VEHICLES_AT + RF2_VEHICLES * RF2_SCORING_VEHICLE_BYTES
 _RF2_GUARD = struct.Struct("<II")  # mVersionUpdateBegin, mVersionUpdateEnd
+RF2_PLAYER_BYTES = 100
+"""Of the player's scoring record, what is read: mID, mDriverName, mVehicleName."""
 _I32 = struct.Struct("<i")
 _RF2_PHASE = struct.Struct("<iB6xB")
-"""At 116 of rF2Scoring: mNumVehicles, mGamePhase (124: mInRealtime)."""
+"""At 116 of rF2Scoring: mNumVehicles, mGamePhase (127: mInRealtime)."""
 _RF2_DRIVE = struct.Struct("<3d3d72x3d24xid24x4d32xd")
 """From 184 of rF2VehicleTelemetry: mLocalVel, mLocalAccel, (mOri) mLocalRot 304, mGear 352,
 mEngineRPM 356, mUnfilteredThrottle 388, mUnfilteredBrake, mUnfilteredSteering,
@@ -399,46 +410,91 @@ def _check_rf2(pages: Sequence[bytes]) -> str | None:
     return None
 
 
-def _rf2_player(scoring: bytes) -> tuple[int, str] | None:
-    """The player's vehicle in scoring (mIsPlayer): its mID and mVehicleName."""
-    count = _I32.unpack_from(scoring, 116)[0]
-    for i in range(count):
-        at = RF2_SCORING_VEHICLES_AT + i * RF2_SCORING_VEHICLE_BYTES
-        if scoring[at + 196]:
-            return _I32.unpack_from(scoring, at)[0], _c_text(scoring[at + 36 : at + 100]) or ""
-    return None
+def _rf2_player_slot(scoring: Any, count: int) -> int | None:
+    """The slot of scoring's player: the first of its `count` used slots whose mIsPlayer is set,
+    read in place (the flags in one strided slice, no record copied); None: no player."""
+    at = RF2_SCORING_VEHICLES_AT + 196
+    flags = scoring[at : at + count * RF2_SCORING_VEHICLE_BYTES : RF2_SCORING_VEHICLE_BYTES]
+    slot = len(flags) - len(flags.lstrip(b"\x00"))
+    return slot if slot < len(flags) else None
+
+
+@functools.cache
+def _rf2_ids(cars: int) -> struct.Struct:
+    """The mIDs of telemetry's first `cars` records (from 16) in one unpack, the rest skipped
+    (at most 129 of them cached: `cars` is checked within 0-128 first)."""
+    return struct.Struct("<" + f"i{RF2_TELEMETRY_VEHICLE_BYTES - 4}x" * cars)
+
+
+_names: dict[bytes, str] = {}
+
+
+def _rf2_name(raw: bytes) -> str:
+    """mVehicleName (char[64]) as text ("" where it is not), cached by its bytes: it changes
+    with the car only."""
+    name = _names.get(raw)
+    if name is None:
+        name = _c_text(raw) or ""
+        if len(_names) > 16:
+            _names.clear()
+        _names[raw] = name
+    return name
 
 
 def rf2_identify(pages: Sequence[bytes]) -> tuple[str, float]:
-    player = _rf2_player(pages[1])
-    return (player[1], NAN) if player else ("", NAN)
+    scoring = pages[1]
+    slot = _rf2_player_slot(scoring, _I32.unpack_from(scoring, 116)[0])
+    if slot is None:
+        return "", NAN
+    at = RF2_SCORING_VEHICLES_AT + slot * RF2_SCORING_VEHICLE_BYTES
+    return _c_text(scoring[at + 36 : at + 100]) or "", NAN
 
 
-def _decode_rf2(pages: Sequence[Any], car: str, max_rpm: float) -> VehicleState | None:
+def _select_rf2(pages: Sequence[Any]) -> tuple[tuple[int, ...], bytes, bytes] | None:
+    """What `_decode_rf2` reads of the two buffers (the live maps, or a file frame's), read
+    between two reads of their guards (mVersionUpdateBegin, mVersionUpdateEnd): telemetry's
+    mNumVehicles with scoring's mNumVehicles, mGamePhase and mInRealtime (unpacked); a copy of
+    the player's scoring record to its mVehicleName (b"": no player) and of its telemetry
+    record, the one with its mID (b"": not there yet). The flags and the mIDs are scanned in
+    place, not copied. None: torn (a guard's begin differs from its end: being written; or a
+    guard moved while these were read)."""
     telemetry, scoring = pages
-    for page in pages:
-        begin, end = _RF2_GUARD.unpack_from(page)
-        if begin != end:
-            return BAD  # torn: the plugin was writing this buffer while it was copied
-    scored, phase, realtime = _RF2_PHASE.unpack_from(scoring, 116)
-    cars = _I32.unpack_from(telemetry, 12)[0]
-    if not (0 <= scored <= RF2_VEHICLES and 0 <= cars <= RF2_VEHICLES and phase in RF2_PHASES):
+    guards = _RF2_GUARD.unpack_from(telemetry), _RF2_GUARD.unpack_from(scoring)
+    if guards[0][0] != guards[0][1] or guards[1][0] != guards[1][1]:
+        return None
+    head = _I32.unpack_from(telemetry, 12) + _RF2_PHASE.unpack_from(scoring, 116)
+    count, scored = head[0], head[1]
+    player = record = b""
+    if 0 <= count <= RF2_VEHICLES and 0 <= scored <= RF2_VEHICLES:
+        slot = _rf2_player_slot(scoring, scored)
+        if slot is not None:
+            at = RF2_SCORING_VEHICLES_AT + slot * RF2_SCORING_VEHICLE_BYTES
+            player = bytes(scoring[at : at + RF2_PLAYER_BYTES])
+            ids = _rf2_ids(count).unpack_from(telemetry, 16)
+            try:
+                at = 16 + ids.index(_I32.unpack_from(player)[0]) * RF2_TELEMETRY_VEHICLE_BYTES
+                record = bytes(telemetry[at : at + RF2_TELEMETRY_VEHICLE_BYTES])
+            except ValueError:
+                pass  # not in telemetry yet
+    if (_RF2_GUARD.unpack_from(telemetry), _RF2_GUARD.unpack_from(scoring)) != guards:
+        return None
+    return head, record, player
+
+
+def _decode_rf2(parts: Sequence[Any], car: str, max_rpm: float) -> VehicleState | None:
+    (count, scored, phase, realtime), record, player = parts  # as _select_rf2 read them
+    if not (0 <= scored <= RF2_VEHICLES and 0 <= count <= RF2_VEHICLES and phase in RF2_PHASES):
         return BAD
-    player = _rf2_player(scoring)
-    if player is None:
+    if not player:
         return None  # no player's car (the menus, or watching others)
-    wanted, name = player
-    for i in range(cars):
-        at = 16 + i * RF2_TELEMETRY_VEHICLE_BYTES
-        if _I32.unpack_from(telemetry, at)[0] == wanted:
-            break
-    else:
+    if not record:
         return None  # scoring has the player, telemetry not yet
-    v = _RF2_DRIVE.unpack_from(telemetry, at + 184)
+    name = _rf2_name(player[36:100])
+    v = _RF2_DRIVE.unpack_from(record, 184)
     vel, acc, rot = v[0:3], v[3:6], v[6:9]
     gear, rpm, throttle, brake, steer, clutch, torque = v[9:16]
-    top = _RF2_MAX_RPM.unpack_from(telemetry, at + 532)[0]
-    lock_deg = _RF2_RANGE.unpack_from(telemetry, at + 692)[0]
+    top = _RF2_MAX_RPM.unpack_from(record, 532)[0]
+    lock_deg = _RF2_RANGE.unpack_from(record, 692)[0]
     if not (
         -1 <= gear <= 24
         and 0.0 <= rpm <= 30_000.0
@@ -455,26 +511,29 @@ def _decode_rf2(pages: Sequence[Any], car: str, max_rpm: float) -> VehicleState 
     # the yaw rate left is its negative. mUnfilteredSteering is -1 left .. +1 right, over the
     # wheel's physical range (lock to lock). No real dump was found to check the signs.
     angle = -steer * math.radians(lock_deg) / 2.0 if lock_deg > 0.0 else NAN
-    return VehicleState(
-        speed_m_s=math.sqrt(vel[0] ** 2 + vel[1] ** 2 + vel[2] ** 2),
-        lateral_accel_m_s2=acc[0],
-        yaw_rate_rad_s=-rot[1],
-        engine_speed_rpm=rpm,
-        gear=REVERSE if gear < 0 else gear,
-        clutch_pedal=clutch,
-        throttle=throttle,
-        brake=brake,
-        steering_angle_rad=angle,
-        engine_max_rpm=top if 0.0 < top <= 30_000.0 else max_rpm,
-        car=name or car,
-        wheel_torque_Nm=torque,
-        replay=not realtime,
-        paused=phase == RF2_STOPPED,
-    )
+    speed = math.sqrt(vel[0] ** 2 + vel[1] ** 2 + vel[2] ** 2)
+    top = top if 0.0 < top <= 30_000.0 else max_rpm
+    return _new(  # positional, in the fields' order: half the keyword constructor's cost
+        (speed, acc[0], -rot[1], rpm, REVERSE if gear < 0 else gear, clutch, throttle, brake,
+         angle, top, name or car, *_TO_TORQUE, torque, *_TO_REPLAY, not realtime,
+         phase == RF2_STOPPED)
+    )  # fmt: skip
+
+
+_new = VehicleState._make
+_FIELDS, _DEFAULTS = VehicleState._fields, VehicleState._field_defaults
+_TO_TORQUE = tuple(
+    _DEFAULTS[f] for f in _FIELDS[_FIELDS.index("car") + 1 : _FIELDS.index("wheel_torque_Nm")]
+)
+"""The defaults between car and wheel_torque_Nm (cylinders .. time_s)."""
+_TO_REPLAY = tuple(
+    _DEFAULTS[f] for f in _FIELDS[_FIELDS.index("wheel_torque_Nm") + 1 : _FIELDS.index("replay")]
+)
+"""The defaults between wheel_torque_Nm and replay (then paused, the last field)."""
 
 
 RF2 = PageLayout("rf2", (RF2_TELEMETRY_BYTES, RF2_SCORING_BYTES), _check_rf2, _decode_rf2,
-                 rf2_identify, exact_bytes=True)  # fmt: skip
+                 rf2_identify, exact_bytes=True, select=_select_rf2)  # fmt: skip
 
 
 # --- RaceRoom: $R3E (Sector3's r3e-api r3e.h, version 3.4, #pragma pack(1)) --------------------
@@ -614,6 +673,15 @@ class PagesReader:
             return out
         return [bytes(image[0:size]) for image, size in zip(self.images, sizes, strict=True)]
 
+    def _decode_file(self, frame: int) -> VehicleState | None:
+        pages: Sequence[Any] = self._pages(frame)
+        if self.layout.select is not None:
+            parts = self.layout.select(pages)
+            if parts is None:
+                return BAD  # torn when it was dumped
+            pages = parts
+        return self.layout.decode(pages, self.car, self.max_rpm)
+
     def read(self, now_s: float) -> list[VehicleState | None]:
         decode, car, max_rpm = self.layout.decode, self.car, self.max_rpm
         if self.is_file:
@@ -624,18 +692,18 @@ class PagesReader:
             start = max(self.next, due - 64)
             self.skipped += start - self.next
             self.next = due
-            return [decode(self._pages(i), car, max_rpm) for i in range(start, due)]
+            return [self._decode_file(i) for i in range(start, due)]
         at = self.layout.sequence_offset
         physics = self.images[0]
-        odd = self.layout.odd_is_writing
+        odd, select = self.layout.odd_is_writing, self.layout.select
         for _ in range(2):  # the game may write the page while we copy it: once more
             before = self._seq.unpack_from(physics, at)[0]
             if before == self._sequence:
                 return []  # nothing new
             if odd and before & 1:
                 continue  # being written now
-            pages = self._pages(0)
-            if self._seq.unpack_from(physics, at)[0] == before:
+            pages = self._pages(0) if select is None else select(self.images)
+            if pages is not None and self._seq.unpack_from(physics, at)[0] == before:
                 self._sequence = before
                 return [decode(pages, car, max_rpm)]
         return [BAD]
