@@ -224,7 +224,10 @@ def run_loop(
             axes,
             DAMPING_CREDIT * info.damping,
             deadband=1e-3 * limits.max_force * info.travel,
-            ceiling=0.05 * limits.max_force * info.travel,
+            # What one spring holding the device's force within its travel stores at most
+            # (F^2 / 2K <= F * travel / 2 for K >= F / travel): a hand letting go of any
+            # rendering's spring gives back no more than this.
+            ceiling=0.5 * limits.max_force * info.travel,
             round_trip_ticks=round_trip,
         )
         if config.passivity

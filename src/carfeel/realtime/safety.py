@@ -130,6 +130,11 @@ class Watchdog:
         return self._fade_left is not None and self._fade_left <= 0.0
 
 
+RECOVERY_S = 0.25
+"""Time constant (s) over which the passivity controller's energy deficit recovers to its
+deadband: a force it cut comes back as a fade-in, not never."""
+
+
 class PassivityController:
     """Passivity observer and controller per axis (after Hannaford & Ryu, IEEE T-RO 2002).
 
@@ -144,11 +149,17 @@ class PassivityController:
     cycle's frequency (its phase turns it into a spring or worse), so the controller scales the
     force down instead, from 1 at E = -deadband to 0 at E = -(deadband + band): the energy a
     rendering can put out is bounded. E is capped above at `ceiling` so that energy stored long
-    ago cannot hide new generation.
+    ago cannot hide new generation; the ceiling must hold what a rendering's spring stores from
+    the hand (a sized coupling pushed to the device's force: F^2 / 2K), or a hand letting go of
+    it reads as generation. E is floored at the full cut, and a deficit recovers toward the
+    deadband over RECOVERY_S: with the force cut, a handle at rest does no work, so without it a
+    rendering cut once would stay dead (the handle left off its rest) until the hand did work
+    against a force that is not there. A rendering that goes on generating is held to about
+    band / RECOVERY_S of power (and the oscillation guard faults a sustained cycle).
     """
 
-    __slots__ = ("_commands", "_energy", "_last_position", "acted_s", "band", "ceiling",
-                 "damping", "deadband")  # fmt: skip
+    __slots__ = ("_commands", "_energy", "_floor", "_last_position", "acted_s", "band",
+                 "ceiling", "damping", "deadband")  # fmt: skip
 
     def __init__(
         self,
@@ -161,6 +172,7 @@ class PassivityController:
         self.damping = damping
         self.deadband = deadband
         self.band = 4.0 * deadband
+        self._floor = -(deadband + self.band)
         self.ceiling = ceiling
         self._energy = [0.0] * axes
         self._commands = [deque([0.0] * (round_trip_ticks + 1)) for _ in range(axes)]
@@ -183,7 +195,9 @@ class PassivityController:
             moved = 0.0 if last is None or not math.isfinite(x) else x - last
             self._last_position[i] = x if math.isfinite(x) else last
             gained = -self._commands[i][0] * moved + self.damping * moved * moved / dt_s
-            energy = min(self.ceiling, self._energy[i] + gained)
+            energy = min(self.ceiling, max(self._floor, self._energy[i] + gained))
+            if energy < -self.deadband:  # a deficit recovers (a cut force does no work)
+                energy += (-self.deadband - energy) * min(1.0, dt_s / RECOVERY_S)
             self._energy[i] = energy
             if energy < -self.deadband:
                 scale = max(0.0, 1.0 - (-energy - self.deadband) / self.band)
