@@ -131,8 +131,8 @@ class Watchdog:
 
 
 RECOVERY_S = 0.25
-"""Time constant (s) over which the passivity controller's energy deficit recovers to its
-deadband: a force it cut comes back as a fade-in, not never."""
+"""Time constant (s) with which the passivity controller's energy deficit decays to its
+deadband: a force it cut comes back, not never."""
 
 
 class PassivityController:
@@ -151,15 +151,15 @@ class PassivityController:
     rendering can put out is bounded. E is capped above at `ceiling` so that energy stored long
     ago cannot hide new generation; the ceiling must hold what a rendering's spring stores from
     the hand (a sized coupling pushed to the device's force: F^2 / 2K), or a hand letting go of
-    it reads as generation. E is floored at the full cut, and a deficit recovers toward the
-    deadband over RECOVERY_S: with the force cut, a handle at rest does no work, so without it a
-    rendering cut once would stay dead (the handle left off its rest) until the hand did work
-    against a force that is not there. A rendering that goes on generating is held to about
-    band / RECOVERY_S of power (and the oscillation guard faults a sustained cycle).
+    it reads as generation. A deficit decays toward the deadband with RECOVERY_S: with the force
+    cut, a handle at rest does no work, so without it a rendering cut once would stay dead (the
+    handle left off its rest) until the hand did work against a force that is not there. The
+    deficit is remembered whole (no floor): a deep one, a limit cycle's, takes RECOVERY_S *
+    ln(deficit / band) to come back, and the cycle does not resume at once.
     """
 
-    __slots__ = ("_commands", "_energy", "_floor", "_last_position", "acted_s", "band",
-                 "ceiling", "damping", "deadband")  # fmt: skip
+    __slots__ = ("_commands", "_energy", "_last_position", "acted_s", "band", "ceiling",
+                 "damping", "deadband")  # fmt: skip
 
     def __init__(
         self,
@@ -172,7 +172,6 @@ class PassivityController:
         self.damping = damping
         self.deadband = deadband
         self.band = 4.0 * deadband
-        self._floor = -(deadband + self.band)
         self.ceiling = ceiling
         self._energy = [0.0] * axes
         self._commands = [deque([0.0] * (round_trip_ticks + 1)) for _ in range(axes)]
@@ -195,7 +194,7 @@ class PassivityController:
             moved = 0.0 if last is None or not math.isfinite(x) else x - last
             self._last_position[i] = x if math.isfinite(x) else last
             gained = -self._commands[i][0] * moved + self.damping * moved * moved / dt_s
-            energy = min(self.ceiling, max(self._floor, self._energy[i] + gained))
+            energy = min(self.ceiling, self._energy[i] + gained)
             if energy < -self.deadband:  # a deficit recovers (a cut force does no work)
                 energy += (-self.deadband - energy) * min(1.0, dt_s / RECOVERY_S)
             self._energy[i] = energy
