@@ -26,7 +26,7 @@ class Hold:
     reading (the velocity through their filter, which the sizing counts with)."""
 
     axes = 2
-    columns = ("x",)
+    columns: tuple[str, ...] = ("x",)
     substeps = 1
     effect = 0.0
 
