@@ -227,10 +227,12 @@ class OscillationGuard:
       each half-cycle; DECAY is zeta 0.07), at a steady pace; below VOLUNTARY_HZ (as slow as a
       hand shakes a lever) also while the rendering puts energy into the handle over them (the
       work of the force commanded one round trip earlier on the handle's motion, over what
-      passes between them: at least INJECTION of it) or the handle barely moves: a hand
-      shaking the lever against a rendering that absorbs what the hand puts in is not an
-      oscillation of the loop. Below VOLUNTARY_HZ two such half-cycles suffice at over half the
-      force limit: a full-force limit cycle fades within 0.2 s of its onset at every pace.
+      passes between them: at least INJECTION of it, and that much more than it ever took in:
+      its energy account, capped at what one spring can store) or the handle barely moves: a
+      hand shaking the lever against a rendering that absorbs what the hand puts in, or letting
+      go of one it stretched, is not an oscillation of the loop. Below VOLUNTARY_HZ two such
+      half-cycles suffice at over half the force limit: a full-force limit cycle fades within
+      0.2 s of its onset at every pace.
     - saturation: the command sent at the force limit both ways for more than `saturated_s`
       within `saturation_window_s` (a bang-bang limit cycle; one way only is a hand pushing;
       a ringing that dies down leaves the limit sooner).
@@ -301,6 +303,12 @@ class OscillationGuard:
         ]
         self._commands = [deque([0.0] * (round_trip_ticks + 1)) for _ in range(axes)]
         self._last_x: list[float | None] = [None] * axes
+        self._account = [0.0] * axes
+        """Per axis, the energy the rendering took from the handle less what it gave, capped
+        at `stored` (the passivity controller's account, without its damping credit)."""
+        self.stored = 0.5 * max_force * travel
+        """The most one spring holding the force limit within the travel stores: what a hand
+        can leave in a rendering and get back."""
         ticks = max(1, round(saturation_window_s * rate_hz))
         self._saturation: list[deque[int]] = [deque([0] * ticks, maxlen=ticks) for _ in range(axes)]
         self._plus = [0] * axes
@@ -357,6 +365,7 @@ class OscillationGuard:
             if x_ok:
                 self._last_x[i] = x
             work = past[0] * moved
+            self._account[i] = min(self.stored, self._account[i] - work)
             past.popleft()
             past.append(u)
             trouble = trouble or self._cycles(i, band, work) or self._saturated(i, u)
@@ -422,6 +431,11 @@ class OscillationGuard:
             passed = sum(h[3] for h in recent) + self._passed[i]
             if done < self.INJECTION * passed:
                 return None  # the rendering takes in what moves it: a hand, not the loop
+            if self._account[i] > -self.INJECTION * passed:
+                # It gives back what a hand stored in it (let go of a stretched coupling, the
+                # handle swings home): over all it has not put out INJECTION of what passed
+                # more than it took in (a loop's cycle from rest has, by the test above).
+                return None
         return (
             f"oscillation: axis {i} swung {len(swings)} half-cycles in a row at {frequency:.3g} "
             f"Hz, each over {self.force_fraction:.0%} of the force limit (the last "
