@@ -94,7 +94,7 @@ def test_bad_replays_exit_2_with_the_reason(tmp_path, capsys, rows, sidecar, mes
 @pytest.mark.parametrize(
     ("args", "message"),
     [
-        (["--model", "shift", "--sequence", "N,1,N"], "--sequence is the H-pattern's script"),
+        (["--model", "shift", "--sequence", "N,1,N"], "--sequence is the virtual hand's script"),
         (["--model", "steering", "--sequence", "N,1,N"], "--model steering has none"),
         (["--device-max-force", "1e9", "--device", "sdl:0"], "allowed 0 < value <= 200"),
         (["--rate-hz", "10"], "allowed 250 <= value <= 10000 Hz"),

@@ -16,7 +16,14 @@ from carfeel.commands.common import (
 )
 from carfeel.errors import InputError
 
+MODELS = ("shift", "hpattern", "sequential", "prnd", "steering")
+"""`realtime.run_options.MODELS`, named here so that the help is built without numpy (a test
+holds the two equal, and the scripts' defaults below to `DEFAULT_SEQUENCES`)."""
 DEFAULT_SEQUENCE = "N,1,2,3,4,5,4,3,2,1,N"
+LEVER_SEQUENCES = {
+    "sequential": "up,up,down,down,lift-down,lift-down,lift-down,lift-up,up",
+    "prnd": "R,N,D,N,R,P",
+}
 
 
 def register(commands: Any) -> None:
@@ -38,9 +45,10 @@ def register(commands: Any) -> None:
         "evdev:/dev/input/eventN, sdl:INDEX, replay:RECORDING.csv. `carfeel devices` lists "
         "what is attached; `carfeel calibrate` measures one.",
     )
-    run.add_argument("--model", choices=("shift", "hpattern", "steering"), default="hpattern",
+    run.add_argument("--model", choices=MODELS, default="hpattern",
                      help="what to render: one engagement (shift), the H-pattern (default), "
-                     "or the steering wheel torque (on a wheel)")  # fmt: skip
+                     "a sequential lever, an automatic's PRND selector, or the steering wheel "
+                     "torque (on a wheel)")  # fmt: skip
     run.add_argument("--device", default="virtual", metavar="SPEC",
                      help="virtual (default), evdev:PATH, sdl:INDEX or replay:FILE")  # fmt: skip
     run.add_argument("--mode", choices=("admittance", "impedance"), default="impedance",
@@ -52,10 +60,13 @@ def register(commands: Any) -> None:
     run.add_argument("--duration", type=positive_float, default=None, metavar="S",
                      help="seconds to run (default: long enough for the script)")  # fmt: skip
     run.add_argument("--sequence", default=None, metavar="N,1,2,...",
-                     help="gears for --model hpattern (the virtual hand's script; default "
-                     f"{DEFAULT_SEQUENCE})")  # fmt: skip
+                     help="the virtual hand's script: gears for --model hpattern (default "
+                     f"{DEFAULT_SEQUENCE}); moves for sequential (up, down, lift-down, lift-up; "
+                     f"default {LEVER_SEQUENCES['sequential']}); target positions for prnd "
+                     f"(default {LEVER_SEQUENCES['prnd']})")  # fmt: skip
     run.add_argument("--preset", default=None, metavar="NAME|PATH",
-                     help="shift, hpattern (layout) or steering preset for the model")  # fmt: skip
+                     help="shift, hpattern (layout), sequential, prnd or steering preset for the "
+                     "model")  # fmt: skip
     run.add_argument("--speed-kmh", type=float, default=30.0, metavar="V",
                      help="vehicle speed (synchronizer, steering), km/h (default 30)")  # fmt: skip
     run.add_argument("--seed", type=seed_arg, default=0, help="seed (default 0)")
@@ -199,8 +210,11 @@ def _run(args: argparse.Namespace) -> int:
         )
     if args.accept_from is not None and args.telemetry is None:
         raise InputError("--accept-from filters --telemetry's packets: give --telemetry too")
-    if args.sequence is not None and args.model != "hpattern":
-        raise InputError(f"--sequence is the H-pattern's script; --model {args.model} has none")
+    if args.sequence is not None and args.model not in ("hpattern", *LEVER_SEQUENCES):
+        raise InputError(
+            f"--sequence is the virtual hand's script for the H-pattern and the levers; --model "
+            f"{args.model} has none"
+        )
     if record is not None:
         # A killed run leaves NAME.part.csv readable; a finished one replaces NAME.csv.
         staged_record = outputs.add(record, ".csv", partial=True)
@@ -214,7 +228,7 @@ def _run(args: argparse.Namespace) -> int:
         rate_hz=args.rate_hz,
         substeps=args.substeps,
         duration_s=args.duration,
-        sequence=parse_sequence(args.sequence or DEFAULT_SEQUENCE),
+        sequence=None if args.sequence is None else parse_sequence(args.sequence),
         preset=args.preset,
         speed_kmh=args.speed_kmh,
         seed=args.seed,

@@ -18,6 +18,9 @@ from carfeel.panel.values import inside, number_of, safe_name, said
 VIRTUAL_CHANGES = re.compile(r"[A-Za-z_]+=[0-9.eE+-]+x?(,[A-Za-z_]+=[0-9.eE+-]+x?)*")
 """`virtual:KIND:KEY=VALUE,...`'s changes to the true plant: names and numbers, nothing else."""
 MAX_TEXT_CHARS = 200
+PANEL_MODELS = ("shift", "hpattern", "steering")
+"""The models the panel starts (the levers, `carfeel run --model sequential|prnd`, have no
+views or tunables on the page yet)."""
 """The longest text field of a session's request (a device, a mode, a telemetry source)."""
 
 
@@ -27,7 +30,7 @@ def options(preset_folder: Path, real: list[str], replays: list[str]) -> dict[st
     from carfeel.realtime.devices.virtual import PLANTS
     from carfeel.realtime.hands import HANDS
     from carfeel.realtime.rendering import MODES
-    from carfeel.realtime.session import DEFAULT_PRESETS, MODELS
+    from carfeel.realtime.session import DEFAULT_PRESETS
     from carfeel.simulation.steering import ROAD_FRICTION, STEERING_MODELS
 
     presets = {
@@ -36,7 +39,7 @@ def options(preset_folder: Path, real: list[str], replays: list[str]) -> dict[st
         for kind in KINDS
     }  # fmt: skip
     return {
-        "models": list(MODELS),
+        "models": list(PANEL_MODELS),
         "modes": list(MODES),
         "default_presets": DEFAULT_PRESETS,
         "presets": presets,
@@ -52,7 +55,8 @@ def options(preset_folder: Path, real: list[str], replays: list[str]) -> dict[st
         "steering_models": list(STEERING_MODELS),
         "roads": list(ROAD_FRICTION),
         "tunables": {
-            m: [t.as_dict() for t in tuning.tunables_for(m)] for m in (*MODELS, tuning.PHYSICAL)
+            m: [t.as_dict() for t in tuning.tunables_for(m)]
+            for m in (*PANEL_MODELS, tuning.PHYSICAL)
         },
     }
 
@@ -117,7 +121,7 @@ def run_of(
     network: bool,
 ) -> dict[str, Any]:
     """The request's session as RealtimeRun keyword arguments, checked as `carfeel run`'s."""
-    from carfeel.realtime.run_options import MODELS, RealtimeRun, check_run
+    from carfeel.realtime.run_options import RealtimeRun, check_run
     from carfeel.simulation.sequence import parse_sequence
 
     allowed = {"model", "preset", "device", "mode", "speed_kmh", "hand", "clock", "sequence",
@@ -134,8 +138,8 @@ def run_of(
             "Start button does)"
         )
     model = body.get("model", "hpattern")
-    if not isinstance(model, str) or model not in MODELS:
-        raise InputError(f"model {said(model)}: choose one of {', '.join(MODELS)}")
+    if not isinstance(model, str) or model not in PANEL_MODELS:
+        raise InputError(f"model {said(model)}: choose one of {', '.join(PANEL_MODELS)}")
     run: dict[str, Any] = {"model": model}
     texts = ("device", "mode", "hand", "clock", "telemetry", "synchronizer", "aligning",
              "steering_model", "road")  # fmt: skip

@@ -23,7 +23,7 @@ from carfeel.realtime.rendering import (
     default_scaling,
     ring_wall,
 )
-from carfeel.realtime.run_options import RealtimeRun
+from carfeel.realtime.run_options import LEVER_MODELS, RealtimeRun, sequence_of
 from carfeel.realtime.safety import SafetyLimits
 from carfeel.realtime.stability import Sizing
 
@@ -79,6 +79,8 @@ def build(
         return _build_shift(run, preset_name, info, sizing, start)
     if run.model == "hpattern":
         return _build_hpattern(run, preset_name, info, sizing, start)
+    if run.model in LEVER_MODELS:
+        return _build_lever(run, preset_name, info, sizing, start)
     return _build_steering(run, preset_name, info, sizing, start, telemetry, notes)
 
 
@@ -124,7 +126,8 @@ def _build_hpattern(
     preset = load_hpattern(preset_name)
     layout = preset.setup.layout
     names = {*layout.gear_names(), "N"}
-    unknown = [g for g in run.sequence if g not in names]
+    sequence = sequence_of(run)
+    unknown = [g for g in sequence if g not in names]
     if unknown:
         raise InputError(
             f"--sequence: no gear {', '.join(unknown)} in layout {preset.name}; it has "
@@ -137,7 +140,7 @@ def _build_hpattern(
     # The hand presses the knob against the gate's end for the outer planes, as far as the
     # coupling's stretch at its full select force (the model's knob lags the handle).
     reach = layout.slot_width_m + preset.setup.driver.select_force_N / gains.coupling_stiffness
-    script = Script(run.sequence, layout, preset.shift.driver, preset.setup.driver,
+    script = Script(sequence, layout, preset.shift.driver, preset.setup.driver,
                     outer_push_m=reach)  # fmt: skip
     hand: Any = hands.HPatternHand(script, scaling.force_scale, scaling.position_scale,
                                    t0 + ready_s)  # fmt: skip
@@ -151,7 +154,71 @@ def _build_hpattern(
         engine_speed_rad_s=800 * math.pi / 30, clutch=hand if virtual else None,
         wall=ring_wall(info, run.rate_hz, scaling, preset.shift.driver),
     )  # fmt: skip
-    return Built(renderer, scaling, hand, run.duration_s or 1.2 * len(run.sequence) + 1.0 + ready_s)
+    return Built(renderer, scaling, hand, run.duration_s or 1.2 * len(sequence) + 1.0 + ready_s)
+
+
+LEVER_FORCE_SHARE = 1.5
+"""A lever's model force (what 90 % of the device's force renders) over its preset's hand: the
+hand's push and the mechanism's peaks it meets fit, with room for a firmer hand."""
+
+
+def _build_lever(
+    run: RealtimeRun, preset_name: str, info: DeviceInfo, sizing: Sizing, start: Start
+) -> Built:
+    """The sequential lever or the PRND selector (`levers.LeverRenderer`), the preset's driver
+    making `run.sequence`'s moves; the position scale leaves room for the coupling's stretch."""
+    from carfeel.realtime import hands, levers
+
+    refuse_soft(info, sizing, run)
+    params, driver = lever_preset(run.model, preset_name)
+    lever = levers.lever_for(run.model, params)
+    try:
+        scaling = levers.lever_scaling(lever, driver.hand_N, LEVER_FORCE_SHARE * driver.hand_N,
+                                       info, sizing)  # fmt: skip
+    except ValueError as exc:
+        raise InputError(f"{info.name} cannot hold the {run.model} lever: {exc}") from None
+    gains = Gains.sized(sizing, scaling)
+    controls = levers.Controls()
+    renderer = levers.LeverRenderer(lever, scaling, run.rate_hz, gains, controls)
+    moves = lever_moves(run.model, params, sequence_of(run))
+    hand: Any = levers.LeverHand(
+        moves, driver.hand_N, driver.hold_s, driver.rest_s, scaling.force_scale,
+        scaling.position_scale, controls, start.loop_s + start.ready_s,
+        registered=lambda: renderer.gear, order=getattr(params, "positions", ()),
+    )  # fmt: skip
+    if run.hand == "release":
+        scripted = hand
+        hand = hands.ReleasingHand(scripted, lambda t: scripted.done)
+    length = len(moves) * (driver.hold_s + driver.rest_s) + 1.0 + start.ready_s
+    return Built(renderer, scaling, hand, run.duration_s or length)
+
+
+def lever_preset(model: str, preset_name: str) -> tuple[Any, Any]:
+    """A lever preset's (model parameters, scripted driver): the sequential lever's or the
+    PRND selector's."""
+    from carfeel.io.presets import load_prnd, load_sequential
+
+    if model == "sequential":
+        sequential = load_sequential(preset_name).params
+        return sequential.lever, sequential.driver
+    prnd = load_prnd(preset_name).params
+    return prnd.selector, prnd.driver
+
+
+def lever_moves(model: str, params: Any, sequence: tuple[str, ...]) -> tuple[Any, ...]:
+    """`--sequence` for a lever: the sequential's moves (up, down, lift-down, lift-up) or the
+    PRND's target positions (P, R, N, D ...), as `simulate sequential` / `simulate prnd`
+    read them; InputError naming a bad one."""
+    from carfeel.realtime import levers
+    from carfeel.simulation import prnd, sequential
+
+    text = ",".join(sequence)
+    try:
+        if model == "sequential":
+            return levers.sequential_moves(params, sequential.parse_moves(text.lower()))
+        return levers.prnd_moves(params, prnd.parse_moves(text.upper(), params.positions))
+    except InputError as exc:
+        raise InputError(str(exc).replace("--moves", "--sequence", 1)) from None
 
 
 def _build_steering(

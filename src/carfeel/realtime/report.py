@@ -12,7 +12,7 @@ from carfeel import __version__
 from carfeel.realtime.devices.base import DeviceInfo
 from carfeel.realtime.loop import LoopSummary
 from carfeel.realtime.rendering import Scaling
-from carfeel.realtime.run_options import RealtimeRun
+from carfeel.realtime.run_options import RealtimeRun, sequence_of
 from carfeel.realtime.safety import SafetyLimits
 from carfeel.realtime.stability import Sizing
 
@@ -140,7 +140,7 @@ def run_metadata(
         "hand": run.hand,
         "force_scale": scaling.force_scale,
         "position_scale": scaling.position_scale,
-        "sequence": ",".join(run.sequence) if run.model == "hpattern" else None,
+        "sequence": ",".join(sequence_of(run)) or None,
         "speed_kmh": run.speed_kmh,
         "seed": run.seed,
         "max_force": limits.max_force,

@@ -14,8 +14,21 @@ from carfeel.errors import InputError
 from carfeel.realtime.hands import HANDS
 from carfeel.realtime.rendering import ALIGNING, MODES
 
-MODELS = ("shift", "hpattern", "steering")
-DEFAULT_PRESETS = {"shift": "paper-first-gear", "hpattern": "5r", "steering": "b-segment"}
+MODELS = ("shift", "hpattern", "sequential", "prnd", "steering")
+LEVER_MODELS = ("sequential", "prnd")
+"""The one-axis levers (`realtime.levers`): the sequential lever and the PRND selector."""
+DEFAULT_PRESETS = {"shift": "paper-first-gear", "hpattern": "5r", "sequential": "rally-6",
+                   "prnd": "automatic", "steering": "b-segment"}  # fmt: skip
+DEFAULT_SEQUENCES = {
+    "hpattern": ("N", "1", "2", "3", "4", "5", "4", "3", "2", "1", "N"),
+    # Up to 2 and back; a down without the lift (locked: the wall), then N, R and a down past R
+    # (locked), and back up to 1.
+    "sequential": ("up", "up", "down", "down", "lift-down", "lift-down", "lift-down", "lift-up",
+                   "up"),
+    "prnd": ("R", "N", "D", "N", "R", "P"),
+}  # fmt: skip
+"""The virtual hand's script per model (`--sequence`): gears, a sequential lever's moves, a
+PRND's target positions."""
 MAX_RATE_HZ = 10_000.0
 MIN_RATE_HZ = 250.0
 DEVICE_DAMPING_MAX = 1000.0
@@ -32,7 +45,8 @@ class RealtimeRun:
     mode: str = "impedance"
     rate_hz: float = 1000.0
     duration_s: float | None = None
-    sequence: tuple[str, ...] = ("N", "1", "2", "3", "4", "5", "4", "3", "2", "1", "N")
+    sequence: tuple[str, ...] | None = None
+    """The virtual hand's script: the model's (`DEFAULT_SEQUENCES`) where None."""
     preset: str | None = None
     speed_kmh: float = 30.0
     seed: int = 0
@@ -103,6 +117,7 @@ def check_run(run: RealtimeRun) -> None:
     _check_telemetry(run)
     _check_identify(run)
     _check_loop_and_clock(run)
+    _check_lever_script(run)
 
 
 def _check_model_and_rate(run: RealtimeRun) -> None:
@@ -115,6 +130,11 @@ def _check_model_and_rate(run: RealtimeRun) -> None:
         raise InputError(
             "--model steering renders the torque law straight onto a force-feedback wheel: "
             "use --mode impedance"
+        )
+    if run.model in LEVER_MODELS and run.mode != "impedance":
+        raise InputError(
+            f"--model {run.model} renders its lever behind the virtual coupling only: use "
+            "--mode impedance"
         )
     if not (MIN_RATE_HZ <= run.rate_hz <= MAX_RATE_HZ) or not math.isfinite(run.rate_hz):
         why = (
@@ -308,3 +328,21 @@ def _check_telemetry(run: RealtimeRun) -> None:
         parse_source(run.telemetry)
         if run.model not in ("steering", "hpattern"):
             raise InputError("--telemetry drives --model steering or hpattern")
+
+
+def sequence_of(run: RealtimeRun) -> tuple[str, ...]:
+    """The run's script: its own, or its model's default (none for shift and steering)."""
+    if run.sequence is not None:
+        return run.sequence
+    return DEFAULT_SEQUENCES.get(run.model, ())
+
+
+def _check_lever_script(run: RealtimeRun) -> None:
+    """A lever's --sequence read against its preset (its moves, or the selector's positions)
+    before any device is opened."""
+    if run.model not in LEVER_MODELS or run.sequence is None:
+        return
+    from carfeel.realtime.building import lever_moves, lever_preset
+
+    params, _ = lever_preset(run.model, run.preset or DEFAULT_PRESETS[run.model])
+    lever_moves(run.model, params, run.sequence)

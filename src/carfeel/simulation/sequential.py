@@ -20,8 +20,10 @@ MAX_MOVES = 1000
 
 @dataclass(frozen=True, slots=True)
 class SequentialDriver:
-    hand_N: float = 45.0
-    """The hand's force during a move, N (the click's peak plus the spring there is ~ 40 N)."""
+    hand_N: float = 60.0
+    """The hand's force during a move, N (over the click's peak with the spring there: 50.8 N
+    in rally-6; a weaker hand gets over it only by its momentum, which a device's coupling
+    takes)."""
     hold_s: float = 0.3
     """How long the hand pushes or pulls with hand_N in each move."""
     rest_s: float = 0.3
