@@ -14,7 +14,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import importlib.util
-import shutil
 import zipfile
 from pathlib import Path
 from typing import Any
@@ -34,6 +33,7 @@ from carfeel.simulation.runner import run
 from carfeel.simulation.shift import simulate_force_profile
 from carfeel.simulation.steering import simulate_steering
 from tests.conftest import shift_run
+from tests.fmu_marks import GCC_BUILD
 
 fmpy = pytest.importorskip("fmpy", reason="the fmu extra: pip install 'carfeel[fmu]'")
 from fmpy import extract, read_model_description, simulate_fmu  # noqa: E402
@@ -43,14 +43,7 @@ from fmpy.validation import validate_fmu  # noqa: E402
 
 # The gcc build for Linux x86-64 (binaries/linux64, .so): elsewhere the export takes FMPy's
 # CMake build, which these tests do not check.
-pytestmark = [
-    pytest.mark.skipif(
-        shutil.which("cc") is None and shutil.which("gcc") is None,
-        reason="no C compiler (make test installs gcc)",
-    ),
-    pytest.mark.linux_only,
-    pytest.mark.needs_tools,
-]
+pytestmark = GCC_BUILD
 
 DT = 1e-3
 STEPS = 10_000  # 10 s at 1 ms

@@ -11,7 +11,6 @@ import dataclasses
 import functools
 import math
 import re
-import shutil
 from typing import Any
 
 import numpy as np
@@ -27,17 +26,11 @@ from carfeel.models.vehicle import single_track
 from carfeel.simulation import manoeuvres
 from carfeel.simulation.result import Result
 from carfeel.simulation.steering import simulate_steering
+from tests.fmu_marks import GCC_BUILD
 
 # The C ports compiled with gcc's flags into a .so, as the FMU's gcc build does on Linux x86-64:
 # elsewhere the FMU takes FMPy's CMake build, which these tests do not check.
-pytestmark = [
-    pytest.mark.skipif(
-        shutil.which("cc") is None and shutil.which("gcc") is None,
-        reason="no C compiler (make test installs gcc)",
-    ),
-    pytest.mark.linux_only,
-    pytest.mark.needs_tools,
-]
+pytestmark = GCC_BUILD
 
 
 @pytest.fixture(scope="module")

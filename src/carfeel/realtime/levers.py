@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 from carfeel.models.gearshift import prnd as pr
 from carfeel.models.gearshift import sequential as sq
@@ -80,21 +80,27 @@ class Lever(Protocol):
         ...
 
 
-class SequentialLever:
+class _Knob:
+    """The knob's position and speed of a lever model's state (`x_m`, `v_m_s`)."""
+
+    state: Any
+
+    @property
+    def position_m(self) -> float:
+        return float(self.state.x_m)
+
+    @property
+    def velocity_m_s(self) -> float:
+        return float(self.state.v_m_s)
+
+
+class SequentialLever(_Knob):
     """`models.gearshift.sequential` as a `Lever`."""
 
     def __init__(self, params: sq.SequentialParams) -> None:
         self.params = params
-        self.state = sq.SequentialState()
+        self.state: Any = sq.SequentialState()
         self.travel_m = params.end_m
-
-    @property
-    def position_m(self) -> float:
-        return self.state.x_m
-
-    @property
-    def velocity_m_s(self) -> float:
-        return self.state.v_m_s
 
     def step(self, hand_N: float, controls: Controls, dt_s: float) -> tuple[float, float, str]:
         inputs = sq.SequentialInputs(hand_N, controls.lift, controls.locked_up,
@@ -103,21 +109,13 @@ class SequentialLever:
         return out.lever_N, out.wall_depth_m, sq.gear_name(out.gear)
 
 
-class PrndLever:
+class PrndLever(_Knob):
     """`models.gearshift.prnd` as a `Lever`: x from P's centre toward D."""
 
     def __init__(self, params: pr.PrndParams) -> None:
         self.params = params
-        self.state = pr.PrndState()
+        self.state: Any = pr.PrndState()
         self.travel_m = params.centre_m(len(params.positions) - 1) + params.end_m
-
-    @property
-    def position_m(self) -> float:
-        return self.state.x_m
-
-    @property
-    def velocity_m_s(self) -> float:
-        return self.state.v_m_s
 
     def step(self, hand_N: float, controls: Controls, dt_s: float) -> tuple[float, float, str]:
         inputs = pr.PrndInputs(hand_N, controls.brake, controls.button, controls.speed_m_s)
