@@ -147,7 +147,7 @@ def test_the_rally_preset_s_hand_gets_over_its_click():
     [(["--model", "sequential", "--mode", "admittance"], "--mode impedance"),
      (["--model", "sequential", "--sequence", "up,sideways"], "'sideways' is not a move"),
      (["--model", "prnd", "--sequence", "R,X"], "'X' is not a position"),
-     (["--model", "prnd", "--telemetry", "carfeel:127.0.0.1:0"], "--telemetry drives"),
+     (["--model", "shift", "--telemetry", "carfeel:127.0.0.1:0"], "--telemetry drives"),
      (["--model", "shift", "--sequence", "up"], "--model shift has none")],
 )  # fmt: skip
 def test_what_a_lever_run_cannot_do_is_refused_with_the_reason(extra, says, tmp_path, capsys):

@@ -121,7 +121,8 @@ def register(commands: Any) -> None:
         "--gear-output",
         default="none",
         metavar="uinput|vjoy|none",
-        help="--model hpattern: the lever's slot as a virtual joystick's buttons",
+        help="--model hpattern, sequential or prnd: the lever's gear (or the selector's "
+        "position, a button each) as a virtual joystick's buttons",
     )
     run.add_argument(
         "--gear-timing",

@@ -296,8 +296,21 @@ def _check_telemetry(run: RealtimeRun) -> None:
         raise InputError(
             f"--gear-timing {run.gear_timing!r}: choose one of {', '.join(GEAR_TIMINGS)}"
         )
-    if run.gear_output != "none" and run.model != "hpattern":
-        raise InputError("--gear-output needs --model hpattern (the lever's slot is the gear)")
+    if run.gear_output != "none" and run.model not in ("hpattern", *LEVER_MODELS):
+        raise InputError(
+            "--gear-output needs --model hpattern, sequential or prnd (the lever's gear or "
+            "position is what the game is told)"
+        )
+    if run.model == "prnd" and run.gear_mapping != "buttons":
+        raise InputError(
+            f"--gear-mapping {run.gear_mapping}: a PRND selector holds one button per position "
+            "(P, R, N, D ...): use buttons"
+        )
+    if run.model == "sequential" and run.gear_mapping == "range-splitter":
+        raise InputError(
+            "--gear-mapping range-splitter is a truck's: a sequential lever tells buttons (one a "
+            "gear) or sequential (up and down pulses)"
+        )
     if run.gear_output != "none" and run.telemetry is None:
         raise InputError(
             f"--gear-output {run.gear_output} presses the gear's buttons for a game: it needs "
@@ -326,8 +339,11 @@ def _check_telemetry(run: RealtimeRun) -> None:
         from carfeel.telemetry.receiver import parse_source
 
         parse_source(run.telemetry)
-        if run.model not in ("steering", "hpattern"):
-            raise InputError("--telemetry drives --model steering or hpattern")
+        if run.model == "shift":
+            raise InputError(
+                "--telemetry drives --model hpattern, sequential, prnd or steering (the single "
+                "shift has no gears to take from a game)"
+            )
 
 
 def sequence_of(run: RealtimeRun) -> tuple[str, ...]:

@@ -7,7 +7,7 @@ from __future__ import annotations
 from typing import Any
 
 from carfeel.realtime.devices.base import DeviceInfo
-from carfeel.realtime.run_options import RealtimeRun
+from carfeel.realtime.run_options import LEVER_MODELS, RealtimeRun
 
 
 def preset_for_car(run: RealtimeRun, receiver: Any, preset_name: str) -> str:
@@ -32,6 +32,8 @@ def drive_by_telemetry(
     from carfeel.telemetry.gearout import GearDriver, button_count, open_gear_output
     from carfeel.telemetry.source import VehicleSource
 
+    if run.model in LEVER_MODELS:
+        return _drive_lever(run, renderer, receiver)
     steering = run.model == "steering"
     needs = driving.steering_needs if steering else driving.hpattern_needs
     if steering and run.steering_model == "physical":
@@ -58,6 +60,27 @@ def drive_by_telemetry(
     return driving.TelemetryDriven(
         renderer, source, run.model, vibration, gear_driver, game_torque, cues
     )
+
+
+def _drive_lever(run: RealtimeRun, renderer: Any, receiver: Any) -> Any:
+    """A sequential lever or a PRND selector driven by the game (`telemetry.lever_driving`)."""
+    from carfeel.telemetry.gearout import GearFollower, open_gear_output
+    from carfeel.telemetry.lever_driving import LeverDriven, PositionFollower, lever_needs
+    from carfeel.telemetry.source import VehicleSource
+
+    source = VehicleSource(receiver, lever_needs)
+    follower: Any = None
+    params = renderer.lever.params
+    if run.model == "sequential":
+        forward = params.forward_gears
+        output = open_gear_output(run.gear_output, forward + 1)
+        if output is not None:
+            follower = GearFollower(output, run.gear_mapping, forward)
+    else:
+        output = open_gear_output(run.gear_output, len(params.positions))
+        if output is not None:
+            follower = PositionFollower(output, params.positions)
+    return LeverDriven(renderer, source, run.model, follower)
 
 
 def telemetry_notes(driven: Any) -> list[str]:
