@@ -372,7 +372,7 @@ def test_cli_bad_sources_exit_2_before_anything(
     assert (
         cli.main(["run", "--model", "shift", "--telemetry", "forza:0", "--clock", "simulated"]) == 2
     )
-    assert "steering or hpattern" in capsys.readouterr().err
+    assert "--telemetry drives --model hpattern, sequential" in capsys.readouterr().err
     assert cli.main(["run", "--gear-output", "joystick"]) == 2
     capture = tmp_path / "c.raw"
     capture.write_bytes(bytes(330))
