@@ -159,7 +159,26 @@ def hpattern_needs(state: VehicleState) -> bool:
     return not (math.isnan(state.speed_m_s) or math.isnan(state.engine_speed_rpm))
 
 
-class TelemetryDriven:
+class Wrapping:
+    """A renderer around `inner`: its gears and its model steps per tick are the inner's."""
+
+    inner: Any
+
+    @property
+    def gears(self) -> list[str]:
+        gears: list[str] = self.inner.gears
+        return gears
+
+    @property
+    def substeps(self) -> int:
+        return int(self.inner.substeps)
+
+    @substeps.setter
+    def substeps(self, value: int) -> None:
+        self.inner.substeps = value
+
+
+class TelemetryDriven(Wrapping):
     """A renderer driven by telemetry (see the module); the `Renderer` protocol, passed through."""
 
     EXTRA = (
@@ -192,19 +211,6 @@ class TelemetryDriven:
         self.game_torque = game_torque if hasattr(inner, "game_torque_Nm") else None
         self._game_torque_Nm = math.nan
         self.cues = cues
-
-    @property
-    def gears(self) -> list[str]:
-        gears: list[str] = self.inner.gears
-        return gears
-
-    @property
-    def substeps(self) -> int:
-        return int(self.inner.substeps)
-
-    @substeps.setter
-    def substeps(self, value: int) -> None:
-        self.inner.substeps = value
 
     def tick(
         self, sample: DeviceSample, dt_s: float

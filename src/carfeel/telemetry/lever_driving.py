@@ -18,6 +18,7 @@ from typing import Any
 
 from carfeel.contracts import DeviceSample
 from carfeel.telemetry.cues import sequential_locked
+from carfeel.telemetry.driving import Wrapping
 from carfeel.telemetry.gearout import prnd_buttons
 from carfeel.telemetry.source import VehicleSource
 from carfeel.telemetry.state import VehicleState
@@ -56,7 +57,7 @@ class PositionFollower:
         self.held = None
 
 
-class LeverDriven:
+class LeverDriven(Wrapping):
     """A `LeverRenderer` driven by a game (see the module); the `Renderer` protocol, passed
     through. `follower`: a `GearFollower` (sequential lever) or a `PositionFollower` (PRND), or
     None (no gear output)."""
@@ -68,19 +69,6 @@ class LeverDriven:
         self.axes: int = inner.axes
         self.columns: tuple[str, ...] = (*inner.columns, *self.EXTRA)
         self.effect = 0.0
-
-    @property
-    def gears(self) -> list[str]:
-        gears: list[str] = self.inner.gears
-        return gears
-
-    @property
-    def substeps(self) -> int:
-        return int(self.inner.substeps)
-
-    @substeps.setter
-    def substeps(self, value: int) -> None:
-        self.inner.substeps = value
 
     def tick(
         self, sample: DeviceSample, dt_s: float
