@@ -188,17 +188,21 @@ class LeverRenderer:
         x_dev, vx_dev = self.rx.step(sample.positions[0], dt_s)
         y_dev, vy_dev = self.ry.step(sample.positions[1], dt_s)
         h = dt_s / self.substeps
-        hand = g.coupling_stiffness * (x_dev / ps - lever.position_m) + g.coupling_damping * (
-            vx_dev / ps - lever.velocity_m_s
-        )
-        coupling = hand
+        x_handle, v_handle = x_dev / ps, vx_dev / ps
+
+        def coupling_N() -> float:
+            """The coupling's pull on the lever toward the handle, model N."""
+            stretch = x_handle - lever.position_m
+            return g.coupling_stiffness * stretch + g.coupling_damping * (
+                v_handle - lever.velocity_m_s
+            )
+
+        hand = coupling = coupling_N()  # what the hand applies through it at the tick's start
         lever_N = depth = 0.0
         gear = self._gear
         for _ in range(self.substeps):  # the handle is held, the lever moves
             lever_N, depth, gear = lever.step(coupling, self.controls, h)
-            coupling = g.coupling_stiffness * (x_dev / ps - lever.position_m) + (
-                g.coupling_damping * (vx_dev / ps - lever.velocity_m_s)
-            )
+            coupling = coupling_N()
         if gear != self._gear:
             if self._gear:  # the rest position at the start is not a shift
                 self.gears.append(gear)
@@ -264,13 +268,12 @@ class LeverHand:
         self.order = order
         self.done_s = start_s + len(moves) * (hold_s + rest_s)
         """When the last move's rest ends."""
+        self._done = False
 
     @property
     def done(self) -> bool:
         """Set by the loop's clock through `forces`: the script has run out."""
         return self._done
-
-    _done = False
 
     def forces(
         self, time_s: float, positions: tuple[float, ...], velocities: tuple[float, ...]
