@@ -102,7 +102,7 @@ def page(panel: tuple[str, Path]) -> Iterator[Any]:
         tab.on("pageerror", lambda e: problems.append(f"page error: {e}"))
         tab.problems = problems
         tab.goto(panel[0])
-        tab.wait_for_function("document.querySelectorAll('#model option').length === 3")
+        tab.wait_for_function("document.querySelectorAll('#model option').length === 5")
         yield tab
         browser.close()
 
@@ -190,6 +190,38 @@ def test_a_session_started_from_the_page(
     page.click("#stop")
     page.wait_for_function("document.querySelector('#state').textContent === 'ENDED'")
     assert page.text_content("#start-msg") == "ended: stopped on request"
+    assert page.problems == []
+
+
+def test_a_lever_session_from_the_page(page: Any) -> None:
+    from carfeel.realtime.run_options import DEFAULT_SEQUENCES
+
+    page.select_option("#model", "sequential")
+    # The hand's script field takes the lever's default moves, not the H-pattern's gears.
+    assert page.input_value("#sequence") == ",".join(DEFAULT_SEQUENCES["sequential"])
+    page.select_option("#clock", "simulated")
+    page.click("#start")
+    page.wait_for_function("document.querySelector('#state').textContent !== 'IDLE'")
+    page.wait_for_function(
+        "document.querySelector('#pattern-title').textContent.startsWith('Sequential lever')"
+    )
+    # (In simulated time a gear may be held for less than a frame: the list, not the display.)
+    page.wait_for_function("Number(document.querySelector('#gears').dataset.count) >= 7")
+    assert (page.text_content("#gears") or "").split() == ["1", "2", "1", "N", "R", "N", "1"]
+    # The lever's view drew its marks: the force-position canvas is not the empty one.
+    drawn = page.evaluate(
+        "(() => { const c = document.querySelector('#force-position');"
+        " const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;"
+        " let lit = 0; for (let i = 0; i < d.length; i += 4) if (d[i] > 230) lit++;"
+        " return lit; })()"
+    )
+    assert drawn > 200, drawn  # the white filtered trace, not a blank canvas's few letters
+    page.wait_for_function(
+        "['ENDED', 'RUNNING'].includes(document.querySelector('#state').textContent)"
+    )
+    if page.text_content("#state") == "RUNNING":
+        page.click("#stop")
+    page.wait_for_function("document.querySelector('#state').textContent === 'ENDED'")
     assert page.problems == []
 
 
@@ -295,7 +327,7 @@ def test_the_credential_stays_in_its_tab_and_reaches_no_other_server(tmp_path: P
         tab.on("console", lambda m: problems.append(m.text) if m.type == "error" else None)
         tab.on("pageerror", lambda e: problems.append(str(e)))
         tab.goto(url)
-        tab.wait_for_function("document.querySelectorAll('#model option').length === 3")
+        tab.wait_for_function("document.querySelectorAll('#model option').length === 5")
         tab.wait_for_function("window.panelStats.frames > 0")  # the stream connected
         assert problems == [], problems
         assert tab.url == base and token not in tab.evaluate("location.href + history.state")

@@ -18,10 +18,19 @@ from carfeel.panel.values import inside, number_of, safe_name, said
 VIRTUAL_CHANGES = re.compile(r"[A-Za-z_]+=[0-9.eE+-]+x?(,[A-Za-z_]+=[0-9.eE+-]+x?)*")
 """`virtual:KIND:KEY=VALUE,...`'s changes to the true plant: names and numbers, nothing else."""
 MAX_TEXT_CHARS = 200
-PANEL_MODELS = ("shift", "hpattern", "steering")
-"""The models the panel starts (the levers, `carfeel run --model sequential|prnd`, have no
-views or tunables on the page yet)."""
 """The longest text field of a session's request (a device, a mode, a telemetry source)."""
+MAX_SEQUENCE_CHARS = 20_000
+"""The longest virtual hand's script (a long H-pattern session's gears run to a few thousand)."""
+PANEL_MODELS = ("shift", "hpattern", "sequential", "prnd", "steering")
+"""The models the panel starts (all of `carfeel run`'s; the levers have no tunables yet)."""
+
+
+SCRIPTS = {
+    "hpattern": "gears such as N,1,2,N",
+    "sequential": "moves such as up,up,down,lift-down",
+    "prnd": "positions such as R,N,D,P",
+}
+"""What a session's `sequence` holds, per model that has a virtual hand's script."""
 
 
 def options(preset_folder: Path, real: list[str], replays: list[str]) -> dict[str, Any]:
@@ -30,6 +39,7 @@ def options(preset_folder: Path, real: list[str], replays: list[str]) -> dict[st
     from carfeel.realtime.devices.virtual import PLANTS
     from carfeel.realtime.hands import HANDS
     from carfeel.realtime.rendering import MODES
+    from carfeel.realtime.run_options import DEFAULT_SEQUENCES
     from carfeel.realtime.session import DEFAULT_PRESETS
     from carfeel.simulation.steering import ROAD_FRICTION, STEERING_MODELS
 
@@ -42,6 +52,7 @@ def options(preset_folder: Path, real: list[str], replays: list[str]) -> dict[st
         "models": list(PANEL_MODELS),
         "modes": list(MODES),
         "default_presets": DEFAULT_PRESETS,
+        "default_sequences": {m: ",".join(s) for m, s in DEFAULT_SEQUENCES.items()},
         "presets": presets,
         "devices": {
             "joystick": [f"virtual:{k}" for k, v in PLANTS.items() if v[2] == "joystick"],
@@ -121,7 +132,7 @@ def run_of(
     network: bool,
 ) -> dict[str, Any]:
     """The request's session as RealtimeRun keyword arguments, checked as `carfeel run`'s."""
-    from carfeel.realtime.run_options import RealtimeRun, check_run
+    from carfeel.realtime.run_options import LEVER_MODELS, RealtimeRun, check_run
     from carfeel.simulation.sequence import parse_sequence
 
     allowed = {"model", "preset", "device", "mode", "speed_kmh", "hand", "clock", "sequence",
@@ -170,11 +181,14 @@ def run_of(
     if model == "steering":
         run.setdefault("mode", "impedance")
     sequence = body.get("sequence")
-    if sequence not in (None, "") and model == "hpattern":
+    if sequence not in (None, "") and model in ("hpattern", *LEVER_MODELS):
         if isinstance(sequence, list):
             sequence = ",".join(str(s) for s in sequence)
-        if not isinstance(sequence, str):
-            raise InputError(f"sequence {said(sequence)}: expected gears such as N,1,2,N")
+        if not isinstance(sequence, str) or len(sequence) > MAX_SEQUENCE_CHARS:
+            raise InputError(
+                f"sequence {said(sequence)}: expected at most {MAX_SEQUENCE_CHARS} characters of "
+                f"{SCRIPTS[model]}"
+            )
         run["sequence"] = parse_sequence(sequence)
     run.setdefault("duration_s", 600.0)
     run["preset"] = preset_spec(model, body.get("preset"), preset_folder)

@@ -7,7 +7,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 STREAM_HZ = 30.0
-KINDS = {"shift": "shift", "hpattern": "hpattern", "steering": "steering"}
+KINDS = {"shift": "shift", "hpattern": "hpattern", "steering": "steering",
+         "sequential": "sequential", "prnd": "prnd"}  # fmt: skip
 """The kinds of preset the panel saves, each in folder/presets/KIND."""
 
 

@@ -42,6 +42,12 @@ def save_preset(presets: Path, session: Session, name: str) -> dict[str, Any]:
         if p.tyres is not None:
             tables |= {"tyres": p.tyres, "steering_system": p.steering_system}
         texts = [(target, "steering", io_presets.to_toml(name, source, tables))]
+    elif model == "sequential":
+        tables = {"lever": p.lever, "driver": p.driver}
+        texts = [(target, "sequential", io_presets.to_toml(name, source, tables))]
+    elif model == "prnd":
+        tables = {"selector": p.selector, "driver": p.driver}
+        texts = [(target, "prnd", io_presets.to_toml(name, source, tables))]
     else:
         engagement = inside(presets / "shift", f"{name}-engagement.toml")
         if engagement.exists():

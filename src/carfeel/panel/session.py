@@ -277,6 +277,8 @@ class Session:
                 }
             if "layout" in ready:
                 out["layout"] = jsonable(ready["layout"])
+            if "lever" in ready:
+                out["lever"] = [{"position_m": x, "name": name} for x, name in ready["lever"]]
             if "gearbox" in ready:
                 g = ready["gearbox"]
                 out["gearbox"] = {

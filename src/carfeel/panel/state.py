@@ -122,7 +122,13 @@ class Panel:
         )
 
     async def start(self, body: dict[str, Any]) -> Session:
-        from carfeel.io.presets import load_hpattern, load_shift, load_steering
+        from carfeel.io.presets import (
+            load_hpattern,
+            load_prnd,
+            load_sequential,
+            load_shift,
+            load_steering,
+        )
         from carfeel.realtime.session import DEFAULT_PRESETS
 
         if self._starting or (self.session is not None and self.session.running):
@@ -131,7 +137,8 @@ class Panel:
         model = run["model"]
         name = run["preset"] or DEFAULT_PRESETS[model]
         loader: dict[str, Callable[[str], Any]] = {
-            "shift": load_shift, "hpattern": load_hpattern, "steering": load_steering}  # fmt: skip
+            "shift": load_shift, "hpattern": load_hpattern, "steering": load_steering,
+            "sequential": load_sequential, "prnd": load_prnd}  # fmt: skip
         loaded = loader[model](name)
         preset = loaded.params if model != "hpattern" else loaded
         physics = None if run.get("synchronizer") is None else run["synchronizer"] == "physics"

@@ -308,6 +308,9 @@ class Observer:
             out["gearbox"] = pattern.engagement
         elif self.model == "shift":
             out["gearbox"] = r.gearbox
+        marks = getattr(getattr(r, "lever", None), "marks", None)
+        if marks is not None:  # a lever: its ends, detents and positions, for its view
+            out["lever"] = tuple(marks)
         return out
 
     # -- the end -----------------------------------------------------------------------------

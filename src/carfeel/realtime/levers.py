@@ -101,6 +101,12 @@ class SequentialLever(_Knob):
         self.params = params
         self.state: Any = sq.SequentialState()
         self.travel_m = params.end_m
+        up, p = params.up_direction, params
+        self.marks: tuple[tuple[float, str], ...] = tuple(sorted((
+            (-p.end_m, "end"), (-up * p.click_m, "down"), (0.0, "rest"), (up * p.click_m, "up"),
+            (p.end_m, "end"),
+        )))  # fmt: skip
+        """Positions (m) and names of what the lever has along its travel, along + x."""
 
     def step(self, hand_N: float, controls: Controls, dt_s: float) -> tuple[float, float, str]:
         inputs = sq.SequentialInputs(hand_N, controls.lift, controls.locked_up,
@@ -116,6 +122,13 @@ class PrndLever(_Knob):
         self.params = params
         self.state: Any = pr.PrndState()
         self.travel_m = params.centre_m(len(params.positions) - 1) + params.end_m
+        last = params.centre_m(len(params.positions) - 1)
+        self.marks: tuple[tuple[float, str], ...] = (
+            (-params.end_m, "end"),
+            *((params.centre_m(i), name) for i, name in enumerate(params.positions)),
+            (last + params.end_m, "end"),
+        )
+        """Positions (m) and names of what the lever has along its travel, along + x."""
 
     def step(self, hand_N: float, controls: Controls, dt_s: float) -> tuple[float, float, str]:
         inputs = pr.PrndInputs(hand_N, controls.brake, controls.button, controls.speed_m_s)

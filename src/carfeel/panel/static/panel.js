@@ -102,7 +102,9 @@ function modelChanged() {
   fill($("device"), [...options.devices[kind], ...options.devices.real, ...options.devices.replays]);
   fill($("mode"), model === "steering" ? ["impedance"] : options.modes, true);
   if (model !== "steering") $("mode").value = "impedance";
-  $("sequence-row").classList.toggle("hidden", model !== "hpattern");
+  const scripted = model in options.default_sequences;
+  $("sequence-row").classList.toggle("hidden", !scripted);
+  if (scripted) $("sequence").value = options.default_sequences[model];
   $("speed").value = model === "steering" ? 80 : 30;
   steeringModelChanged();
 }
@@ -131,7 +133,7 @@ function startBody() {
   };
   const telemetry = $("telemetry").value.trim();
   if (telemetry && telemetry !== "none") body.telemetry = telemetry;
-  if (model === "hpattern") body.sequence = $("sequence").value.trim();
+  if (model in options.default_sequences) body.sequence = $("sequence").value.trim();
   if (model === "steering") {
     body.steering_model = $("steering-model").value;
     if (body.steering_model === "physical" && $("road").value !== "preset") body.road = $("road").value;
@@ -309,7 +311,7 @@ function setSession(s) {
   const steering = s.model === "steering";
   $("gearbox-views").classList.toggle("hidden", steering);
   $("steering-views").classList.toggle("hidden", !steering);
-  $("pattern-title").firstChild.textContent = s.model === "shift" ? "Engagement slot " : "H-pattern ";
+  $("pattern-title").firstChild.textContent = PATTERN_TITLES[s.model] || "H-pattern ";
   if (s.model && (before.model !== s.model || before.state !== s.state) && s.state === "running") loadTunables();
   if (s.error) say("start-msg", s.error, true);
   if (before.recording && !s.recording) listRecordings();
@@ -520,7 +522,9 @@ function stageBand(f, ctx, t, stages) {
     ctx.fillRect(f.X(t[i - 1]), yb, Math.max(1, f.X(t[i]) - f.X(t[i - 1]) + 0.5), 6);
   }
 }
+const PATTERN_TITLES = { shift: "Engagement slot ", sequential: "Sequential lever ", prnd: "Selector " };
 function drawGearbox() {
+  if (session.lever) { drawLever(); return; }
   const shift = session.model === "shift";
   const fx = shift ? "force_N" : "force_x_N", ffx = shift ? "force_filtered_N" : "force_x_filtered_N";
   const px = shift ? "position_m" : "x_m";
@@ -546,6 +550,62 @@ function drawGearbox() {
   $("gears").textContent = list.length ? (list.length > 16 ? "… " : "") + list.slice(-16).join(" ") : "–";
   $("gears").dataset.count = list.length;
   $("gears-count").textContent = list.length ? `(${list.length})` : "";
+}
+// A one-axis lever (sequential, PRND): force and position against time, the force against the
+// position over the window with the lever's detents and ends marked, and the lever itself.
+function drawLever() {
+  const w = windowed(["force_N", "force_filtered_N", "position_m"]);
+  drawTime("force-time", w, w ? [
+    { ys: w.force_N, color: "#6e7681", width: 1, label: "raw" },
+    { ys: w.force_filtered_N, color: "#f0f6fc", width: 2, label: "20 Hz filtered" },
+  ] : [], "force on the knob [N]");
+  drawTime("position-time", w, w ? [
+    { ys: w.position_m.map((v) => (v === null ? null : v * 1e3)), color: "#4aa3ff", width: 2, label: "lever x" },
+  ] : [], "knob [mm]");
+  const marks = session.lever, xr = [marks[0].position_m * 1e3 - 2, marks[marks.length - 1].position_m * 1e3 + 2];
+  const gear = lastOf(buf.gear);
+  {
+    const { ctx, w: cw, h } = canvasOf("force-position");
+    if (!w || w.t.length < 2) empty(ctx, cw, h);
+    else {
+      const xs = w.position_m.map((v) => (v === null ? null : v * 1e3));
+      const f = frame(ctx, cw, h, { x: xr, y: extent([w.force_N, w.force_filtered_N]), xlabel: "lever position [mm]", ylabel: "force on the knob [N]" });
+      leverMarks(ctx, f, marks, gear);
+      line(ctx, f, xs, w.force_N, "#6e7681", 1);
+      line(ctx, f, xs, w.force_filtered_N, "#f0f6fc", 2);
+      legend(ctx, f, [["raw", "#6e7681"], ["20 Hz filtered", "#f0f6fc"]]);
+    }
+  }
+  {
+    const { ctx, w: cw, h } = canvasOf("pattern");
+    const f = frame(ctx, cw, h, { x: xr, y: [-1, 1], xlabel: "lever position [mm]", ylabel: "" });
+    leverMarks(ctx, f, marks, gear);
+    const xs = buf.position_m || [];
+    const x = xs.length ? xs[xs.length - 1] : null;
+    if (x !== null && x !== undefined) {
+      ctx.fillStyle = "#f0f6fc"; ctx.strokeStyle = "#4aa3ff"; ctx.lineWidth = 3;
+      ctx.beginPath(); ctx.arc(f.X(x * 1e3), f.Y(0), 8, 0, 2 * Math.PI); ctx.fill(); ctx.stroke();
+    }
+  }
+  $("gear").textContent = gear || "·";
+  $("gear").classList.toggle("neutral", !gear || gear === "N");
+  $("stage").textContent = "–";
+  $("stage").style.background = "transparent";
+  const list = session.engaged || [];
+  $("gears").textContent = list.length ? (list.length > 16 ? "… " : "") + list.slice(-16).join(" ") : "–";
+  $("gears").dataset.count = list.length;
+  $("gears-count").textContent = list.length ? `(${list.length})` : "";
+}
+function leverMarks(ctx, f, marks, gear) {
+  ctx.setLineDash([4, 4]); ctx.lineWidth = 1;
+  for (const mark of marks) {
+    const x = f.X(mark.position_m * 1e3), now = mark.name === gear;
+    ctx.strokeStyle = now ? "#4aa3ff" : "#5c6773";
+    ctx.beginPath(); ctx.moveTo(x, f.m.t); ctx.lineTo(x, f.m.t + f.ph); ctx.stroke();
+    ctx.fillStyle = now ? "#4aa3ff" : "#c9d1d9"; ctx.textAlign = "center"; ctx.textBaseline = "top";
+    ctx.fillText(mark.name, x, f.m.t + 2);
+  }
+  ctx.setLineDash([]);
 }
 function lastOf(values) {
   // The newest value that is not blank (the rows of the final fade carry no model state).
