@@ -17,3 +17,6 @@ class DeviceSample(NamedTuple):
     """Per axis, m or rad, positive as the commands."""
     forces: tuple[float, ...] | None
     """The hand's force per axis if the device measures it (N or Nm), else None."""
+    buttons: tuple[bool, ...] | None = None
+    """Whether each button the run asked the device for is pressed, in the order asked (a
+    lever's lift, lock button, brake: `--lever-buttons`); None: none asked."""

@@ -30,6 +30,8 @@ ECODES = {
     "SYN_REPORT": 0,
     "KEY_A": 30,
     "BTN_TRIGGER": 0x120,
+    "BTN_THUMB": 0x121,
+    "BTN_THUMB2": 0x122,
     "ABS_X": 0x00,
     "ABS_Y": 0x01,
     "ABS_Z": 0x02,
@@ -170,6 +172,8 @@ class DeviceSpec:
     ff_effects_count: int = 16
     writable: bool = True
     keys: tuple[int, ...] = ()
+    pressed: set[int] = field(default_factory=set)
+    """The keys held down now; a test presses one by adding its code."""
     values: dict[int, int] = field(default_factory=dict)
     """Current axis values; a test moves an axis by setting one."""
     ids: tuple[int, int, int, int] = (0x03, 0x0000, 0x0000, 0x0111)
@@ -206,7 +210,7 @@ def joystick(path: str = "/dev/input/event5", name: str = "Fake Force Feedback J
         {E.ABS_X: axis, E.ABS_Y: axis, E.ABS_RZ: AbsInfo(32, 0, 63, 0, 0, 0)},
         ff=(E.FF_CONSTANT, E.FF_PERIODIC, E.FF_SPRING, E.FF_SINE, E.FF_GAIN, E.FF_AUTOCENTER),
         ff_effects_count=8,
-        keys=(E.BTN_TRIGGER,),
+        keys=(E.BTN_TRIGGER, E.BTN_THUMB, E.BTN_THUMB2),
     )
 
 
@@ -265,6 +269,11 @@ class FakeInputDevice:
         if axis_num not in self.spec.axes:
             raise OSError(errno.EINVAL, "Invalid argument")
         return self.spec.axes[axis_num]._replace(value=self.spec.values[axis_num])
+
+    def active_keys(self, verbose: bool = False) -> list[int]:
+        """The keys held down (EVIOCGKEY): only ones the device has."""
+        self._call("active_keys", verbose)
+        return sorted(code for code in self.spec.pressed if code in self.spec.keys)
 
     def write(self, etype: int, code: int, value: int) -> None:
         self._call("write", etype, code, value)

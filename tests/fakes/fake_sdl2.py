@@ -107,6 +107,8 @@ class JoystickSpec:
     name: str
     axes: list[int]
     features: int = SDL_HAPTIC_CONSTANT | SDL_HAPTIC_GAIN | SDL_HAPTIC_AUTOCENTER
+    buttons: list[int] = field(default_factory=lambda: [0] * 4)
+    """Each button's state (1: pressed); a test presses one by setting it."""
     haptic_axes: int = 0
     max_effects: int = 16
     attached: bool = True
@@ -271,6 +273,21 @@ class FakeSDL2(types.ModuleType):
         if self._refused(SDL_INIT_JOYSTICK, joystick):
             return -1
         return len(self.joysticks[joystick.index].axes)
+
+    def SDL_JoystickNumButtons(self, joystick: Handle) -> int:
+        if self._failing("SDL_JoystickNumButtons", (joystick,)):
+            return -1
+        if self._refused(SDL_INIT_JOYSTICK, joystick):
+            return -1
+        return len(self.joysticks[joystick.index].buttons)
+
+    def SDL_JoystickGetButton(self, joystick: Handle, button: int) -> int:
+        if self._failing("SDL_JoystickGetButton", (joystick, button)):
+            return 0
+        if self._refused(SDL_INIT_JOYSTICK, joystick):
+            return 0
+        buttons = self.joysticks[joystick.index].buttons
+        return buttons[button] if 0 <= button < len(buttons) else 0
 
     def SDL_JoystickUpdate(self) -> None:
         self._void("SDL_JoystickUpdate", ())

@@ -140,6 +140,14 @@ def register(commands: Any) -> None:
         "a truck layout such as truck-14r2)",
     )
     run.add_argument(
+        "--lever-buttons",
+        default=None,
+        metavar="CONTROL=BUTTON,...",
+        help="--model sequential|prnd on a real device: its buttons press the lever's controls "
+        "(sequential: lift; prnd: button, brake), an evdev name or code (lift=BTN_TRIGGER) or an "
+        "SDL index (button=0,brake=1); unmapped, a person's run keeps them at rest",
+    )
+    run.add_argument(
         "--car-presets",
         metavar="FILE.toml",
         default=None,
@@ -196,6 +204,7 @@ def _with_accept(telemetry: str | None, accept_from: str | None) -> str | None:
 
 def _run(args: argparse.Namespace) -> int:
     from carfeel.io.outputs import Outputs
+    from carfeel.realtime.run_options import parse_lever_buttons
     from carfeel.realtime.session import RealtimeRun, run_realtime
     from carfeel.simulation.sequence import parse_sequence
 
@@ -258,6 +267,7 @@ def _run(args: argparse.Namespace) -> int:
         identify=args.identify,
         loop_cpu=args.loop_cpu,
         device_profile=Path(args.device_profile) if args.device_profile else None,
+        lever_buttons=parse_lever_buttons(args.lever_buttons) if args.lever_buttons else (),
     )
 
     def announce() -> None:

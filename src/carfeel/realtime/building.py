@@ -180,6 +180,7 @@ def _build_lever(
     gains = Gains.sized(sizing, scaling)
     controls = levers.Controls()
     renderer = levers.LeverRenderer(lever, scaling, run.rate_hz, gains, controls)
+    renderer.buttons = tuple(control for control, _ in run.lever_buttons)
     moves = lever_moves(run.model, params, sequence_of(run))
     hand: Any = levers.LeverHand(
         moves, driver.hand_N, driver.hold_s, driver.rest_s, scaling.force_scale,

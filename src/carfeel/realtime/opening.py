@@ -33,8 +33,10 @@ def open_device(
     travel: float | None = None,
     delay_s: float | None = None,
     report_hz: float | None = None,
+    buttons: tuple[int | str, ...] = (),
 ) -> Device:
-    """A device from its command-line name: virtual[:KIND], evdev:PATH, sdl:INDEX, replay:FILE."""
+    """A device from its command-line name: virtual[:KIND], evdev:PATH, sdl:INDEX, replay:FILE;
+    `buttons`, a real one's to read (`--lever-buttons`)."""
     force_default, travel_default = DEVICE_DEFAULTS[kind]
     force = max_force or force_default
     reach = travel or travel_default
@@ -68,13 +70,16 @@ def open_device(
     if name == "evdev" and argument:
         from carfeel.realtime.devices.evdev_device import EvdevDevice
 
-        return EvdevDevice(argument, kind=kind, max_force=force, travel=reach)
+        return EvdevDevice(argument, kind=kind, max_force=force, travel=reach, buttons=buttons)
     if name == "sdl" and argument:
         from carfeel.realtime.devices.sdl2_device import SDL2Device
 
         if not argument.isdigit():
             raise InputError(f"--device sdl:{argument}: expected a joystick index, e.g. sdl:0")
-        return SDL2Device(int(argument), kind=kind, max_force=force, travel=reach)
+        indices = [b for b in buttons if isinstance(b, int)]
+        if len(indices) != len(buttons):
+            raise InputError("--lever-buttons on an SDL device: button indices 0, 1, ...")
+        return SDL2Device(int(argument), kind=kind, max_force=force, travel=reach, buttons=indices)
     raise InputError(
         f"--device {spec!r}: expected virtual[:KIND], evdev:PATH (e.g. evdev:/dev/input/event5), "
         "sdl:INDEX or replay:FILE.csv; `carfeel devices` lists what is attached"

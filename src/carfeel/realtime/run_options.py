@@ -29,6 +29,9 @@ DEFAULT_SEQUENCES = {
 }  # fmt: skip
 """The virtual hand's script per model (`--sequence`): gears, a sequential lever's moves, a
 PRND's target positions."""
+LEVER_BUTTONS = {"sequential": ("lift",), "prnd": ("button", "brake")}
+"""The controls of each lever a real device's buttons may press (`--lever-buttons`): the
+sequential knob's lift; the selector's lock button and the brake pedal."""
 MAX_RATE_HZ = 10_000.0
 MIN_RATE_HZ = 250.0
 DEVICE_DAMPING_MAX = 1000.0
@@ -104,6 +107,10 @@ class RealtimeRun:
     user's configuration folder."""
     loop_cpu: int | None = None
     """The core a wall-clock run is pinned to (`realtime.scheduling`); None: the last."""
+    lever_buttons: tuple[tuple[str, str], ...] = ()
+    """A real device's buttons pressing a lever's controls, (control, button) each: the
+    control one of LEVER_BUTTONS[model], the button an evdev name or code (BTN_TRIGGER, 288) or
+    an SDL button index (0, 1, ...)."""
 
 
 def check_run(run: RealtimeRun) -> None:
@@ -118,6 +125,7 @@ def check_run(run: RealtimeRun) -> None:
     _check_identify(run)
     _check_loop_and_clock(run)
     _check_lever_script(run)
+    _check_lever_buttons(run)
 
 
 def _check_model_and_rate(run: RealtimeRun) -> None:
@@ -351,6 +359,66 @@ def sequence_of(run: RealtimeRun) -> tuple[str, ...]:
     if run.sequence is not None:
         return run.sequence
     return DEFAULT_SEQUENCES.get(run.model, ())
+
+
+def parse_lever_buttons(text: str) -> tuple[tuple[str, str], ...]:
+    """`lift=BTN_TRIGGER` or `button=0,brake=1` as (control, button) pairs; InputError on
+    anything else (the controls and buttons are checked against the run by check_run)."""
+    pairs = []
+    for part in text.split(","):
+        control, sep, button = (p.strip() for p in part.partition("="))
+        if not sep or not control or not button:
+            raise InputError(
+                f"--lever-buttons {text!r}: expected CONTROL=BUTTON pairs separated by commas, "
+                "e.g. lift=BTN_TRIGGER (evdev) or button=0,brake=1 (SDL)"
+            )
+        pairs.append((control, button))
+    return tuple(pairs)
+
+
+def _check_lever_buttons(run: RealtimeRun) -> None:
+    """--lever-buttons: a lever's controls, each once, from a real evdev or SDL device's
+    buttons (a virtual device's hand presses them itself)."""
+    if not run.lever_buttons:
+        return
+    if run.model not in LEVER_MODELS:
+        raise InputError(
+            f"--lever-buttons presses a lever's controls (--model {' or '.join(LEVER_MODELS)}); "
+            f"--model {run.model} has none"
+        )
+    allowed = LEVER_BUTTONS[run.model]
+    controls = [c for c, _ in run.lever_buttons]
+    for control in controls:
+        if control not in allowed:
+            raise InputError(
+                f"--lever-buttons {control}=...: the {run.model} lever's controls are "
+                f"{', '.join(allowed)}"
+            )
+    if len(set(controls)) != len(controls):
+        raise InputError(f"--lever-buttons names a control twice: {', '.join(controls)}")
+    backend = run.device.partition(":")[0]
+    if backend not in ("evdev", "sdl"):
+        raise InputError(
+            f"--lever-buttons reads a real device's buttons (evdev:PATH or sdl:INDEX); "
+            f"--device {run.device}'s virtual hand presses the controls itself"
+        )
+    for control, button in run.lever_buttons:
+        if backend == "sdl" and not button.isdigit():
+            raise InputError(
+                f"--lever-buttons {control}={button}: SDL numbers a joystick's buttons 0, 1, ... "
+                "(`carfeel devices` shows how many it has)"
+            )
+        if backend == "evdev" and not (button.isdigit() or button.replace("_", "").isalnum()):
+            raise InputError(
+                f"--lever-buttons {control}={button}: expected an EV_KEY name (BTN_TRIGGER) or "
+                "its number"
+            )
+
+
+def device_buttons(run: RealtimeRun) -> tuple[int | str, ...]:
+    """The buttons the run asks its device for, in the order of `run.lever_buttons` (numbers
+    as ints, names as the backend's)."""
+    return tuple(int(b) if b.isdigit() else b for _, b in run.lever_buttons)
 
 
 def _check_lever_script(run: RealtimeRun) -> None:

@@ -42,6 +42,7 @@ from carfeel.realtime.run_options import (
     MODELS,
     RealtimeRun,
     check_run,
+    device_buttons,
 )
 from carfeel.realtime.safety import SafetyLimits
 from carfeel.realtime.signals import stop_on_signals
@@ -189,7 +190,7 @@ def _open_device(run: RealtimeRun, kind: str, delay: float | None) -> Device:
     # The device first: the scales come from its limits (its hand, if virtual, comes after).
     device = open_device(
         run.device, None, run.seed, kind, run.device_max_force, run.device_travel, delay,
-        run.device_report_hz,
+        run.device_report_hz, device_buttons(run),
     )  # fmt: skip
     if device.info.kind != kind or device.info.axes < (1 if wheel else 2):
         raise InputError(

@@ -152,6 +152,7 @@ class EvdevDevice:
     half-range of each axis (m or rad) that the axis's [min, max] spans. `axis_codes` are the
     EV_ABS codes read: by default ABS_X, ABS_Y for a joystick and ABS_X (else ABS_WHEEL) for a
     wheel. `signs` flips an axis (+1 or -1 per axis), `invert_force` the force of all axes.
+    `buttons` are the EV_KEY codes (or names, BTN_TRIGGER) whose state `read` reports.
     """
 
     def __init__(
@@ -167,6 +168,7 @@ class EvdevDevice:
         level_quantum: int = 8,
         signs: Sequence[int] | None = None,
         invert_force: bool = False,
+        buttons: Sequence[int | str] = (),
     ) -> None:
         axes = len(axis_codes) if axis_codes is not None else (2 if kind == "joystick" else 1)
         self._hold_ms = validate(kind, axes, max_force, travel, hold_s, update_hz)
@@ -179,6 +181,8 @@ class EvdevDevice:
         self._signs = signs_of(signs, axes)
         self._polarity = tuple(-s if invert_force else s for s in self._signs)
         self._requested_codes = tuple(axis_codes) if axis_codes is not None else None
+        self._requested_buttons = tuple(buttons)
+        self._button_codes: tuple[int, ...] = ()
         self._device: Any = None
         self._codes: tuple[int, ...] = ()
         self._scales: tuple[AxisScale, ...] = ()
@@ -249,6 +253,7 @@ class EvdevDevice:
                 raise DeviceError(f"{self.path} axis {code}: range [{info.min}, {info.max}]")
             scales.append(axis_scale(info.min, info.max, self.info.travel, sign))
         self._codes, self._scales = tuple(codes), tuple(scales)
+        self._button_codes = self._buttons_of(ecodes, name, capabilities.get(ecodes.EV_KEY, []))
         # Its identity for its profile: the USB ids and serial (or the port it is on), which
         # outlive the event node's number.
         ids = getattr(device, "info", None)
@@ -272,6 +277,24 @@ class EvdevDevice:
             effect.id = effect_id
             self._effects.append(effect)
             self._ids.append(effect_id)
+
+    def _buttons_of(self, ecodes: Any, name: str, keys: Sequence[int]) -> tuple[int, ...]:
+        """The asked buttons' EV_KEY codes, each one the device has."""
+        codes = []
+        for button in self._requested_buttons:
+            code = button if isinstance(button, int) else getattr(ecodes, str(button), None)
+            if not isinstance(code, int):
+                raise DeviceError(
+                    f"no button named {button!r}: give an EV_KEY name as evdev spells it "
+                    "(BTN_TRIGGER, BTN_THUMB, BTN_TOP, ...) or its number"
+                )
+            if code not in keys:
+                raise DeviceError(
+                    f"{self.path} ({name}) has no button {button} (code {code}); it has codes "
+                    f"{', '.join(str(k) for k in sorted(keys)[:24]) or 'none'}"
+                )
+            codes.append(code)
+        return tuple(codes)
 
     def __exit__(
         self,
@@ -320,7 +343,14 @@ class EvdevDevice:
         except self._errors as exc:
             raise self._lost("reading its axes", exc) from exc
         positions = tuple(s.position(raw) for s, raw in zip(self._scales, raws, strict=True))
-        return DeviceSample(time_s, positions, None)
+        if not self._button_codes:
+            return DeviceSample(time_s, positions, None)
+        try:
+            pressed = device.active_keys()  # one EVIOCGKEY: the kernel's state, no event queue
+        except self._errors as exc:
+            raise self._lost("reading its buttons", exc) from exc
+        buttons = tuple(code in pressed for code in self._button_codes)
+        return DeviceSample(time_s, positions, None, buttons)
 
     def command(self, forces: tuple[float, ...], time_s: float) -> None:
         if self._device is None:

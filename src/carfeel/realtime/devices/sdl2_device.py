@@ -80,6 +80,7 @@ class SDL2Device:
         level_quantum: int = 8,
         signs: Sequence[int] | None = None,
         invert_force: bool = False,
+        buttons: Sequence[int] = (),
     ) -> None:
         axes = len(axis_indices) if axis_indices is not None else (2 if kind == "joystick" else 1)
         self._hold_ms = validate(kind, axes, max_force, travel, hold_s, update_hz)
@@ -89,6 +90,12 @@ class SDL2Device:
             raise InputError(f"SDL joystick index = {index} must be >= 0")
         if axis_indices is not None and any(i < 0 for i in axis_indices):
             raise InputError(f"axis_indices = {tuple(axis_indices)} must be >= 0")
+        if any(isinstance(b, bool) or not isinstance(b, int) or b < 0 for b in buttons):
+            raise InputError(
+                f"buttons = {tuple(buttons)}: SDL numbers a joystick's buttons 0, 1, ..."
+            )
+        self._buttons = tuple(buttons)
+        """The joystick's button indices whose state `read` reports."""
         self.index = index
         self.info = DeviceInfo(
             f"SDL joystick {index}", kind, axes, max_force, travel, update_hz, measures_force=False
@@ -142,6 +149,13 @@ class SDL2Device:
             raise DeviceError(
                 f"{name} has {axes_found} axes; cannot read axes {self._axis_indices}"
             )
+        if self._buttons:
+            buttons_found = int(sdl2.SDL_JoystickNumButtons(joystick))
+            if max(self._buttons) >= buttons_found:
+                raise DeviceError(
+                    f"{name} has {buttons_found} buttons (0 .. {buttons_found - 1}); cannot read "
+                    f"buttons {self._buttons}"
+                )
         haptic = sdl2.SDL_HapticOpenFromJoystick(joystick)
         if not haptic:
             raise DeviceError(f"{name} has no force feedback in SDL: {sdl_error(sdl2)}")
@@ -240,7 +254,11 @@ class SDL2Device:
             scale.position(get_axis(joystick, i))
             for scale, i in zip(scales, self._axis_indices, strict=True)
         )
-        return DeviceSample(time_s, positions, None)
+        if not self._buttons:
+            return DeviceSample(time_s, positions, None)
+        get_button = sdl2.SDL_JoystickGetButton
+        buttons = tuple(get_button(joystick, i) == 1 for i in self._buttons)
+        return DeviceSample(time_s, positions, None, buttons)
 
     def command(self, forces: tuple[float, ...], time_s: float) -> None:
         if self._sdl is None:
