@@ -207,11 +207,13 @@ class Panel:
         s.preset = proposal.preset
         if checking.kind == tuning.PHYSICAL and s.ready is not None:  # the next is checked on it
             s.ready = s.ready | {"physical": proposal.command[3]}
-        pending = s.model != "steering"
+        waits = {"shift": "the lever in neutral", "hpattern": "the lever in neutral",
+                 "sequential": "the lever at rest, centred", "prnd": "the lever at rest in a "
+                 "position"}  # fmt: skip
         return {
             "changes": {k: {"old": a, "new": b} for k, (a, b) in proposal.changes.items()},
             "ramp_s": tuning.RAMP_S,
-            "waits_for": "the lever in neutral" if pending else None,
+            "waits_for": waits.get(s.model),
             "note": proposal.note or None,
         }
 

@@ -20,9 +20,10 @@ event loop); its schedule and wall ramp with the parameters.
 
 In the loop a change waits for a safe point and then ramps (`Ramp`): the gearbox's parameters
 change only with the lever in neutral (no engagement under way, no stage holding values drawn
-from the old ones), the steering's at any time; over RAMP_S the changed values are blended
-linearly from old to new. Every blend of two parameter sets that pass the (linear) cross-checks
-passes them too.
+from the old ones), a sequential lever's with it centred and at rest, a selector's with it at
+rest in a position (no shift under way), the steering's at any time; over RAMP_S the changed
+values are blended linearly from old to new. Every blend of two parameter sets that pass the
+(linear) cross-checks passes them too.
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from carfeel.errors import InputError
+from carfeel.errors import InputError, PresetError
 from carfeel.schema import describe_range, range_key, range_of, unit_of
 
 RAMP_S = 0.2
@@ -75,6 +76,8 @@ class Tunable:
 
 
 GEARBOX = ("shift", "hpattern")
+LEVERS = ("sequential", "prnd")
+"""The one-axis levers: their parameters change only with the lever at rest in a position."""
 PHYSICAL = "steering:physical"
 """The tunables' model key of --model steering --steering-model physical."""
 TUNABLES = (
@@ -96,6 +99,18 @@ TUNABLES = (
     Tunable("walls.damping_N_s_m", "wall damping", "walls", ("hpattern",)),
     Tunable("select.slot_stiffness_N_m", "slot hold stiffness", "walls", ("hpattern",)),
     Tunable("gearbox.stop.stiffness_N_m", "end stop stiffness", "walls", GEARBOX),
+    Tunable("lever.click_N", "shift click", "detents", ("sequential",),
+            "the click's peak with the centring spring stays within the device's force"),
+    Tunable("lever.centring_N_m", "centring spring", "detents", ("sequential",)),
+    Tunable("lever.drum_N", "gear drum detent", "detents", ("sequential",)),
+    Tunable("lever.damping_N_s_m", "lever damping", "damping", ("sequential",)),
+    Tunable("lever.wall_N_m", "lock wall stiffness", "walls", ("sequential",),
+            "the lever's implicit step keeps any wall passive"),
+    Tunable("selector.detent_N", "position detents", "detents", ("prnd",),
+            "within the device's force"),
+    Tunable("selector.damping_N_s_m", "selector damping", "damping", ("prnd",)),
+    Tunable("selector.wall_N_m", "lock wall stiffness", "walls", ("prnd",),
+            "the selector's implicit step keeps any wall passive"),
     Tunable("torque.k1_Nm_s2_m", "K1 aligning gain", "torque law", ("steering",),
             "the on-centre spring: checked against the wheel's stiffness budget"),
     Tunable("torque.k2", "K2 aligning saturation", "torque law", ("steering",)),
@@ -170,6 +185,8 @@ def renderer_path(model: str, path: str) -> str:
         return f"system.{rest}" if table == "steering_system" else path
     if model == "hpattern" and table == "gearbox":
         return f"engagement.{rest}"
+    if model in LEVERS:  # the lever's own parameters (SequentialParams, PrndParams)
+        return rest
     return path
 
 
@@ -277,8 +294,13 @@ def propose(session: Session, values: Mapping[str, object]) -> Proposal:
         old = float(get_path(preset, where))
         changes[path] = (old, value)
         kind = type(get_path(preset, where))
-        preset = set_path(preset, where, kind(value) if kind is int else value)
+        try:  # (a lever checks itself as it is built)
+            preset = set_path(preset, where, kind(value) if kind is int else value)
+        except PresetError as exc:
+            raise InputError(f"this tuning would make the preset invalid: {exc}") from None
     cross = _cross_checks(model, preset)
+    if model in LEVERS:
+        cross += _lever_force_checks(session, preset)
     if cross:
         raise InputError("this tuning would make the preset invalid: " + "; ".join(cross))
     schedule: Any = None
@@ -290,6 +312,8 @@ def propose(session: Session, values: Mapping[str, object]) -> Proposal:
         target = preset
     elif model == "hpattern":
         target = preset.pattern(session.physics)
+    elif model in LEVERS:
+        target = preset.lever if model == "sequential" else preset.selector
     else:
         target = preset.gearbox
     moves = tuple((renderer_path(model, p), old, new) for p, (old, new) in changes.items())
@@ -311,7 +335,30 @@ def _cross_checks(model: str, preset: Any) -> list[str]:
         return check_shift(preset)
     if model == "hpattern":
         return check_shift(preset.shift) + check_hpattern(preset.setup, preset.shift)
+    if model in LEVERS:
+        return []  # the lever's own checks ran as it was built
     return check_steering(preset)
+
+
+def _lever_force_checks(session: Session, preset: Any) -> list[str]:
+    """A lever's largest resistance must stay within what the device renders at its force
+    limit (model N, through the session's scale): a click or detent beyond it is clipped by the
+    limiter, so the lever would feel softer than tuned and a hand could not feel it."""
+    limits, scaling = session.parts["limits"], session.parts["scaling"]
+    top_N = limits.max_force / scaling.force_scale
+    if session.model == "sequential":
+        p = preset.lever
+        resist = p.centring_preload_N + p.centring_N_m * p.click_m + p.click_N
+        what = "the click's peak with the centring spring"
+    else:
+        resist = preset.selector.detent_N
+        what = "the detents' peak"
+    if resist > top_N:
+        return [
+            f"{what} would be {resist:.1f} N, over the {top_N:.1f} N the device renders at its "
+            "force limit"
+        ]
+    return []
 
 
 def _steering_sized(session: Session, car: Any) -> tuple[tuple[float, float], ...]:
@@ -457,6 +504,13 @@ class Ramp:
             return bool(r.state.stage.value == "neutral")
         if self.model == "hpattern":
             return bool(r.state.lever.stage.value == "neutral")
+        if self.model in LEVERS:  # at rest in its position: no shift under way
+            lever = r.lever
+            p, state = lever.params, lever.state
+            if self.model == "sequential":
+                return bool(state.armed and abs(state.x_m) < p.rearm_m and abs(state.v_m_s) < 0.01)
+            centre = p.centre_m(state.position)
+            return bool(abs(state.x_m - centre) < p.register_m and abs(state.v_m_s) < 0.01)
         return True
 
     @property

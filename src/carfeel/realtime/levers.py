@@ -67,6 +67,12 @@ class Lever(Protocol):
 
     travel_m: float
     """How far the knob goes either way from its rest, m (for the position scale)."""
+    params: Any
+    """The model's parameters (`SequentialParams`, `PrndParams`); a tuning replaces them."""
+    state: Any
+    """The model's state (`SequentialState`, `PrndState`)."""
+    marks: tuple[tuple[float, str], ...]
+    """Positions (m) and names of what the lever has along its travel, along + x."""
 
     @property
     def position_m(self) -> float: ...
@@ -186,6 +192,9 @@ class LeverRenderer:
         self.gears: list[str] = []
         self.substeps = 1
         """Model steps per tick."""
+        self.buttons: tuple[str, ...] = ()
+        """The controls (`Controls` fields: lift, button, brake) the device's buttons press, in
+        the order of the sample's `buttons`."""
         self._gear = ""
 
     @property
@@ -193,11 +202,19 @@ class LeverRenderer:
         """The gear (or position) the lever is in now."""
         return self._gear
 
+    def retune(self, params: Any) -> None:
+        """New lever parameters (a tuning's blend, `panel.tuning.Ramp`): the lever keeps its
+        state; its marks stay (the tunables move no position)."""
+        self.lever.params = params
+
     def tick(
         self, sample: DeviceSample, dt_s: float
     ) -> tuple[tuple[float, ...], tuple[object, ...]]:
         fs, ps = self.scaling.force_scale, self.scaling.position_scale
         g, lever = self.g, self.lever
+        if self.buttons and sample.buttons is not None:  # a person's hand on a real device
+            for control, pressed in zip(self.buttons, sample.buttons, strict=True):
+                setattr(self.controls, control, pressed)
         x_dev, vx_dev = self.rx.step(sample.positions[0], dt_s)
         y_dev, vy_dev = self.ry.step(sample.positions[1], dt_s)
         h = dt_s / self.substeps
