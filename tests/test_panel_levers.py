@@ -142,9 +142,12 @@ def test_a_lever_is_tuned_at_rest_within_the_devices_force_and_saved_so(tmp_path
         assert values[path] == new
         saved = post(client, "/api/presets", {"name": "tuned"})
         assert saved.status_code == 200, saved.text
-        loader = load_sequential if model == "sequential" else load_prnd
-        params = loader(str(tmp_path / "presets" / model / "tuned.toml")).params
-        lever = params.lever if model == "sequential" else params.selector
+        file = str(tmp_path / "presets" / model / "tuned.toml")
+        lever: Any = (
+            load_sequential(file).params.lever
+            if model == "sequential"
+            else load_prnd(file).params.selector
+        )
         assert getattr(lever, path.split(".")[1]) == new
         assert client.post("/api/session/stop").status_code == 200
         ended = wait_for(client, lambda s: s["state"] == "ended", what="the end")
