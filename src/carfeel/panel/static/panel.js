@@ -312,6 +312,10 @@ function setSession(s) {
   $("gearbox-views").classList.toggle("hidden", steering);
   $("steering-views").classList.toggle("hidden", !steering);
   $("pattern-title").firstChild.textContent = PATTERN_TITLES[s.model] || "H-pattern ";
+  const lever = s.model in LEVER_NOTES;
+  $("pattern-title").lastChild.textContent = lever ? LEVER_NOTES[s.model] : "knob path, slots and gates";
+  $("force-position-title").lastChild.textContent = lever ? "the last 10 s, the lever's marks" : "this engagement (paper Fig. 11)";
+  $("stage-legend").classList.toggle("hidden", lever);
   if (s.model && (before.model !== s.model || before.state !== s.state) && s.state === "running") loadTunables();
   if (s.error) say("start-msg", s.error, true);
   if (before.recording && !s.recording) listRecordings();
@@ -523,6 +527,7 @@ function stageBand(f, ctx, t, stages) {
   }
 }
 const PATTERN_TITLES = { shift: "Engagement slot ", sequential: "Sequential lever ", prnd: "Selector " };
+const LEVER_NOTES = { sequential: "the knob, its clicks and ends", prnd: "the knob, its positions and ends" };
 function drawGearbox() {
   if (session.lever) { drawLever(); return; }
   const shift = session.model === "shift";
@@ -577,14 +582,30 @@ function drawLever() {
     }
   }
   {
+    // The lever's slot seen from above: + x to the right, its marks across it, the knob on it.
     const { ctx, w: cw, h } = canvasOf("pattern");
-    const f = frame(ctx, cw, h, { x: xr, y: [-1, 1], xlabel: "lever position [mm]", ylabel: "" });
-    leverMarks(ctx, f, marks, gear);
+    const X = (mm) => 24 + ((mm - xr[0]) / (xr[1] - xr[0])) * (cw - 48), y = h / 2;
+    ctx.fillStyle = "#0b1015"; ctx.strokeStyle = "#5c6773"; ctx.lineWidth = 1.5;
+    ctx.fillRect(X(xr[0]), y - 10, X(xr[1]) - X(xr[0]), 20);
+    ctx.strokeRect(X(xr[0]), y - 10, X(xr[1]) - X(xr[0]), 20);
+    ctx.font = "bold 16px DejaVu Sans, sans-serif"; ctx.textAlign = "center";
+    marks.forEach((mark, i) => {
+      const x = X(mark.position_m * 1e3), now = mark.name === gear;
+      ctx.strokeStyle = now ? "#4aa3ff" : "#8b98a5"; ctx.lineWidth = 2;
+      ctx.beginPath(); ctx.moveTo(x, y - 16); ctx.lineTo(x, y + 16); ctx.stroke();
+      ctx.fillStyle = now ? "#4aa3ff" : "#c9d1d9";
+      ctx.textBaseline = i % 2 ? "top" : "bottom";    // alternate sides: close marks stay legible
+      ctx.fillText(mark.name, x, i % 2 ? y + 20 : y - 20);
+    });
+    ctx.strokeStyle = "#8b98a5"; ctx.lineWidth = 2;     // scale bar: 10 mm
+    ctx.beginPath(); ctx.moveTo(12, h - 12); ctx.lineTo(12 + X(10) - X(0), h - 12); ctx.stroke();
+    ctx.fillStyle = "#8b98a5"; ctx.font = "11px DejaVu Sans, sans-serif"; ctx.textAlign = "left"; ctx.textBaseline = "bottom";
+    ctx.fillText("10 mm", 12, h - 15);
     const xs = buf.position_m || [];
     const x = xs.length ? xs[xs.length - 1] : null;
     if (x !== null && x !== undefined) {
       ctx.fillStyle = "#f0f6fc"; ctx.strokeStyle = "#4aa3ff"; ctx.lineWidth = 3;
-      ctx.beginPath(); ctx.arc(f.X(x * 1e3), f.Y(0), 8, 0, 2 * Math.PI); ctx.fill(); ctx.stroke();
+      ctx.beginPath(); ctx.arc(X(x * 1e3), y, 8, 0, 2 * Math.PI); ctx.fill(); ctx.stroke();
     }
   }
   $("gear").textContent = gear || "·";
@@ -602,8 +623,8 @@ function leverMarks(ctx, f, marks, gear) {
     const x = f.X(mark.position_m * 1e3), now = mark.name === gear;
     ctx.strokeStyle = now ? "#4aa3ff" : "#5c6773";
     ctx.beginPath(); ctx.moveTo(x, f.m.t); ctx.lineTo(x, f.m.t + f.ph); ctx.stroke();
-    ctx.fillStyle = now ? "#4aa3ff" : "#c9d1d9"; ctx.textAlign = "center"; ctx.textBaseline = "top";
-    ctx.fillText(mark.name, x, f.m.t + 2);
+    ctx.fillStyle = now ? "#4aa3ff" : "#c9d1d9"; ctx.textAlign = "center"; ctx.textBaseline = "bottom";
+    ctx.fillText(mark.name, x, f.m.t + f.ph - 2);
   }
   ctx.setLineDash([]);
 }
