@@ -22,7 +22,7 @@ MAX_TEXT_CHARS = 200
 MAX_SEQUENCE_CHARS = 20_000
 """The longest virtual hand's script (a long H-pattern session's gears run to a few thousand)."""
 PANEL_MODELS = ("shift", "hpattern", "sequential", "prnd", "steering")
-"""The models the panel starts (all of `carfeel run`'s; the levers have no tunables yet)."""
+"""The models the panel starts: all of `carfeel run`'s."""
 
 
 SCRIPTS = {
