@@ -5,11 +5,13 @@ Runs, in one process, one after the other:
 2. carfeel's loop rendering the H-pattern on the virtual joystick (impedance, 1 kHz), the
    simulated hand driving the gear sequence over and over;
 3. the steering on the virtual dd-wheel (100 km/h, the hands weaving), the paper's law and then
-   the physical model behind its coupling (issue 13), one after the other.
+   the physical model behind its coupling (issue 13), one after the other;
+4. with --levers, the sequential lever on the virtual shifter and the PRND selector on the
+   virtual joystick, their virtual hands repeating their default scripts (issue 30).
 Each for `--seconds` (default 20). Prints overruns (periods > 1.5 x nominal) and the period
 error distribution of each, and their ratio. `--cpu N` pins the process to core N (the machine
 is shared: say so beside the numbers). Asserts nothing; numbers go in notes, not tests.
-    python benchmarks/bench_loop.py [--seconds 20] [--cpu N] [--steering-only]
+    python benchmarks/bench_loop.py [--seconds 20] [--cpu N] [--steering-only] [--levers]
 """
 
 from __future__ import annotations
@@ -54,6 +56,7 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=20.0)
     parser.add_argument("--cpu", type=int, default=None, help="pin the process to this core")
     parser.add_argument("--steering-only", action="store_true")
+    parser.add_argument("--levers", action="store_true", help="then the two levers (issue 30)")
     args = parser.parse_args()
     pinned = ""
     if args.cpu is not None:
@@ -86,6 +89,26 @@ def main() -> None:
         print(f"  {s.periods} periods, stopped by {s.stopped} {'; '.join(s.faults)}; CPU busy "
               f"{cpu / args.seconds * 100:.0f} % of the wall time; p99 / reference "
               f"{ours[2] / max(ref[2], 1e-3):.1f}x")  # fmt: skip
+    if args.levers:
+        levers(args.seconds, ref)
+
+
+def levers(seconds: float, ref: tuple[int, float, float, float]) -> None:
+    from carfeel.realtime.run_options import DEFAULT_SEQUENCES
+
+    for model, device in (("sequential", "virtual:shifter"), ("prnd", "virtual:joystick")):
+        t0 = time.process_time()
+        result = run_realtime(
+            RealtimeRun(model=model, device=device, duration_s=seconds, calibrate=False,
+                        sequence=DEFAULT_SEQUENCES[model] * 20)
+        )  # fmt: skip
+        cpu = time.process_time() - t0
+        s = result.summary
+        ours = (s.overruns, s.period_error_p50_us, s.period_error_p99_us, s.period_error_max_us)
+        describe(f"{model} ({device})", *ours)
+        print(f"  {s.periods} periods, {len(s.gears)} gears, stopped by {s.stopped} "
+              f"{'; '.join(s.faults)}; CPU busy {cpu / seconds * 100:.0f} % of the wall time; "
+              f"p99 / reference {ours[2] / max(ref[2], 1e-3):.1f}x")  # fmt: skip
 
 
 def hpattern(seconds: float, ref: tuple[int, float, float, float]) -> None:

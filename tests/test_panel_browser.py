@@ -201,7 +201,9 @@ def test_a_lever_session_from_the_page(page: Any) -> None:
     assert page.input_value("#sequence") == ",".join(DEFAULT_SEQUENCES["sequential"])
     page.select_option("#clock", "simulated")
     page.click("#start")
-    page.wait_for_function("document.querySelector('#state').textContent !== 'IDLE'")
+    # This session's, not the module's earlier one's (its ENDED state and gears stay shown
+    # until the new session's first description arrives).
+    page.wait_for_function("document.querySelector('#where').textContent.startsWith('sequential')")
     page.wait_for_function(
         "document.querySelector('#pattern-title').textContent.startsWith('Sequential lever')"
     )
