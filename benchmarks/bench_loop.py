@@ -77,38 +77,30 @@ def main() -> None:
     if not args.steering_only:
         hpattern(args.seconds, ref)
     for model in ("paper", "physical"):
-        t0 = time.process_time()
-        result = run_realtime(
-            RealtimeRun(model="steering", steering_model=model, device="virtual:dd-wheel",
-                        speed_kmh=100.0, duration_s=args.seconds, calibrate=False)
-        )  # fmt: skip
-        cpu = time.process_time() - t0
-        s = result.summary
-        ours = (s.overruns, s.period_error_p50_us, s.period_error_p99_us, s.period_error_max_us)
-        describe(f"steering {model} (dd-wheel, virtual)", *ours)
-        print(f"  {s.periods} periods, stopped by {s.stopped} {'; '.join(s.faults)}; CPU busy "
-              f"{cpu / args.seconds * 100:.0f} % of the wall time; p99 / reference "
-              f"{ours[2] / max(ref[2], 1e-3):.1f}x")  # fmt: skip
+        timed(f"steering {model} (dd-wheel, virtual)", ref, RealtimeRun(
+            model="steering", steering_model=model, device="virtual:dd-wheel", speed_kmh=100.0,
+            duration_s=args.seconds, calibrate=False))  # fmt: skip
     if args.levers:
-        levers(args.seconds, ref)
+        from carfeel.realtime.run_options import DEFAULT_SEQUENCES
+
+        for model, device in (("sequential", "virtual:shifter"), ("prnd", "virtual:joystick")):
+            timed(f"{model} ({device})", ref, RealtimeRun(
+                model=model, device=device, duration_s=args.seconds, calibrate=False,
+                sequence=DEFAULT_SEQUENCES[model] * 20))  # fmt: skip
 
 
-def levers(seconds: float, ref: tuple[int, float, float, float]) -> None:
-    from carfeel.realtime.run_options import DEFAULT_SEQUENCES
-
-    for model, device in (("sequential", "virtual:shifter"), ("prnd", "virtual:joystick")):
-        t0 = time.process_time()
-        result = run_realtime(
-            RealtimeRun(model=model, device=device, duration_s=seconds, calibrate=False,
-                        sequence=DEFAULT_SEQUENCES[model] * 20)
-        )  # fmt: skip
-        cpu = time.process_time() - t0
-        s = result.summary
-        ours = (s.overruns, s.period_error_p50_us, s.period_error_p99_us, s.period_error_max_us)
-        describe(f"{model} ({device})", *ours)
-        print(f"  {s.periods} periods, {len(s.gears)} gears, stopped by {s.stopped} "
-              f"{'; '.join(s.faults)}; CPU busy {cpu / seconds * 100:.0f} % of the wall time; "
-              f"p99 / reference {ours[2] / max(ref[2], 1e-3):.1f}x")  # fmt: skip
+def timed(label: str, ref: tuple[int, float, float, float], run: RealtimeRun) -> None:
+    """One run on the wall clock: its period errors beside the reference's, its CPU share."""
+    t0 = time.process_time()
+    result = run_realtime(run)
+    cpu = time.process_time() - t0
+    s = result.summary
+    ours = (s.overruns, s.period_error_p50_us, s.period_error_p99_us, s.period_error_max_us)
+    describe(label, *ours)
+    seconds = run.duration_s or 1.0
+    print(f"  {s.periods} periods, {len(s.gears)} gears, stopped by {s.stopped} "
+          f"{'; '.join(s.faults)}; CPU busy {cpu / seconds * 100:.0f} % of the wall time; "
+          f"p99 / reference {ours[2] / max(ref[2], 1e-3):.1f}x")  # fmt: skip
 
 
 def hpattern(seconds: float, ref: tuple[int, float, float, float]) -> None:
