@@ -4,8 +4,9 @@
 way), the device identified afresh, impedance and admittance, seeds 0-2: over the
 synchronization stage, the handle's travel (device mm, whole stage and its middle half) and the
 hand's force (the estimate the model is pushed with) over the middle half (p10 / p90, N) beside
-the offline plateau (its median, N); each run with the ring wall (`rendering.ring_wall`) and with
-the coupling alone (the rendering before it), in the same process. Then the wall's table per
+the offline plateau (its median, N); each run with the ring wall (`rendering.ring_wall`), with
+its springs alone (no feed-forward) and with the coupling alone (the rendering before the
+wall), in the same process. Then the wall's table per
 device (stretch at each push) and the start-up cost of sizing it beside the sizing it builds on.
 Prints numbers; asserts nothing.
     python benchmarks/bench_ring_wall.py [--seeds N]
@@ -41,12 +42,23 @@ def offline_plateau_N() -> float:
     return float(np.median(np.asarray(result["force_N"], dtype=float)[sync]))
 
 
-def plateau(device: str, mode: str, seed: int, wall: bool, folder: Path) -> dict[str, float]:
-    """One run's plateau figures (see the module's docstring)."""
-    record = folder / f"{device.replace(':', '_')}-{mode}-{seed}-{wall}.csv"
+RENDERINGS = ("coupling", "springs", "ring wall")
+"""The coupling alone (before the ring wall), the wall's springs without its feed-forward, and
+the wall as built (springs with the feed-forward)."""
+
+
+def plateau(device: str, mode: str, seed: int, wall: str, folder: Path) -> dict[str, float]:
+    """One run's plateau figures (see the module's docstring) on a rendering of RENDERINGS."""
+    record = folder / f"{device.replace(':', '_')}-{mode}-{seed}-{wall.replace(' ', '_')}.csv"
     original = rendering.ring_wall
-    if not wall:  # the session as it was: the coupling alone holds the ring
+    if wall == "coupling":  # the session as it was: the coupling alone holds the ring
         setattr(building, "ring_wall", lambda *args: None)  # noqa: B010
+    elif wall == "springs":
+
+        def springs(info: Any, rate_hz: float, scaling: Any, driver: Any) -> Any:
+            return original(info, rate_hz, scaling, driver, feed_forward=False)
+
+        setattr(building, "ring_wall", springs)  # noqa: B010
     try:
         result = run_realtime(
             RealtimeRun(model="shift", mode=mode, clock="simulated", record=record,
@@ -102,30 +114,33 @@ def main() -> None:
           "  (middle half)  block ms  faults  gear 1")  # fmt: skip
     for device in DEVICES:
         for mode in MODES:
-            rows: dict[bool, list[dict[str, float]]] = {True: [], False: []}
+            rows: dict[str, list[dict[str, float]]] = {w: [] for w in RENDERINGS}
             for seed in range(args.seeds):
-                for walled in (False, True):
+                for walled in RENDERINGS:
                     rows[walled].append(plateau(device, mode, seed, walled, folder))
-            for walled in (False, True):
+            for walled in RENDERINGS:
                 got = rows[walled]
 
                 def span(key: str, got: list[dict[str, float]] = got) -> str:
                     values = [r[key] for r in got]
                     return f"{min(values):.1f}-{max(values):.1f}"
 
-                print(f"{device:17s} {mode:11s} {'ring wall' if walled else 'coupling':10s} "
+                print(f"{device:17s} {mode:11s} {walled:10s} "
                       f"{span('travel'):>9s} / {span('middle travel'):>9s}        "
                       f"{span('p10')} - {span('p90')}       {span('ms'):>9s}  "
                       f"{sum(r['faults'] for r in got):.0f}       "
                       f"{sum(r['gear'] for r in got):.0f}/{len(got)}")  # fmt: skip
-            ratio = [
-                w["travel"] / c["travel"] for w, c in zip(rows[True], rows[False], strict=True)
-            ]
-            print(f"{'':29s} travel, wall / coupling: {min(ratio):.2f}-{max(ratio):.2f}")
+            for walled in RENDERINGS[1:]:
+                ratio = [
+                    w["travel"] / c["travel"]
+                    for w, c in zip(rows[walled], rows["coupling"], strict=True)
+                ]
+                print(f"{'':29s} travel, {walled} / coupling: {min(ratio):.2f}-{max(ratio):.2f}")
     shift = load_shift().params
     sections = velocity_sections(1000.0)
     print("What each delay allows (the device identified at it): the stretch that holds the")
-    print("preset's 78.5 N push on the coupling alone (push / sized spring) and on the wall")
+    print("preset's 78.5 N push on the coupling alone (push / sized spring) and on the wall's")
+    print("springs (before its feed-forward moves the push toward the blocked position)")
     for device in DEVICES:
         for delay_ms in (0.0, 1.0, 2.0, 3.0, 4.0):
             try:
@@ -141,9 +156,11 @@ def main() -> None:
             wall = rendering.ring_wall(known, 1000.0, scaling, shift.driver)
             at = float(np.interp(push, wall.forces, wall.stretches))
             on_spring = push / sized.stiffness
+            fed = sum(t > 0.0 for t in wall.integrals)
             print(f"  {device} {delay_ms:g} ms each way: spring {sized.stiffness:.0f} N/m, "
                   f"{push:.1f} N at {1e3 * on_spring:.1f} mm on it, "
-                  f"{1e3 * at:.1f} mm on the wall (x{at / on_spring:.2f})")  # fmt: skip
+                  f"{1e3 * at:.1f} mm on the wall (x{at / on_spring:.2f}), feed-forward on "
+                  f"{fed} of {len(wall.integrals)} pieces")  # fmt: skip
     for device in DEVICES:
         known = identified(device, 2.0)
         scaling = rendering.default_scaling(
@@ -152,7 +169,7 @@ def main() -> None:
         stability.size.cache_clear()
         stability.size_ring_wall.cache_clear()
         started = time.process_time()
-        stability.size(known, 1000.0, sections)
+        sized = stability.size(known, 1000.0, sections)
         sizing_s = time.process_time() - started
         started = time.process_time()
         wall = rendering.ring_wall(known, 1000.0, scaling, shift.driver)
@@ -161,8 +178,10 @@ def main() -> None:
             f"{f:.1f} N at {1e3 * x:.2f} mm"
             for x, f in zip(wall.stretches[1:], wall.forces[1:], strict=True)
         )
-        print(f"{device}: sized spring {wall.forces[1] / wall.stretches[1]:.0f} N/m; the wall: "
-              f"{table}; dampers {', '.join(f'{b:.2f}' for b in wall.dampings)} N*s/m")  # fmt: skip
+        print(f"{device}: sized spring {sized.stiffness:.0f} N/m, the wall's first piece "
+              f"{wall.forces[1] / wall.stretches[1]:.0f} N/m; the wall: {table}; dampers "
+              f"{', '.join(f'{b:.2f}' for b in wall.dampings)} N*s/m; feed-forward time "
+              f"constants {', '.join(f'{t:g}' for t in wall.integrals)} s")  # fmt: skip
         print(f"  start-up CPU: the sizing {sizing_s:.2f} s, the wall beside it {wall_s:.2f} s")
 
 

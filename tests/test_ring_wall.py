@@ -63,12 +63,13 @@ def test_the_ring_holds_the_knob_still_and_the_push_at_the_plateau(
 ):
     """At the default delay (2 ms each way), the device identified afresh: over the middle half
     of the block the handle moves at most a third of what it moved on the coupling alone
-    (measured 0.15-0.25 of it), and over the whole block, where the hand's arrival is, a third
-    on the joystick (0.24-0.28) and a half on the shifter (0.35-0.45: its grip-bound pieces
-    are softer; DESIGN.md). The hand's force over the middle half stays within +-15 % of the
-    offline plateau (the issue's bound; measured 67-77 N against 78.3 N), where on the
-    coupling alone it is not (45-55 N at its 10th percentile): the check fails on the old
-    rendering, so it can fail."""
+    (measured 0.05-0.11 of it), and over the whole block, where the hand's arrival is, a third
+    (measured 0.23-0.30) except on the shifter in admittance, 0.4 (measured 0.35: the servo's
+    lead of the handle at the block's start; DESIGN.md). Before the wall's feed-forward the
+    shifter's whole block was 0.42-0.45 of it, so the bound fails without it. The hand's force
+    over the middle half stays within +-15 % of the offline plateau (the issue's bound;
+    measured 70-79 N against 78.3 N), where on the coupling alone it is not (45-55 N at its
+    10th percentile): the check fails on the old rendering, so it can fail."""
     reference = offline_plateau_N()
     whole, middle, force, summary = plateau(tmp_path, monkeypatch, device, mode, wall=True)
     old_whole, old_middle, old_force, old_summary = plateau(
@@ -77,7 +78,8 @@ def test_the_ring_holds_the_knob_still_and_the_push_at_the_plateau(
     assert summary.faults == [] and summary.gears == ["1"]
     assert old_summary.gears == ["1"]
     assert middle <= old_middle / 3.0
-    assert whole <= old_whole * (1.0 / 3.0 if device == "virtual:joystick" else 0.5)
+    shifter_admittance = device == "virtual:shifter" and mode == "admittance"
+    assert whole <= old_whole * (0.4 if shifter_admittance else 1.0 / 3.0)
     # The 10th and 90th percentiles: the potentiometer's noise through the stiff wall puts
     # single-sample spikes of a few N on the estimate that a hand does not feel as the push.
     low, high = np.percentile(force, [10, 90])
@@ -106,15 +108,23 @@ def identified_info(kind: str):
 @pytest.mark.parametrize("kind", ["joystick", "shifter"])
 def test_every_piece_of_the_wall_is_stable_inside_its_pushes(kind):
     """Each piece was sized at its two ends: the damping ratio at pushes inside it (the thirds,
-    not sized) with the preset's hand on every plant of the set holds ZETA_MIN (within 0.03:
-    between its ends the hand's damping moves the loop's poles smoothly), and hands off the
-    first piece is the sized spring. The wall rises monotonically, continuous at its corners."""
+    not sized) with the preset's hand on every plant of the set and the piece's feed-forward
+    acting holds ZETA_MIN (within 0.03: between its ends the hand's damping moves the loop's
+    poles smoothly), and hands off the first piece holds it too. Every piece has the
+    feed-forward on these devices. The wall rises monotonically, continuous at its corners."""
     info = identified_info(kind)
     shift = load_shift().params
     scaling = default_scaling(100.0, shift.gearbox.in_gear_position_m + 0.005, info)
     wall = ring_wall(info, 1000.0, scaling, shift.driver)
     sized = stability.size(info, 1000.0, SECTIONS)
-    assert wall.forces[1] / wall.stretches[1] == pytest.approx(sized.stiffness)
+    base = stability.plant_set(info, 1000.0, SECTIONS)
+    assert wall.integrals == (stability.RING_FEED_FORWARD_S,) * len(wall.dampings)
+    assert wall.pushing_on > 0.0  # the session's wall knows the device's noise
+    assert wall.pushing_on == pytest.approx(stability.reading_noise(info, 1000.0)[1])
+    first = stability.zeta_of(
+        base, wall.forces[1] / wall.stretches[1], wall.dampings[0], wall.integrals[0]
+    )
+    assert first >= stability.ZETA_MIN - 1e-6
     assert all(np.diff(wall.stretches) > 0.0) and all(np.diff(wall.forces) > 0.0)
     for x, f in zip(wall.stretches, wall.forces, strict=True):
         assert wall.force(x, 0.0) == pytest.approx(f, abs=1e-9)
@@ -122,7 +132,6 @@ def test_every_piece_of_the_wall_is_stable_inside_its_pushes(kind):
     d = shift.driver
     hand = (d.hand_mass_kg * fs / ps, d.hand_stiffness_N_m * fs / ps,
             d.hand_damping_N_s_m * fs / ps)  # fmt: skip
-    base = stability.plant_set(info, 1000.0, SECTIONS)
     stiffer = 0
     for i in range(1, len(wall.dampings)):  # the first piece holds hands off: tested above
         k = (wall.forces[i + 1] - wall.forces[i]) / (wall.stretches[i + 1] - wall.stretches[i])
@@ -131,7 +140,7 @@ def test_every_piece_of_the_wall_is_stable_inside_its_pushes(kind):
             push = wall.forces[i] + third * (wall.forces[i + 1] - wall.forces[i])
             grip = (*hand, push / (d.push_velocity_m_s * ps))
             plants = tuple(dataclasses.replace(a, hand=grip) for a in base)
-            zeta = stability.zeta_of(plants, k, wall.dampings[i])
+            zeta = stability.zeta_of(plants, k, wall.dampings[i], wall.integrals[i])
             assert zeta >= stability.ZETA_MIN - 0.03, (i, push, zeta)
     assert stiffer >= 3  # the point of it: most pieces well beyond the coupling
 
@@ -288,17 +297,64 @@ def test_the_ring_takes_over_from_the_coupling_without_a_step(kind):
     scaling = default_scaling(100.0, shift.gearbox.in_gear_position_m + 0.005, info)
     wall = ring_wall(info, 1000.0, scaling, shift.driver)
     coupling = Gains.sized(stability.size(info, 1000.0, SECTIONS), scaling).servo_stiffness
-    stretch = 0.3 * info.max_force / coupling  # the coupling holding 30 % of the force limit
+    stretch = 0.35 * info.max_force / coupling  # the coupling holding 35 %: inside a piece
     hold = RingHold(wall, coupling)
-    first = hold.block(stretch, 0.0)
+    first = hold.block(stretch, 0.0, 0.001)
     assert first == pytest.approx(coupling * stretch, rel=1e-9)  # the same force: no step
     assert wall.force(stretch, 0.0) > 1.5 * first  # the step the old wall gave (stiffer)
     more = 1e-4  # m: 0.1 mm further
-    k = (hold.block(stretch + more, 0.0) - first) / more
+    k = (hold.block(stretch + more, 0.0, 0.001) - first) / more
     piece = wall.piece(wall.stretch_for(first))
     slope = (wall.forces[piece + 1] - wall.forces[piece]) / (
         wall.stretches[piece + 1] - wall.stretches[piece]
     )
     assert k == pytest.approx(slope, rel=1e-6)  # the wall's stiffness from there on
     hold.fade(0.001)  # let go: the next block measures afresh
-    assert hold.block(0.0, 0.0) == 0.0
+    assert hold.block(0.0, 0.0, 0.001) == 0.0
+
+
+def test_the_feed_forward_moves_only_while_the_handle_pushes_on():
+    """The wall's zero moves back by the stretch over the piece's time constant while the
+    handle moves on into the wall (its velocity reading forward beyond the reading's noise),
+    and never otherwise: a handle that stands, gives way or trembles at rest is not pulled
+    back, a handle behind the blocked position is not chased, and a wall without a
+    feed-forward keeps its zero. A hand whose push rises to 8 N ends the 0.3 s block nearer
+    the blocked position than on the springs alone (the point: the push stands nearer the
+    blocked position), and stays there."""
+    from carfeel.realtime.rendering import RingHold
+    from carfeel.realtime.stability import RingWall
+
+    wall = RingWall((0.0, 0.01, 0.02), (0.0, 5.0, 12.0), (0.0, 0.0), (0.2, 0.2))
+    hold = RingHold(wall, 0.0)
+    hold.block(0.004, 0.0, 0.001)
+    assert hold.offset == 0.0  # standing: no change
+    hold.block(0.004, -0.05, 0.001)
+    assert hold.offset == 0.0  # giving way: no change
+    hold.block(-0.001, 0.05, 0.001)
+    assert hold.offset == 0.0  # behind the blocked position: not chased
+    hold.block(0.004, 0.05, 0.001)
+    assert hold.offset == pytest.approx(-0.004 * 0.001 / 0.2)  # pushing on: moves back
+    noisy = RingHold(dataclasses.replace(wall, pushing_on=0.01), 0.0)
+    noisy.block(0.004, 0.0099, 0.001)
+    assert noisy.offset == 0.0  # forward, but within the reading's noise: no change
+    noisy.block(0.004, 0.0101, 0.001)
+    assert noisy.offset < 0.0
+    plain = RingHold(dataclasses.replace(wall, integrals=()), 0.0)
+    plain.block(0.004, 0.05, 0.001)
+    assert plain.offset == 0.0
+
+    def settle(hold: RingHold, ticks: int) -> float:
+        """Where a first-order hand (it moves on at 10 mm/s per N of surplus) pushing up to
+        8 N over 0.1 s stands after `ticks` ms, past the blocked position (m)."""
+        x = v = 0.0
+        for i in range(ticks):
+            push = min(8.0, 8.0 * i / 100)
+            v = 0.01 * (push - hold.block(x, v, 0.001))
+            x += v * 0.001
+        return x
+
+    springs = settle(RingHold(dataclasses.replace(wall, integrals=()), 0.0), 300)
+    fed = settle(RingHold(wall, 0.0), 300)
+    assert fed < 0.8 * springs  # measured 8.2 mm against 11.3 (0.73)
+    # Once the handle stands the zero stands too: no creep back or on (measured 0.04 mm).
+    assert settle(RingHold(wall, 0.0), 1000) == pytest.approx(fed, abs=1e-4)

@@ -251,12 +251,42 @@ def spring_damper(stiffness: float, damping: float) -> Environment:
     return environment
 
 
-def zeta_of(axes: AxisLoop | tuple[AxisLoop, ...], stiffness: float, damping: float) -> float:
-    """The least damping ratio of a spring and damper on an axis, or the least over a set."""
+def spring_damper_integral(stiffness: float, damping: float, ticks: float) -> Environment:
+    """u = -K*(y - e) - B*v with e_next = e - y/ticks: a spring whose zero moves back by the
+    stretch over `ticks` (integral action: the wall's feed-forward of the push it holds)."""
+
+    def environment(state: Any, y: float, v: float) -> tuple[Any, float]:
+        e = np.asarray(state, dtype=float).reshape(-1)[0]
+        return [e - y / ticks], -stiffness * (y - e) - damping * v
+
+    return environment
+
+
+def zeta_of(
+    axes: AxisLoop | tuple[AxisLoop, ...],
+    stiffness: float,
+    damping: float,
+    integral_s: float = 0.0,
+) -> float:
+    """The least damping ratio of a spring and damper on an axis, or the least over a set;
+    with `integral_s` > 0, the spring's zero moving back by the stretch over that time
+    constant (`spring_damper_integral`)."""
     if isinstance(axes, AxisLoop):
         axes = (axes,)
-    environment = spring_damper(stiffness, damping)
-    return min(least_damping_ratio(closed_loop(a, environment, 0), a.rate_hz) for a in axes)
+    if integral_s <= 0.0:
+        return min(
+            least_damping_ratio(closed_loop(a, spring_damper(stiffness, damping), 0), a.rate_hz)
+            for a in axes
+        )
+    return min(
+        least_damping_ratio(
+            closed_loop(
+                a, spring_damper_integral(stiffness, damping, integral_s / (1.0 / a.rate_hz)), 1
+            ),
+            a.rate_hz,
+        )
+        for a in axes
+    )
 
 
 def least_over(
@@ -295,15 +325,21 @@ class Sizing:
     """(K*(T/2 + t_d) + B) / b: below 1 the rendering is passive for any hand."""
 
 
+def reading_noise(info: DeviceInfo, rate_hz: float) -> tuple[float, float]:
+    """The reading's noise (1 sigma): of the position, and of the renderers' velocity (a
+    difference over one tick, its noise reduced by the filter, about sqrt(cutoff / Nyquist)
+    for the 50 Hz filter at 1 kHz); device units."""
+    sigma = math.hypot(info.noise, info.resolution / math.sqrt(12.0))
+    return sigma, sigma * math.sqrt(2.0) * rate_hz * math.sqrt(min(1.0, 100.0 / rate_hz))
+
+
 def noise_caps(info: DeviceInfo, rate_hz: float) -> tuple[float, float]:
     """Largest stiffness and velocity gain whose answer to the reading's noise (3 sigma) stays
-    within NOISE_FRACTION of the force limit (the velocity is a difference over one tick, its
-    noise reduced by the filter, about sqrt(cutoff / Nyquist) for the 50 Hz filter at 1 kHz)."""
-    sigma = math.hypot(info.noise, info.resolution / math.sqrt(12.0))
+    within NOISE_FRACTION of the force limit (`reading_noise`)."""
+    sigma, velocity_sigma = reading_noise(info, rate_hz)
     if sigma <= 0.0:
         return math.inf, math.inf
     budget = NOISE_FRACTION * info.max_force / 3.0
-    velocity_sigma = sigma * math.sqrt(2.0) * rate_hz * math.sqrt(min(1.0, 100.0 / rate_hz))
     return budget / sigma, budget / velocity_sigma
 
 
@@ -358,6 +394,12 @@ class RingWall:
     """N (or Nm) the wall holds there, rising from 0."""
     dampings: tuple[float, ...]
     """N*s/m on the handle's filtered velocity, one a piece (len(stretches) - 1)."""
+    integrals: tuple[float, ...] = ()
+    """s, one a piece: the time constant with which the wall's zero moves back by the stretch
+    while the handle pushes on (0 or none: the piece's spring alone)."""
+    pushing_on: float = 0.0
+    """m/s (or rad/s): the velocity reading above which the handle counts as pushing on (the
+    reading's noise, 1 sigma: below it a handle at rest reads forward half the time)."""
 
     def piece(self, stretch: float) -> int:
         """Which piece a stretch is on (the first behind, the last beyond)."""
@@ -380,6 +422,9 @@ class RingWall:
 
 RING_PUSH_SHARES = (0.0, 0.025, 0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0)
 """Pushes (shares of the device's force limit) at which the ring wall's pieces begin and end."""
+RING_FEED_FORWARD_S = 0.2
+"""s: the time constant of the ring wall's feed-forward (its zero moving back by the stretch
+while the hand pushes on), where a piece keeps zeta_min with it."""
 RING_DAMPING_SHARES = (0.0, 0.5, 1.0)
 """Shares of the sized damper tried on each piece (a hand's muscle damps the handle already:
 on a stiff grip less rendered damping leaves more room for the spring)."""
@@ -393,6 +438,7 @@ def size_ring_wall(
     hand_damping_per_N: float,
     hand: tuple[float, float, float],
     zeta_min: float = ZETA_MIN,
+    feed_forward: bool = True,
 ) -> RingWall:
     """The wall of a stage that blocks only while the hand pushes (the synchronizer's ring,
     which lets go once the push falls under its hold). A hand pushing with F is the paper's
@@ -403,7 +449,12 @@ def size_ring_wall(
     allows the most) keeping zeta_min on every plant of the device's set with the hand at
     either push on it (at no push: hands off, the sizing's own plants). Hands off, the wall
     holds only until its force falls under the ring's hold: a part of a swing, on a spring
-    that stores less energy than the coupling would for the same push."""
+    that stores less energy than the coupling would for the same push.
+
+    With `feed_forward`, each piece is sized with its feed-forward acting all the time (the
+    spring's zero moving back by the stretch over RING_FEED_FORWARD_S; conservative, since
+    `rendering.RingHold` moves it only while the handle pushes on) and keeps it where some
+    spring holds zeta_min so; elsewhere the piece is the spring alone."""
     sizing = size(info, rate_hz, velocity_sections, zeta_min)
     base = plant_set(info, rate_hz, velocity_sections)
     pushes = [share * info.max_force for share in RING_PUSH_SHARES]
@@ -417,10 +468,8 @@ def size_ring_wall(
     def holds(both: tuple[AxisLoop, ...], b: float) -> Callable[[float], bool]:
         return lambda k: zeta_of(both, k, b) >= zeta_min
 
-    stretches, dampings = [0.0], []
-    for low, high in itertools.pairwise(pushes):
-        both = plants(low) + plants(high)
-        k_high = (max(a.mass for a in both) + hand[0]) * (math.pi * rate_hz) ** 2
+    def plain(both: tuple[AxisLoop, ...], k_high: float) -> tuple[float, float]:
+        """The stiffest (spring, damper) keeping zeta_min, from the sizing's up."""
         best = (sizing.stiffness, sizing.damping)
         for share in RING_DAMPING_SHARES:
             b = share * sizing.damping
@@ -429,6 +478,43 @@ def size_ring_wall(
             k = _bisect(holds(both, b), best[0], k_high, 20)
             if k > best[0]:
                 best = (k, b)
-        stretches.append(stretches[-1] + (high - low) / best[0])
-        dampings.append(best[1])
-    return RingWall(tuple(stretches), tuple(pushes), tuple(dampings))
+        return best
+
+    def fed(both: tuple[AxisLoop, ...], k_high: float) -> tuple[float, float] | None:
+        """The same with the feed-forward: the stiffest point of a grid from a quarter to 16
+        times the sizing's spring (the feed-forward holds the push, so the spring may be
+        softer than the coupling's; too soft a spring under a slow integrator swings slowly,
+        so the springs that hold are a band, searched from the top), bisected toward the
+        next; None where no spring keeps zeta_min with it."""
+        best: tuple[float, float] | None = None
+        grid = np.geomspace(0.25 * sizing.stiffness, min(k_high, 16.0 * sizing.stiffness), 10)
+        for share in RING_DAMPING_SHARES:
+            b = share * sizing.damping
+
+            def ok(k: float, b: float = b) -> bool:
+                return zeta_of(both, k, b, RING_FEED_FORWARD_S) >= zeta_min
+
+            i = next((i for i in range(len(grid) - 1, -1, -1) if ok(float(grid[i]))), None)
+            if i is None:
+                continue
+            k = float(grid[i]) if i + 1 == len(grid) else _bisect(ok, grid[i], grid[i + 1], 6)
+            if best is None or k > best[0]:
+                best = (k, b)
+        return best
+
+    stretches, dampings, integrals = [0.0], [], []
+    for low, high in itertools.pairwise(pushes):
+        both = plants(low) + plants(high)
+        k_high = (max(a.mass for a in both) + hand[0]) * (math.pi * rate_hz) ** 2
+        with_feed = fed(both, k_high) if feed_forward else None
+        k, b = with_feed if with_feed is not None else plain(both, k_high)
+        stretches.append(stretches[-1] + (high - low) / k)
+        dampings.append(b)
+        integrals.append(RING_FEED_FORWARD_S if with_feed is not None else 0.0)
+    return RingWall(
+        tuple(stretches),
+        tuple(pushes),
+        tuple(dampings),
+        tuple(integrals),
+        reading_noise(info, rate_hz)[1],
+    )
