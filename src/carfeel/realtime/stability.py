@@ -274,15 +274,11 @@ def zeta_of(
     if isinstance(axes, AxisLoop):
         axes = (axes,)
     if integral_s <= 0.0:
-        return min(
-            least_damping_ratio(closed_loop(a, spring_damper(stiffness, damping), 0), a.rate_hz)
-            for a in axes
-        )
+        plain = spring_damper(stiffness, damping)
+        return min(least_damping_ratio(closed_loop(a, plain, 0), a.rate_hz) for a in axes)
     return min(
         least_damping_ratio(
-            closed_loop(
-                a, spring_damper_integral(stiffness, damping, integral_s / (1.0 / a.rate_hz)), 1
-            ),
+            closed_loop(a, spring_damper_integral(stiffness, damping, integral_s * a.rate_hz), 1),
             a.rate_hz,
         )
         for a in axes
