@@ -88,13 +88,17 @@ class RingHold:
     the stretch past the blocked position; once it lets go, what the wall held beyond the
     coupling's spring (stiffness `coupling`, device units), fading over WALL_FADE_S.
 
-    The wall takes over from the coupling without a step: at the block's first tick the
+    The wall takes over from the coupling without a step back: at the block's first tick the
     handle may already stand past the lever by the coupling's stretch (a hand that pushed
     against a cue or a gate wall), and the wall, stiffer than the coupling, would kick it
     back by the difference of their forces at that stretch; a kick that pushes the hand out
     puts energy into it (a bounce, and the passivity controller's chatter after it). So the
-    wall's zero moves by `offset`, the stretch at which the wall holds what the coupling held,
-    and the handle feels the same force on the tick the ring engages.
+    wall's zero moves by `offset`, the stretch at which the wall's spring holds what the
+    coupling held: its spring's force and, while the handle moves on into the ring, its
+    damper's (`damped`). The damper's share would otherwise vanish as the handle stops and
+    have to be rebuilt by stretch (in admittance, where the servo damps the handle's own
+    velocity, nearly all of the push at the ring's arrival); the wall's damper then acts on
+    the arrival on top of it, as the ring's impact, against the motion only.
 
     Then the feed-forward (`RingWall.integrals`): on ticks whose velocity reading is forward
     beyond the reading's noise (`RingWall.pushing_on`: the handle pushing on into the wall),
@@ -114,16 +118,23 @@ class RingHold:
         when negative: the feed-forward)."""
         self.blocking = False
 
-    def block(self, stretch: float, velocity: float, dt_s: float) -> float:
-        """The wall's force while the ring blocks (pushing back: the command is its negative)."""
+    def block(self, stretch: float, velocity: float, dt_s: float, damped: float = 0.0) -> float:
+        """The wall's force while the ring blocks (pushing back: the command is its negative);
+        `damped`: the force the coupling's (or servo's) damper held this tick (device units,
+        toward the gate; only its forward part counts)."""
         if not self.blocking:
             self.blocking = True
-            coupled = self.coupling * stretch  # what the coupling's spring held this tick
+            coupled = self.coupling * stretch + max(0.0, damped)  # what the coupling held
             self.offset = stretch - self.wall.stretch_for(coupled) if coupled > 0.0 else 0.0
         s = stretch - self.offset
         self.held = self.wall.force(s, 0.0) - self.coupling * stretch
         force = self.wall.force(s, velocity)
-        if velocity > self.wall.pushing_on and stretch > 0.0 and self.wall.integrals:
+        if (
+            velocity > self.wall.pushing_on
+            and stretch > 0.0
+            and s < self.wall.stretches[-1]  # beyond it the device cannot render the wall
+            and self.wall.integrals
+        ):
             tau = self.wall.integrals[self.wall.piece(s)]
             if tau > 0.0:
                 self.offset -= stretch * dt_s / tau
@@ -256,7 +267,9 @@ class ShiftRenderer:
         if ring is not None and lever.stage is Stage.SYNCHRONIZATION:
             # The ring blocks: the same wall in either mode (the lever stands still, so the
             # servo and the coupling are both a spring to where it stands).
-            push = ring.block(x_dev - lever.position_m * ps, vx_dev, dt_s)
+            lever_v = 0.0 if self.mode == "admittance" else lever.velocity_m_s * ps
+            damped = g.servo_damping * (vx_dev - lever_v)  # the servo damps the handle's own
+            push = ring.block(x_dev - lever.position_m * ps, vx_dev, dt_s, damped)
             hand = push / fs
             for _ in range(self.substeps):
                 self.state, out = engagement.step(
@@ -375,7 +388,9 @@ class HPatternRenderer:
         push = held = 0.0  # device units along the slot (toward the gear)
         if ring is not None:
             if blocked:  # the ring blocks x: its wall, in either mode (see ShiftRenderer)
-                push = ring.block(d * (x_dev - model[0] * ps), d * vx_dev, dt_s)
+                lever_v = 0.0 if self.mode == "admittance" else model[2] * ps
+                damped = g.servo_damping * d * (vx_dev - lever_v)
+                push = ring.block(d * (x_dev - model[0] * ps), d * vx_dev, dt_s, damped)
             else:
                 held = ring.fade(dt_s)
         hands = []

@@ -418,7 +418,7 @@ class RingWall:
 
 RING_PUSH_SHARES = (0.0, 0.025, 0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0)
 """Pushes (shares of the device's force limit) at which the ring wall's pieces begin and end."""
-RING_FEED_FORWARD_S = 0.2
+RING_FEED_FORWARD_S = 0.1
 """s: the time constant of the ring wall's feed-forward (its zero moving back by the stretch
 while the hand pushes on), where a piece keeps zeta_min with it."""
 RING_DAMPING_SHARES = (0.0, 0.5, 1.0)
